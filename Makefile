@@ -1,0 +1,45 @@
+# hostd: two commands on a fresh machine: `make run` and `make test`.
+PYTHON ?= python3
+VENV   := .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: run test lint bench clean system-deps
+
+$(STAMP): pyproject.toml
+	$(PYTHON) -m venv $(VENV)
+	$(BIN)/pip install --quiet --upgrade pip
+	$(BIN)/pip install --quiet -e '.[test]'
+	touch $(STAMP)
+
+# Debian packages the test suite uses (a real MQTT broker); installed only when
+# missing and when running as root, otherwise the tests fall back or skip.
+system-deps:
+	@if ! command -v mosquitto >/dev/null 2>&1 && [ ! -x /usr/sbin/mosquitto ]; then \
+	  if [ "$$(id -u)" = 0 ] && command -v apt-get >/dev/null 2>&1; then \
+	    echo "installing mosquitto (MQTT broker for the tests)"; \
+	    apt-get update -qq >/dev/null && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq mosquitto >/dev/null || true; \
+	  fi; \
+	fi
+	@if ! command -v mosquitto >/dev/null 2>&1 && [ ! -x /usr/sbin/mosquitto ]; then \
+	  echo "mosquitto unavailable: installing the Python broker amqtt instead"; \
+	  $(BIN)/pip install --quiet amqtt || true; \
+	fi
+
+run: $(STAMP)
+	$(BIN)/python -m hostd.demo
+
+test: $(STAMP) system-deps
+	$(BIN)/ruff check .
+	$(BIN)/python -m pytest -q
+
+lint: $(STAMP)
+	$(BIN)/ruff check .
+
+bench: $(STAMP)
+	$(BIN)/python bench/slice_vs_peers.py
+	$(BIN)/python bench/stream_throughput.py
+	$(BIN)/python bench/drop_to_extrusion.py
+
+clean:
+	rm -rf $(VENV) var jobs .pytest_cache

@@ -1,0 +1,1 @@
+"""The printer link: Marlin protocol framing, serial transport, streamer and simulated printer."""

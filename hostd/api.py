@@ -1,0 +1,195 @@
+"""The daemon's public API: the status snapshot schema and the control-socket protocol.
+
+This is the one module of `hostd` that clients (the dashboard in `tui/`, scripts)
+import. It depends on the standard library only.
+
+Control socket protocol: a Unix stream socket, one JSON object per line each way.
+Requests carry ``{"cmd": NAME, ...args}`` and an optional ``"id"``; each gets one
+reply ``{"reply": NAME, "ok": true|false, "id": ..., "error": text|null, ...}``.
+``{"cmd": "subscribe"}`` turns the connection into a stream of
+``{"status": SNAPSHOT}`` and ``{"event": EVENT}`` lines.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import time
+from collections.abc import AsyncIterator
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+STATES = ("idle", "heating", "printing", "paused", "error", "offline")
+COMMANDS = (
+    "status",
+    "subscribe",
+    "pause",
+    "resume",
+    "cancel",
+    "resume_job",
+    "cancel_object",
+    "set",
+    "queue_move",
+    "queue_remove",
+)
+EVENTS = (
+    "queued",
+    "started",
+    "layer",
+    "paused",
+    "resumed",
+    "done",
+    "failed",
+    "cancelled",
+    "interrupted",
+    "object_cancelled",
+    "error",
+)
+
+
+@dataclass(frozen=True)
+class Temperature:
+    """One heater: measured and target temperature, degrees C."""
+
+    actual: float = 0.0
+    target: float = 0.0
+
+
+@dataclass(frozen=True)
+class Temps:
+    hotend: Temperature = field(default_factory=Temperature)
+    bed: Temperature = field(default_factory=Temperature)
+
+
+@dataclass(frozen=True)
+class PrinterInfo:
+    id: str = "sim"
+    port: str = "sim"
+    connected: bool = False
+
+
+@dataclass(frozen=True)
+class JobStatus:
+    """The job being printed. ``progress`` is 0..1; times in seconds."""
+
+    id: str
+    name: str
+    layer: int = 0
+    layers: int = 0
+    progress: float = 0.0
+    lines_acked: int = 0
+    elapsed_s: float = 0.0
+    eta_s: float | None = None
+    layers_ready_ahead: int = 0
+
+
+@dataclass(frozen=True)
+class InterruptedJob:
+    id: str
+    name: str
+    layer: int
+
+
+@dataclass(frozen=True)
+class Snapshot:
+    """The status snapshot of design.md: the same on MQTT, the socket and `hostd status`."""
+
+    state: str = "idle"
+    printer: PrinterInfo = field(default_factory=PrinterInfo)
+    temps: Temps = field(default_factory=Temps)
+    job: JobStatus | None = None
+    queue: tuple[str, ...] = ()
+    interrupted: tuple[InterruptedJob, ...] = ()
+    error: str | None = None
+    ts: float = field(default_factory=time.time)
+
+    def to_dict(self) -> dict[str, Any]:
+        """The snapshot as plain JSON-ready data (lists, dicts, numbers, strings)."""
+        data = asdict(self)
+        data["queue"] = list(self.queue)
+        data["interrupted"] = [asdict(item) for item in self.interrupted]
+        return data
+
+    def to_json(self) -> str:
+        return json.dumps(self.to_dict(), sort_keys=True, separators=(",", ":"))
+
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> Snapshot:
+        """Rebuild a snapshot from :meth:`to_dict` output (unknown keys are ignored)."""
+        temps = data.get("temps") or {}
+        job = data.get("job")
+        return cls(
+            state=str(data.get("state", "offline")),
+            printer=PrinterInfo(**(data.get("printer") or {})),
+            temps=Temps(
+                hotend=Temperature(**(temps.get("hotend") or {})),
+                bed=Temperature(**(temps.get("bed") or {})),
+            ),
+            job=JobStatus(**job) if job else None,
+            queue=tuple(data.get("queue") or ()),
+            interrupted=tuple(InterruptedJob(**item) for item in data.get("interrupted") or ()),
+            error=data.get("error"),
+            ts=float(data.get("ts", 0.0)),
+        )
+
+
+class ControlError(RuntimeError):
+    """The daemon refused a command or could not be reached."""
+
+
+class ControlClient:
+    """Async client of the control socket: one request at a time, or a subscription."""
+
+    def __init__(self, path: str) -> None:
+        self.path = path
+        self._reader: asyncio.StreamReader | None = None
+        self._writer: asyncio.StreamWriter | None = None
+
+    async def __aenter__(self) -> ControlClient:
+        try:
+            self._reader, self._writer = await asyncio.open_unix_connection(self.path)
+        except OSError as exc:
+            raise ControlError(f"cannot reach the daemon at {self.path}: {exc}") from exc
+        return self
+
+    async def __aexit__(self, *exc_info: object) -> None:
+        if self._writer is not None:
+            self._writer.close()
+            try:
+                await self._writer.wait_closed()
+            except OSError:
+                pass
+
+    async def request(self, cmd: str, **args: Any) -> dict[str, Any]:
+        """Send one command and return its reply; raise ControlError when refused."""
+        assert self._reader is not None and self._writer is not None
+        self._writer.write((json.dumps({"cmd": cmd, **args}) + "\n").encode())
+        await self._writer.drain()
+        while True:
+            line = await self._reader.readline()
+            if not line:
+                raise ControlError("the daemon closed the connection")
+            reply = json.loads(line)
+            if "reply" in reply:
+                break
+        if not reply.get("ok", False):
+            raise ControlError(reply.get("error") or f"{cmd} refused")
+        return reply
+
+    async def status(self) -> Snapshot:
+        reply = await self.request("status")
+        return Snapshot.from_dict(reply["status"])
+
+    async def subscribe(self) -> AsyncIterator[dict[str, Any]]:
+        """Yield ``{"status": Snapshot}`` and ``{"event": dict}`` items as they arrive."""
+        await self.request("subscribe")
+        assert self._reader is not None
+        while True:
+            line = await self._reader.readline()
+            if not line:
+                return
+            item = json.loads(line)
+            if "status" in item:
+                yield {"status": Snapshot.from_dict(item["status"])}
+            elif "event" in item:
+                yield {"event": item["event"]}

@@ -1,0 +1,113 @@
+"""The `hostd` command line: parses arguments and hands each subcommand to its module."""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import sys
+from collections.abc import Sequence
+
+EXIT_OK = 0
+EXIT_FAILURE = 1
+EXIT_USAGE = 2
+
+
+class UsageError(Exception):
+    """Bad usage or bad input: reported as one line on stderr with exit code 2."""
+
+
+def _add_target(parser: argparse.ArgumentParser) -> None:
+    """Options that locate a running daemon: its config file or its control socket."""
+    group = parser.add_mutually_exclusive_group()
+    group.add_argument("--config", metavar="FILE", help="daemon configuration (TOML)")
+    group.add_argument("--socket", metavar="PATH", help="the daemon's control socket")
+
+
+def build_parser() -> argparse.ArgumentParser:
+    """The argument parser of every subcommand."""
+    parser = argparse.ArgumentParser(
+        prog="hostd",
+        description="3D-printer host with a just-in-time implicit slicer.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+
+    p = sub.add_parser("run", help="run the daemon (embedded default without --config)")
+    p.add_argument("--config", metavar="FILE", help="configuration file (TOML)")
+
+    p = sub.add_parser("slice", help="slice a model to a G-code file")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("-o", "--output", metavar="OUT.gcode", required=True)
+    p.add_argument("--config", metavar="FILE", help="take [slicing] and [printer] from FILE")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
+                   help="override one slicing setting (repeatable)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("preview", help="draw one layer's toolpaths as PNG")
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--layer", type=int, required=True, metavar="N")
+    p.add_argument("-o", "--output", metavar="OUT.png", required=True)
+    p.add_argument("--field", action="store_true", help="draw the infill field and its level sets")
+    p.add_argument("--config", metavar="FILE")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
+
+    p = sub.add_parser("tui", help="the terminal dashboard")
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--config", metavar="FILE")
+    group.add_argument("--socket", metavar="PATH")
+    group.add_argument("--mqtt", metavar="HOST[:PORT]")
+
+    p = sub.add_parser("status", help="one status snapshot from the running daemon")
+    p.add_argument("--json", action="store_true", help="print the raw JSON snapshot")
+    _add_target(p)
+
+    p = sub.add_parser("resume", help="resume an interrupted job from its last completed layer")
+    p.add_argument("job", metavar="JOB")
+    _add_target(p)
+
+    p = sub.add_parser("print", help="stream a G-code file (or an STL) to a printer")
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--port", required=True, metavar="PORT", help="serial device, or 'sim'")
+    p.add_argument("--baud", type=int, default=250000, metavar="N")
+    p.add_argument("--config", metavar="FILE", help="slicing settings for an STL")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
+    p.add_argument("--time-scale", type=float, default=0.0, metavar="X",
+                   help="simulated printer speed with --port sim (0 = instant)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+    p = sub.add_parser("simulate", help="run the simulated printer on a pseudo-terminal")
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="X")
+    p.add_argument("--baud", type=int, default=250000, metavar="N",
+                   help="wire speed to emulate (0 = unlimited)")
+    p.add_argument("--log", metavar="FILE", help="append every executed line to FILE")
+    p.add_argument("--advanced-ok", action="store_true", help="answer ok N.. P.. B..")
+    return parser
+
+
+# subcommand -> module whose `run(args) -> int` carries it out
+_COMMANDS = {
+    "run": "hostd.commands.run",
+    "slice": "hostd.commands.slice",
+    "preview": "hostd.commands.preview",
+    "tui": "hostd.commands.tui",
+    "status": "hostd.commands.status",
+    "resume": "hostd.commands.resume",
+    "print": "hostd.commands.print_file",
+    "simulate": "hostd.commands.simulate",
+}
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """Entry point of the console script; returns the process exit code."""
+    args = build_parser().parse_args(argv)
+    module = importlib.import_module(_COMMANDS[args.command])
+    try:
+        return int(module.run(args))
+    except UsageError as exc:
+        print(f"hostd {args.command}: {exc}", file=sys.stderr)
+        return EXIT_USAGE
+    except KeyboardInterrupt:
+        return 130
+
+
+if __name__ == "__main__":
+    sys.exit(main())

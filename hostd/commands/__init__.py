@@ -1,0 +1,1 @@
+"""One module per `hostd` subcommand, each with `run(args) -> int`."""
