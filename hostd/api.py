@@ -13,6 +13,7 @@ reply ``{"reply": NAME, "ok": true|false, "id": ..., "error": text|null, ...}``.
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import time
 from collections.abc import AsyncIterator
@@ -155,10 +156,8 @@ class ControlClient:
     async def __aexit__(self, *exc_info: object) -> None:
         if self._writer is not None:
             self._writer.close()
-            try:
+            with contextlib.suppress(OSError):
                 await self._writer.wait_closed()
-            except OSError:
-                pass
 
     async def request(self, cmd: str, **args: Any) -> dict[str, Any]:
         """Send one command and return its reply; raise ControlError when refused."""

@@ -83,7 +83,9 @@ class SliceSettings:
     skip_heating: bool = False
 
     @classmethod
-    def from_mapping(cls, values: Mapping[str, Any], base: SliceSettings | None = None) -> SliceSettings:
+    def from_mapping(
+        cls, values: Mapping[str, Any], base: SliceSettings | None = None
+    ) -> SliceSettings:
         """Return settings from flat or nested keys, refusing unknown keys and bad values.
 
         ``values`` may be ``{"infill.density": 0.3}`` or ``{"infill": {"density": 0.3}}``.

@@ -1,0 +1,41 @@
+"""Marlin serial protocol: line framing, checksums and comment stripping (pure functions)."""
+
+from __future__ import annotations
+
+
+def checksum(text: str) -> int:
+    """XOR of every byte of ``text`` (the part of a line before ``*``), 0..255."""
+    value = 0
+    for byte in text.encode("ascii", "replace"):
+        value ^= byte
+    return value
+
+
+def frame(number: int, command: str) -> bytes:
+    """One numbered, checksummed line as sent on the wire: ``N<n> <cmd>*<cs>\\n``."""
+    body = f"N{number} {command}"
+    return f"{body}*{checksum(body)}\n".encode("ascii", "replace")
+
+
+def strip_comment(line: str) -> str:
+    """The command part of a G-code line: comments and surrounding blanks removed.
+
+    Returns ``""`` for comment-only and blank lines, which are never sent.
+    """
+    command = line.split(";", 1)[0]
+    if "(" in command:
+        command = _strip_parenthesised(command)
+    return command.strip()
+
+
+def _strip_parenthesised(text: str) -> str:
+    out: list[str] = []
+    depth = 0
+    for char in text:
+        if char == "(":
+            depth += 1
+        elif char == ")" and depth:
+            depth -= 1
+        elif not depth:
+            out.append(char)
+    return "".join(out)
