@@ -1,0 +1,1 @@
+"""Data shipped with hostd: the sample model and the demo configuration."""

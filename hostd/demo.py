@@ -1,0 +1,106 @@
+"""`make run`: start the daemon on the embedded default, drop the sample model, show progress."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import shutil
+import signal
+import subprocess
+import sys
+import time
+from importlib import resources
+from pathlib import Path
+
+from hostd.api import ControlClient, ControlError, Snapshot
+
+SAMPLE = "dogbone_100x30x5.stl"
+JOBS = Path("jobs")
+STATE = Path("var")
+
+
+def drop_sample(jobs: Path) -> Path:
+    """Copy the shipped dogbone into the job folder atomically (write aside, then rename)."""
+    jobs.mkdir(parents=True, exist_ok=True)
+    target = jobs / "dogbone.stl"
+    partial = jobs / ".dogbone.stl.part"
+    with resources.as_file(resources.files("hostd.data") / SAMPLE) as source:
+        shutil.copyfile(source, partial)
+    os.replace(partial, target)
+    return target
+
+
+def progress_line(snapshot: Snapshot, width: int = 30) -> str:
+    """One terminal line: state, job, a bar, layer, temperatures and ETA."""
+    temps = snapshot.temps
+    heat = f"hotend {temps.hotend.actual:5.1f}/{temps.hotend.target:3.0f}C"
+    job = snapshot.job
+    if job is None:
+        waiting = f"{len(snapshot.queue)} queued" if snapshot.queue else "waiting for a job"
+        return f"[{snapshot.state:8}] {waiting}  {heat}"
+    filled = int(round(job.progress * width))
+    bar = "#" * filled + "-" * (width - filled)
+    eta = "--" if job.eta_s is None else f"{int(job.eta_s) // 60}:{int(job.eta_s) % 60:02d}"
+    return (
+        f"[{snapshot.state:8}] {job.name} |{bar}| {job.progress * 100:5.1f}% "
+        f"layer {job.layer}/{job.layers}  {heat}  ETA {eta}"
+    )
+
+
+async def watch(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
+    """Print a live progress line from the daemon's status until the daemon exits."""
+    last_len = 0
+    while daemon.poll() is None:
+        try:
+            async with ControlClient(str(socket)) as client:
+                async for item in client.subscribe():
+                    if "status" in item:
+                        line = progress_line(item["status"])
+                        sys.stdout.write("\r" + line.ljust(last_len))
+                        last_len = len(line)
+                    else:
+                        event = item["event"]
+                        if event.get("event") in ("done", "failed", "started", "cancelled"):
+                            sys.stdout.write("\r" + " " * last_len + "\r")
+                            sys.stdout.write(f"{event.get('event')}: {event.get('name', '')}\n")
+                    sys.stdout.flush()
+        except (ControlError, OSError):
+            await asyncio.sleep(0.3)
+
+
+def main() -> int:
+    """Run the demo until Ctrl-C; the daemon is stopped cleanly on the way out."""
+    config = resources.files("hostd.data") / "demo.toml"
+    with resources.as_file(config) as config_path:
+        log = (STATE / "hostd.log")
+        STATE.mkdir(parents=True, exist_ok=True)
+        print("hostd demo: simulated printer at 20x real time, job folder ./jobs, state ./var")
+        print(f"daemon log: {log}   dashboard in another terminal: .venv/bin/hostd tui")
+        with open(log, "ab") as log_file:
+            daemon = subprocess.Popen(
+                [sys.executable, "-m", "hostd.cli", "run", "--config", str(config_path)],
+                stderr=log_file,
+                stdout=log_file,
+                start_new_session=True,
+            )
+            started = time.monotonic()
+            dropped = drop_sample(JOBS)
+            print(f"dropped {dropped} at t={time.monotonic() - started:.1f}s; Ctrl-C stops")
+            try:
+                asyncio.run(watch(STATE / "hostd.sock", daemon))
+            except KeyboardInterrupt:
+                print("\nstopping the daemon...")
+            finally:
+                if daemon.poll() is None:
+                    daemon.send_signal(signal.SIGINT)
+                    try:
+                        daemon.wait(timeout=15)
+                    except subprocess.TimeoutExpired:
+                        daemon.kill()
+                        daemon.wait()
+        print(f"daemon exited with code {daemon.returncode}")
+    return 0 if daemon.returncode in (0, -signal.SIGINT) else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
