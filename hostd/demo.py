@@ -38,7 +38,7 @@ def progress_line(snapshot: Snapshot, width: int = 30) -> str:
     if job is None:
         waiting = f"{len(snapshot.queue)} queued" if snapshot.queue else "waiting for a job"
         return f"[{snapshot.state:8}] {waiting}  {heat}"
-    filled = int(round(job.progress * width))
+    filled = round(job.progress * width)
     bar = "#" * filled + "-" * (width - filled)
     eta = "--" if job.eta_s is None else f"{int(job.eta_s) // 60}:{int(job.eta_s) % 60:02d}"
     return (
