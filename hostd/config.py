@@ -1,0 +1,251 @@
+"""Daemon configuration: TOML to a frozen, fully checked `Config` (unknown keys refused)."""
+
+from __future__ import annotations
+
+import math
+import tomllib
+from collections.abc import Mapping
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from slicer.settings import SettingsError, SliceSettings
+
+
+class ConfigError(ValueError):
+    """A configuration key is unknown or its value is wrong; the message names the key."""
+
+    def __init__(self, key: str, reason: str) -> None:
+        super().__init__(f"{key}: {reason}" if key else reason)
+        self.key = key
+        self.reason = reason
+
+
+@dataclass(frozen=True)
+class JobsConfig:
+    """The watched job folder (absolute), settle time in s, size limit in bytes."""
+
+    folder: Path
+    settle_s: float = 1.0
+    max_bytes: int = 200_000_000
+
+
+@dataclass(frozen=True)
+class StateConfig:
+    """Where the job store, the control socket and the logs live (absolute)."""
+
+    folder: Path
+
+
+@dataclass(frozen=True)
+class PrinterConfig:
+    """The printer: id for MQTT topics, serial port or "sim", baud, build volume in mm."""
+
+    id: str = "sim"
+    port: str = "sim"
+    baud: int = 250000
+    bed: tuple[float, float, float] = (220.0, 220.0, 250.0)
+
+
+@dataclass(frozen=True)
+class SimConfig:
+    """The built-in simulated printer (port = "sim"): speed factor and emulated wire speed."""
+
+    time_scale: float = 1.0
+    baud: int = 250000
+
+
+@dataclass(frozen=True)
+class MqttConfig:
+    """The MQTT bridge; off unless ``enabled``."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = 1883
+    username: str = ""
+    password: str = ""
+    tls: bool = False
+    ca_file: str = ""
+    allow_commands: bool = False
+    homeassistant: bool = False
+    keepalive: int = 30
+
+
+@dataclass(frozen=True)
+class RunnerConfig:
+    """Just-in-time slicing: layers sliced ahead of the one streaming, and slicing threads."""
+
+    lookahead: int = 4
+    workers: int = 2
+
+
+@dataclass(frozen=True)
+class Config:
+    """The whole daemon configuration."""
+
+    jobs: JobsConfig
+    state: StateConfig
+    printer: PrinterConfig = field(default_factory=PrinterConfig)
+    simulator: SimConfig = field(default_factory=SimConfig)
+    mqtt: MqttConfig = field(default_factory=MqttConfig)
+    runner: RunnerConfig = field(default_factory=RunnerConfig)
+    slicing: SliceSettings = field(default_factory=SliceSettings)
+
+
+def load_config(path: str | Path | None = None, cwd: Path | None = None) -> Config:
+    """Read and check a TOML configuration file; ``None`` gives the embedded default.
+
+    Relative folders resolve against ``cwd`` (the current directory when omitted).
+    Raises ``ConfigError`` naming the offending key.
+    """
+    data: dict[str, Any] = {}
+    if path is not None:
+        try:
+            with open(path, "rb") as handle:
+                data = tomllib.load(handle)
+        except OSError as exc:
+            raise ConfigError("", f"cannot read {path}: {exc.strerror or exc}") from exc
+        except tomllib.TOMLDecodeError as exc:
+            raise ConfigError("", f"{path} is not valid TOML: {exc}") from exc
+    return config_from_mapping(data, cwd or Path.cwd())
+
+
+def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
+    """Build a `Config` from parsed TOML, refusing unknown sections, keys and bad values."""
+    known = {"jobs", "state", "printer", "simulator", "mqtt", "runner", "slicing"}
+    for name, value in data.items():
+        if name not in known:
+            raise ConfigError(name, "unknown section")
+        if not isinstance(value, Mapping):
+            raise ConfigError(name, "expected a [table]")
+    jobs = _Section(data.get("jobs", {}), "jobs")
+    state = _Section(data.get("state", {}), "state")
+    printer = _Section(data.get("printer", {}), "printer")
+    sim = _Section(data.get("simulator", {}), "simulator")
+    mqtt = _Section(data.get("mqtt", {}), "mqtt")
+    runner = _Section(data.get("runner", {}), "runner")
+    config = Config(
+        jobs=JobsConfig(
+            folder=_folder(cwd, jobs.text("folder", "jobs", empty=False)),
+            settle_s=jobs.number("settle_s", 1.0, 0.0, 3600.0),
+            max_bytes=jobs.integer("max_bytes", 200_000_000, 1, 2**50),
+        ),
+        state=StateConfig(folder=_folder(cwd, state.text("folder", "var", empty=False))),
+        printer=PrinterConfig(
+            id=printer.ident("id", "sim"),
+            port=printer.text("port", "sim", empty=False),
+            baud=printer.integer("baud", 250000, 300, 10_000_000),
+            bed=printer.bed("bed", (220.0, 220.0, 250.0)),
+        ),
+        simulator=SimConfig(
+            time_scale=sim.number("time_scale", 1.0, 0.0, 1000.0),
+            baud=sim.integer("baud", 250000, 0, 10_000_000),
+        ),
+        mqtt=MqttConfig(
+            enabled=mqtt.flag("enabled", False),
+            host=mqtt.text("host", "127.0.0.1", empty=False),
+            port=mqtt.integer("port", 1883, 1, 65535),
+            username=mqtt.text("username", ""),
+            password=mqtt.text("password", ""),
+            tls=mqtt.flag("tls", False),
+            ca_file=mqtt.text("ca_file", ""),
+            allow_commands=mqtt.flag("allow_commands", False),
+            homeassistant=mqtt.flag("homeassistant", False),
+            keepalive=mqtt.integer("keepalive", 30, 5, 3600),
+        ),
+        runner=RunnerConfig(
+            lookahead=runner.integer("lookahead", 4, 1, 64),
+            workers=runner.integer("workers", 2, 1, 32),
+        ),
+        slicing=slicing_settings(data.get("slicing", {}), None, "slicing"),
+    )
+    for section in (jobs, state, printer, sim, mqtt, runner):
+        section.refuse_unknown()
+    return config
+
+
+def slicing_settings(
+    values: Mapping[str, Any], base: SliceSettings | None, prefix: str
+) -> SliceSettings:
+    """Slicing settings from (nested or dotted) keys; errors name ``prefix.key``."""
+    try:
+        return SliceSettings.from_mapping(values, base=base)
+    except SettingsError as exc:
+        raise ConfigError(f"{prefix}.{exc.key}" if prefix else exc.key, exc.reason) from exc
+
+
+def _folder(cwd: Path, text: str) -> Path:
+    path = Path(text).expanduser()
+    return path if path.is_absolute() else (cwd / path).absolute()
+
+
+class _Section:
+    """One TOML table being read: typed getters that remember which keys were used."""
+
+    def __init__(self, values: Mapping[str, Any], name: str) -> None:
+        self.values = values
+        self.name = name
+        self.used: set[str] = set()
+
+    def _get(self, key: str, default: Any) -> Any:
+        self.used.add(key)
+        return self.values.get(key, default)
+
+    def _fail(self, key: str, reason: str) -> ConfigError:
+        return ConfigError(f"{self.name}.{key}", reason)
+
+    def refuse_unknown(self) -> None:
+        for key in self.values:
+            if key not in self.used:
+                raise self._fail(key, "unknown key")
+
+    def text(self, key: str, default: str, empty: bool = True) -> str:
+        value = self._get(key, default)
+        if not isinstance(value, str):
+            raise self._fail(key, f"expected a string, got {value!r}")
+        if not empty and not value.strip():
+            raise self._fail(key, "must not be empty")
+        return value
+
+    def ident(self, key: str, default: str) -> str:
+        value = self.text(key, default, empty=False)
+        if any(ch in value for ch in "/#+ \t\n") or not value.isprintable():
+            raise self._fail(key, f"{value!r} may not contain spaces, '/', '#' or '+'")
+        return value
+
+    def flag(self, key: str, default: bool) -> bool:
+        value = self._get(key, default)
+        if not isinstance(value, bool):
+            raise self._fail(key, f"expected true or false, got {value!r}")
+        return value
+
+    def number(self, key: str, default: float, low: float, high: float) -> float:
+        value = self._get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int | float):
+            raise self._fail(key, f"expected a number, got {value!r}")
+        if not math.isfinite(value):
+            raise self._fail(key, "must be finite")
+        if not low <= value <= high:
+            raise self._fail(key, f"{value!r} is outside {low:g}..{high:g}")
+        return float(value)
+
+    def integer(self, key: str, default: int, low: int, high: int) -> int:
+        value = self._get(key, default)
+        if isinstance(value, bool) or not isinstance(value, int):
+            raise self._fail(key, f"expected a whole number, got {value!r}")
+        if not low <= value <= high:
+            raise self._fail(key, f"{value!r} is outside {low}..{high}")
+        return value
+
+    def bed(self, key: str, default: tuple[float, float, float]) -> tuple[float, float, float]:
+        value = self._get(key, list(default))
+        if not isinstance(value, list) or len(value) != 3:
+            raise self._fail(key, f"expected [x, y, z] in mm, got {value!r}")
+        out = []
+        for item in value:
+            if isinstance(item, bool) or not isinstance(item, int | float):
+                raise self._fail(key, f"expected numbers, got {item!r}")
+            if not math.isfinite(item) or not 1.0 <= item <= 10_000.0:
+                raise self._fail(key, f"{item!r} is outside 1..10000 mm")
+            out.append(float(item))
+        return (out[0], out[1], out[2])
