@@ -1,0 +1,287 @@
+"""The control socket server against real Unix sockets: mode, status, subscribe, commands."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import socket
+import stat
+import sys
+from collections.abc import Awaitable, Callable
+from pathlib import Path
+from typing import Any
+
+import pytest
+
+from hostd.api import ControlClient, ControlError, JobStatus, Snapshot
+from hostd.control import ControlSocketError, serve_control
+from hostd.status import CommandError, StatusHub
+
+REPO = Path(__file__).resolve().parents[1]
+
+
+class RecordingController:
+    """A real controller for the tests: records commands, refuses `cancel` without a job."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, dict[str, Any]]] = []
+
+    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
+        self.calls.append((cmd, args))
+        if cmd == "cancel":
+            raise CommandError("no job is printing")
+        if cmd == "set" and "boom" in args:
+            raise ZeroDivisionError("controller bug")
+        return {"done": cmd}
+
+
+Scenario = Callable[[Path, StatusHub, RecordingController], Awaitable[None]]
+
+
+def serve(tmp_path: Path, scenario: Scenario, path: Path | None = None) -> RecordingController:
+    """Run ``scenario`` against a live serve_control; check the socket is gone afterwards."""
+    path = path or tmp_path / "hostd.sock"
+    hub = StatusHub(Snapshot(state="idle"))
+    controller = RecordingController()
+
+    async def main() -> None:
+        server = asyncio.create_task(serve_control(path, hub, controller), name="control")
+        await asyncio.sleep(0)  # binds and listens synchronously in its first step
+        try:
+            await asyncio.wait_for(scenario(path, hub, controller), 20)
+        finally:
+            server.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await server
+        assert not path.exists(), "the socket file must be removed on exit"
+
+    asyncio.run(main())
+    return controller
+
+
+async def raw_exchange(path: Path, lines: list[bytes]) -> list[dict[str, Any]]:
+    """Send raw request lines on one connection and read one reply per line."""
+    reader, writer = await asyncio.open_unix_connection(str(path))
+    replies = []
+    try:
+        for line in lines:
+            writer.write(line)
+            await writer.drain()
+            replies.append(json.loads(await reader.readline()))
+    finally:
+        writer.close()
+        await writer.wait_closed()
+    return replies
+
+
+def test_socket_is_private_and_answers_status(tmp_path: Path) -> None:
+    async def scenario(path: Path, hub: StatusHub, _: RecordingController) -> None:
+        assert stat.S_ISSOCK(path.lstat().st_mode)
+        assert stat.S_IMODE(path.lstat().st_mode) == 0o600
+        hub.update(state="printing", job=JobStatus(id="7", name="part.stl", layer=3, layers=9))
+        async with ControlClient(str(path)) as client:
+            snapshot = await client.status()
+            raw = await client.request("status", id=41)
+        assert snapshot.state == "printing"
+        assert snapshot.job is not None and snapshot.job.layer == 3
+        assert raw["reply"] == "status" and raw["ok"] is True and raw["id"] == 41
+        assert raw["status"] == hub.current.to_dict()
+
+    serve(tmp_path, scenario)
+
+
+def test_subscribe_streams_status_and_events_to_many_clients(tmp_path: Path) -> None:
+    async def scenario(path: Path, hub: StatusHub, _: RecordingController) -> None:
+        clients = [ControlClient(str(path)) for _ in range(5)]
+        streams = []
+        for client in clients:
+            await client.__aenter__()
+            stream = client.subscribe()
+            first = await anext(stream)
+            assert first["status"].state == "idle"  # the current snapshot comes first
+            streams.append(stream)
+        hub.update(state="heating")
+        hub.event("started", job="7", name="part.stl")
+        for stream in streams:
+            assert (await anext(stream))["status"].state == "heating"
+            event = (await anext(stream))["event"]
+            assert event["event"] == "started" and event["name"] == "part.stl"
+        for client in clients:
+            await client.__aexit__(None, None, None)
+
+    serve(tmp_path, scenario)
+
+
+def test_commands_reach_the_controller_and_refusals_are_answered(tmp_path: Path) -> None:
+    async def scenario(path: Path, _: StatusHub, controller: RecordingController) -> None:
+        replies = await raw_exchange(
+            path,
+            [
+                b'{"cmd": "pause", "id": 1}\n',
+                b'{"cmd": "cancel_object", "object": 2}\n',
+                b"this is not json\n",
+                b"[1, 2]\n",
+                b'{"no_cmd": true}\n',
+                b'{"cmd": "gcode", "line": "M112"}\n',
+                b'{"cmd": "cancel", "id": "c"}\n',
+                b'{"cmd": "set", "boom": 1}\n',
+                b'{"cmd": "resume"}\n',
+            ],
+        )
+        pause, cancel_object, garbage, array, no_cmd, gcode, cancel, bug, resume = replies
+        assert pause == {"reply": "pause", "ok": True, "id": 1, "error": None, "done": "pause"}
+        assert cancel_object["ok"] is True
+        assert garbage["ok"] is False and "malformed JSON" in garbage["error"]
+        assert array["ok"] is False and "JSON object" in array["error"]
+        assert no_cmd["ok"] is False and "cmd" in no_cmd["error"]
+        assert gcode["ok"] is False and "unknown command 'gcode'" in gcode["error"]
+        assert cancel == {"reply": "cancel", "ok": False, "id": "c", "error": "no job is printing"}
+        assert bug["ok"] is False and "ZeroDivisionError" in bug["error"]
+        assert resume["ok"] is True  # the connection survived every bad line
+        with pytest.raises(ControlError, match="no job is printing"):
+            async with ControlClient(str(path)) as client:
+                await client.request("cancel")
+
+    controller = serve(tmp_path, scenario)
+    assert [cmd for cmd, _ in controller.calls] == [
+        "pause", "cancel_object", "cancel", "set", "resume", "cancel"
+    ]
+    assert controller.calls[1] == ("cancel_object", {"object": 2})
+
+
+def test_requests_on_a_subscribed_connection_are_still_answered(tmp_path: Path) -> None:
+    async def scenario(path: Path, hub: StatusHub, controller: RecordingController) -> None:
+        reader, writer = await asyncio.open_unix_connection(str(path))
+        writer.write(b'{"cmd": "subscribe"}\n')
+        assert json.loads(await reader.readline())["reply"] == "subscribe"
+        assert "status" in json.loads(await reader.readline())
+        writer.write(b'{"cmd": "pause"}\n')
+        assert json.loads(await reader.readline())["reply"] == "pause"
+        hub.update(state="paused")
+        assert json.loads(await reader.readline())["status"]["state"] == "paused"
+        writer.close()
+        await writer.wait_closed()
+        assert controller.calls == [("pause", {})]
+
+    serve(tmp_path, scenario)
+
+
+def test_an_overlong_line_is_refused_and_the_server_lives_on(tmp_path: Path) -> None:
+    async def scenario(path: Path, _: StatusHub, __: RecordingController) -> None:
+        reader, writer = await asyncio.open_unix_connection(str(path))
+        writer.write(b"x" * (2 << 20) + b"\n")
+        reply = json.loads(await reader.readline())
+        assert reply["ok"] is False and "too long" in reply["error"]
+        writer.close()
+        async with ControlClient(str(path)) as client:
+            assert (await client.status()).state == "idle"
+
+    serve(tmp_path, scenario)
+
+
+def test_a_client_that_vanishes_mid_stream_does_not_hurt_the_others(tmp_path: Path) -> None:
+    async def scenario(path: Path, hub: StatusHub, _: RecordingController) -> None:
+        _, rude = await asyncio.open_unix_connection(str(path))
+        rude.write(b'{"cmd": "subscribe"}\n')
+        await rude.drain()
+        rude.transport.abort()
+        for layer in range(50):
+            hub.event("layer", layer=layer)
+            hub.update(state="printing")
+            await asyncio.sleep(0)
+        async with ControlClient(str(path)) as client:
+            assert (await client.status()).state == "printing"
+
+    serve(tmp_path, scenario)
+
+
+def test_a_stale_socket_is_replaced(tmp_path: Path) -> None:
+    path = tmp_path / "hostd.sock"
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as dead:
+        dead.bind(str(path))  # bound, never listening, then closed: what a kill -9 leaves
+    assert path.exists()
+
+    async def scenario(path: Path, _: StatusHub, __: RecordingController) -> None:
+        async with ControlClient(str(path)) as client:
+            assert (await client.status()).state == "idle"
+
+    serve(tmp_path, scenario, path)
+
+
+def test_a_live_socket_or_another_file_is_never_taken_over(tmp_path: Path) -> None:
+    path = tmp_path / "hostd.sock"
+    hub = StatusHub()
+
+    async def main() -> None:
+        first = asyncio.create_task(serve_control(path, hub, RecordingController()))
+        await asyncio.sleep(0)
+        with pytest.raises(ControlSocketError, match="another daemon"):
+            await serve_control(path, hub, RecordingController())
+        first.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await first
+
+    asyncio.run(main())
+    path.write_text("not a socket")
+    with pytest.raises(ControlSocketError, match="not a socket"):
+        asyncio.run(serve_control(path, hub, RecordingController()))
+    assert path.read_text() == "not a socket"
+
+
+def run_cli(*args: str) -> Callable[[], Awaitable[tuple[int, str, str]]]:
+    async def call() -> tuple[int, str, str]:
+        proc = await asyncio.create_subprocess_exec(
+            sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+            *args,
+            stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=REPO,
+            env={**os.environ, "PYTHONPATH": str(REPO)},
+        )
+        out, err = await proc.communicate()
+        assert proc.returncode is not None
+        return proc.returncode, out.decode(), err.decode()
+
+    return call
+
+
+def test_hostd_status_reads_the_running_daemon(tmp_path: Path) -> None:
+    async def scenario(path: Path, hub: StatusHub, _: RecordingController) -> None:
+        hub.update(
+            state="printing",
+            job=JobStatus(id="12", name="bunny.stl", layer=40, layers=120, progress=0.33,
+                          eta_s=3725.0),
+            queue=("cube.stl",),
+        )
+        code, out, err = await run_cli("status", "--json", "--socket", str(path))()
+        assert code == 0, err
+        assert json.loads(out) == hub.current.to_dict()
+        code, out, err = await run_cli("status", "--socket", str(path))()
+        assert code == 0, err
+        assert "printing" in out and "bunny.stl" in out and "layer 40/120" in out
+        assert "1:02:05" in out and "cube.stl" in out
+
+    serve(tmp_path, scenario)
+
+
+def test_hostd_status_finds_the_socket_through_the_config(tmp_path: Path) -> None:
+    config = tmp_path / "hostd.toml"
+    config.write_text(f'[state]\nfolder = "{tmp_path / "state"}"\n')
+
+    async def scenario(path: Path, _: StatusHub, __: RecordingController) -> None:
+        code, out, err = await run_cli("status", "--json", "--config", str(config))()
+        assert code == 0, err
+        assert json.loads(out)["state"] == "idle"
+
+    from hostd.commands.target import SOCKET_NAME
+
+    serve(tmp_path, scenario, tmp_path / "state" / SOCKET_NAME)
+
+
+def test_hostd_status_without_a_daemon_fails_with_a_reason(tmp_path: Path) -> None:
+    code, out, err = asyncio.run(run_cli("status", "--socket", str(tmp_path / "none.sock"))())
+    assert code == 1 and out == ""
+    assert "cannot reach the daemon" in err
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[state]\nfolder = 3\n")
+    code, _, err = asyncio.run(run_cli("status", "--config", str(bad))())
+    assert code == 2 and "state.folder" in err
