@@ -1,0 +1,298 @@
+"""G-code reading for the benchmarks: moves as arrays, layers, filament and outer-wall regions."""
+
+from __future__ import annotations
+
+from collections.abc import Iterable
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+import shapely
+
+# feature-type comments that mark the outermost wall, per slicer
+OUTER_WALL_TYPES = frozenset({"WALL-OUTER", "External perimeter"})
+# types that may continue an outer-wall loop but never make one alone (PrusaSlicer marks the
+# overhanging stretches of any perimeter, outer or inner, as "Overhang perimeter")
+OUTER_WALL_CONTINUATIONS = frozenset({"Overhang perimeter"})
+
+Z_KEY_SCALE = 100.0  # layers are matched by Z rounded to 0.01 mm
+_MIN_XY_MOVE = 1e-6  # mm: shorter moves count as extruding in place (priming)
+
+
+@dataclass(frozen=True)
+class Moves:
+    """Every G0/G1/G2/G3 move of a file, in order (arcs as chords).
+
+    Arrays have shape (n,), dtype float64 unless stated, lengths in mm:
+    ``x0, y0`` the start of each move, ``x, y, z`` its end, ``de`` the filament
+    fed during it (negative for retraction), ``type_id`` (int32) the index in
+    ``types`` of the last ``;TYPE:`` comment before it (-1 before the first).
+    """
+
+    x0: np.ndarray
+    y0: np.ndarray
+    x: np.ndarray
+    y: np.ndarray
+    z: np.ndarray
+    de: np.ndarray
+    type_id: np.ndarray
+    types: tuple[str, ...]
+
+    @property
+    def xy_length(self) -> np.ndarray:
+        """Length of each move in XY, mm, shape (n,)."""
+        return np.hypot(self.x - self.x0, self.y - self.y0)
+
+    @property
+    def extruding(self) -> np.ndarray:
+        """Mask (n,) of moves that lay material: they move in XY and feed filament."""
+        return (self.de > 0) & (self.xy_length > _MIN_XY_MOVE)
+
+    def type_mask(self, names: Iterable[str]) -> np.ndarray:
+        """Mask (n,) of moves whose feature type is one of ``names``."""
+        wanted = [i for i, t in enumerate(self.types) if t in set(names)]
+        return np.isin(self.type_id, np.asarray(wanted, dtype=np.int32))
+
+
+@dataclass(frozen=True)
+class GcodeStats:
+    """What the benchmark compares between slicers for one G-code file."""
+
+    layers: int  # distinct Z levels (0.01 mm) at which material is laid
+    filament_mm: float  # filament fed by extruding moves, mm
+    moves: int  # G0/G1 moves
+
+
+class _State:
+    """Machine state while reading: position, modes, current feature type."""
+
+    def __init__(self) -> None:
+        self.pos = {"X": 0.0, "Y": 0.0, "Z": 0.0, "E": 0.0}
+        self.xyz_relative = False
+        self.e_relative = False
+        self.type_id = -1
+
+
+def _words(code: str) -> dict[str, float]:
+    """Letter -> value of the words of one command (``G1 X1 Y2`` -> X, Y); bad words skipped."""
+    out: dict[str, float] = {}
+    for word in code.split()[1:]:
+        try:
+            out[word[0].upper()] = float(word[1:])
+        except (ValueError, IndexError):
+            continue
+    return out
+
+
+def _command_part(raw: str) -> str:
+    """The command of a line without comment, line number and checksum (``""`` if none)."""
+    code = raw.split(";", 1)[0].strip()
+    if "*" in code:
+        code = code.split("*", 1)[0].strip()
+    if code[:1] in ("N", "n"):
+        code = code.split(None, 1)[1] if " " in code else ""
+    return code
+
+
+def parse_moves(lines: Iterable[str]) -> Moves:
+    """Read G-code lines into :class:`Moves`.
+
+    Understands G0-G3 (arcs as their chord), G90/G91, M82/M83, G92 and G28, and
+    ``;TYPE:NAME`` comments. Line numbers (``N12``) and checksums (``*34``) are ignored,
+    so a printer's executed-line log reads the same as the file.
+    """
+    st = _State()
+    types: dict[str, int] = {}
+    rows: list[tuple[float, float, float, float, float, float, int]] = []
+    for raw in lines:
+        stripped = raw.strip()
+        if stripped.startswith(";TYPE:"):
+            name = stripped[6:].strip()
+            st.type_id = types.setdefault(name, len(types))
+            continue
+        code = _command_part(stripped)
+        if not code:
+            continue
+        cmd = code.split(None, 1)[0].upper()
+        if cmd in ("G0", "G1", "G2", "G3", "G00", "G01", "G02", "G03"):
+            words = _words(code)
+            if words.keys() & {"X", "Y", "Z", "E"}:  # feed-rate-only lines are no moves
+                rows.append(_move(st, words))
+        elif cmd == "G92":
+            words = _words(code)
+            for axis in ("X", "Y", "Z", "E"):
+                if axis in words:
+                    st.pos[axis] = words[axis]
+            if not words:
+                st.pos.update(X=0.0, Y=0.0, Z=0.0, E=0.0)
+        elif cmd == "M82":
+            st.e_relative = False
+        elif cmd == "M83":
+            st.e_relative = True
+        elif cmd == "G90":
+            st.xyz_relative = st.e_relative = False
+        elif cmd == "G91":
+            st.xyz_relative = st.e_relative = True
+        elif cmd == "G28":
+            named = [a for a in ("X", "Y", "Z") if a in code.upper()[3:]]
+            for axis in named or ("X", "Y", "Z"):
+                st.pos[axis] = 0.0
+    arr = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+    return Moves(
+        x0=arr[:, 0], y0=arr[:, 1], x=arr[:, 2], y=arr[:, 3], z=arr[:, 4], de=arr[:, 5],
+        type_id=arr[:, 6].astype(np.int32),
+        types=tuple(sorted(types, key=types.__getitem__)),
+    )
+
+
+def _move(st: _State, words: dict[str, float]) -> tuple[float, float, float, float, float,
+                                                           float, int]:
+    """Apply one move to the state; return (x0, y0, x, y, z, de, type_id)."""
+    x0, y0 = st.pos["X"], st.pos["Y"]
+    for axis in ("X", "Y", "Z"):
+        if axis in words:
+            st.pos[axis] = st.pos[axis] + words[axis] if st.xyz_relative else words[axis]
+    de = 0.0
+    if "E" in words:
+        if st.e_relative:
+            de = words["E"]
+            st.pos["E"] += de
+        else:
+            de = words["E"] - st.pos["E"]
+            st.pos["E"] = words["E"]
+    return (x0, y0, st.pos["X"], st.pos["Y"], st.pos["Z"], de, st.type_id)
+
+
+def read_moves(path: str | Path) -> Moves:
+    """Parse a G-code file into :class:`Moves`."""
+    with open(path, encoding="utf-8", errors="replace") as handle:
+        return parse_moves(handle)
+
+
+def stats(moves: Moves) -> GcodeStats:
+    """Layer count, filament length and move count of parsed G-code."""
+    ext = moves.extruding
+    keys = np.unique(np.round(moves.z[ext] * Z_KEY_SCALE).astype(np.int64))
+    return GcodeStats(
+        layers=int(keys.size),
+        filament_mm=float(moves.de[ext].sum()),
+        moves=int(moves.de.size),
+    )
+
+
+def outer_wall_regions(
+    moves: Moves,
+    names: Iterable[str] = OUTER_WALL_TYPES,
+    continuations: Iterable[str] = OUTER_WALL_CONTINUATIONS,
+    close_tol: float = 1.0,
+) -> dict[int, shapely.Geometry]:
+    """Per layer, the region enclosed by the outer-wall loops, even-odd (holes stay holes).
+
+    A loop is a run of consecutive extruding moves of an outer-wall type (``names``,
+    possibly continued by ``continuations`` types, with at least one move of ``names``);
+    runs whose ends lie farther apart than ``close_tol`` mm (open walls) are left out,
+    the others are closed. Keys are Z in units of 0.01 mm (``round(z * 100)``).
+    """
+    names, continuations = frozenset(names), frozenset(continuations)
+    primary = moves.extruding & moves.type_mask(names)
+    outer = moves.extruding & moves.type_mask(names | continuations)
+    if not primary.any():
+        return {}
+    prev = np.concatenate(([False], outer[:-1]))
+    starts = outer & ~prev
+    chain = np.cumsum(starts)  # chain id (1-based) of every outer move
+    n_chains = int(chain[-1])
+    # a run of moves i..j has the vertices: start of move i, then the ends of i..j
+    first_idx = np.flatnonzero(starts)
+    vx = np.concatenate((moves.x0[first_idx], moves.x[outer]))
+    vy = np.concatenate((moves.y0[first_idx], moves.y[outer]))
+    vid = np.concatenate((chain[first_idx], chain[outer])) - 1
+    order = np.concatenate((first_idx - 0.5, np.flatnonzero(outer).astype(np.float64)))
+    sort = np.argsort(order, kind="stable")
+    vx, vy, vid = vx[sort], vy[sort], vid[sort]
+    counts = np.bincount(vid, minlength=n_chains)
+    last_v = np.cumsum(counts) - 1
+    first_v = last_v - counts + 1
+    gap = np.hypot(vx[last_v] - vx[first_v], vy[last_v] - vy[first_v])
+    has_primary = np.bincount(chain[primary] - 1, minlength=n_chains) > 0
+    keep_chain = (counts >= 4) & (gap <= close_tol) & has_primary
+    if not keep_chain.any():
+        return {}
+    keep_v = keep_chain[vid]
+    new_id = np.cumsum(keep_chain) - 1  # consecutive ids for the kept chains
+    coords = np.column_stack((vx[keep_v], vy[keep_v]))
+    rings = shapely.linearrings(coords, indices=new_id[vid[keep_v]])
+    polys = shapely.make_valid(shapely.polygons(rings), method="structure",
+                               keep_collapsed=False)
+    keys = np.round(moves.z[first_idx][keep_chain] * Z_KEY_SCALE).astype(np.int64)
+    regions: dict[int, shapely.Geometry] = {}
+    for key in np.unique(keys):
+        group = polys[keys == key]
+        region = group[0]
+        for poly in group[1:]:
+            region = shapely.symmetric_difference(region, poly)
+        regions[int(key)] = region
+    return regions
+
+
+def outer_wall_centre(moves: Moves, names: Iterable[str] = OUTER_WALL_TYPES) -> np.ndarray:
+    """Centre (2,) of the XY bounding box of every outer-wall extrusion, mm."""
+    outer = moves.extruding & moves.type_mask(names)
+    if not outer.any():
+        return np.zeros(2)
+    xs = np.concatenate((moves.x0[outer], moves.x[outer]))
+    ys = np.concatenate((moves.y0[outer], moves.y[outer]))
+    return np.array([(xs.min() + xs.max()) / 2.0, (ys.min() + ys.max()) / 2.0])
+
+
+def translate_regions(
+    regions: dict[int, shapely.Geometry], offset: np.ndarray
+) -> dict[int, shapely.Geometry]:
+    """The same regions moved by ``offset`` (2,) mm."""
+    keys = list(regions)
+    geoms = np.array([regions[k] for k in keys], dtype=object)
+    moved = shapely.transform(geoms, lambda c: c + np.asarray(offset, dtype=np.float64))
+    return dict(zip(keys, moved, strict=True))
+
+
+def layer_iou(
+    a: dict[int, shapely.Geometry], b: dict[int, shapely.Geometry]
+) -> dict[int, float]:
+    """IoU area(a & b) / area(a | b) per layer key present in either (0 where one is empty)."""
+    keys = sorted(set(a) | set(b))
+    empty = shapely.Polygon()
+    ga = np.array([a.get(k, empty) for k in keys], dtype=object)
+    gb = np.array([b.get(k, empty) for k in keys], dtype=object)
+    inter = shapely.area(shapely.intersection(ga, gb))
+    union = shapely.area(shapely.union(ga, gb))
+    iou = np.divide(inter, union, out=np.zeros_like(inter), where=union > 0)
+    return dict(zip(keys, iou.tolist(), strict=True))
+
+
+@dataclass(frozen=True)
+class WallAgreement:
+    """Outer-wall agreement between two G-code files."""
+
+    mean_iou: float  # mean over the layers where either has an outer wall
+    mean_iou_common: float  # mean over the layers where both have one
+    layers_a: int
+    layers_b: int
+    offset: tuple[float, float]  # mm added to a to align it with b
+
+
+def wall_agreement(a: Moves, b: Moves, align: bool = True) -> WallAgreement:
+    """Per-layer outer-wall IoU of ``a`` against ``b``; ``align`` moves a's centre onto b's."""
+    ra, rb = outer_wall_regions(a), outer_wall_regions(b)
+    offset = outer_wall_centre(b) - outer_wall_centre(a) if align else np.zeros(2)
+    if align and ra:
+        ra = translate_regions(ra, offset)
+    ious = layer_iou(ra, rb)
+    common = [ious[k] for k in ious if k in ra and k in rb]
+    values = list(ious.values())
+    return WallAgreement(
+        mean_iou=float(np.mean(values)) if values else 0.0,
+        mean_iou_common=float(np.mean(common)) if common else 0.0,
+        layers_a=len(ra),
+        layers_b=len(rb),
+        offset=(float(offset[0]), float(offset[1])),
+    )

@@ -1,0 +1,110 @@
+"""Run a command with a timeout and measure its wall time and peak resident memory."""
+
+from __future__ import annotations
+
+import os
+import resource
+import shutil
+import signal
+import subprocess
+import tempfile
+import time
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass
+from pathlib import Path
+
+GNU_TIME = "/usr/bin/time"
+
+
+@dataclass(frozen=True)
+class RunResult:
+    """Outcome of one measured run."""
+
+    cmd: tuple[str, ...]
+    returncode: int | None  # None when the timeout ended it
+    wall_s: float  # wall time, s
+    peak_rss_mb: float | None  # peak RSS of the largest process of the run, MB (10^6 bytes)
+    stdout: str
+    stderr: str
+
+    @property
+    def ok(self) -> bool:
+        """True when the command exited with status 0 in time."""
+        return self.returncode == 0
+
+    def reason(self) -> str:
+        """One line saying why the run failed (empty when it succeeded)."""
+        if self.returncode is None:
+            return f"timeout after {self.wall_s:.0f} s"
+        if self.returncode == 0:
+            return ""
+        lines = [ln.strip() for ln in self.stderr.splitlines() if ln.strip()]
+        tail = lines[-1] if lines else "no message"
+        return f"exit {self.returncode}: {tail[:160]}"
+
+
+def ensure_gnu_time() -> bool:
+    """True when GNU time is usable; installs the Debian package `time` as root if missing."""
+    if Path(GNU_TIME).exists():
+        return True
+    if os.geteuid() == 0 and shutil.which("apt-get"):
+        subprocess.run(["apt-get", "install", "-y", "-qq", "time"], capture_output=True,
+                       check=False, timeout=600)
+    return Path(GNU_TIME).exists()
+
+
+def run_measured(
+    cmd: Sequence[str],
+    timeout: float,
+    env: Mapping[str, str] | None = None,
+    cwd: str | Path | None = None,
+) -> RunResult:
+    """Run ``cmd`` to completion or ``timeout`` seconds; measure wall time and peak RSS.
+
+    Peak RSS comes from GNU time (``%M``) when available, otherwise from
+    ``getrusage(RUSAGE_CHILDREN)`` (exact only when it grows past every earlier child).
+    The command runs in its own process group, which is killed on timeout.
+    """
+    full_env = dict(os.environ)
+    if env:
+        full_env.update(env)
+    with tempfile.TemporaryDirectory(prefix="bench-time-") as tmp:
+        report = Path(tmp) / "time.txt"
+        use_time = Path(GNU_TIME).exists()
+        argv = [GNU_TIME, "-f", "%M", "-o", str(report), *cmd] if use_time else list(cmd)
+        before = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+        start = time.perf_counter()
+        proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                                text=True, env=full_env, cwd=cwd, start_new_session=True)
+        try:
+            out, err = proc.communicate(timeout=timeout)
+            code: int | None = proc.returncode
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            out, err = proc.communicate()
+            code = None
+        wall = time.perf_counter() - start
+        rss_kb: float | None = None
+        if use_time and report.exists():
+            rss_kb = _last_number(report.read_text())
+        elif not use_time:
+            after = resource.getrusage(resource.RUSAGE_CHILDREN).ru_maxrss
+            rss_kb = float(after) if after > before else None
+    return RunResult(
+        cmd=tuple(cmd),
+        returncode=code,
+        wall_s=wall,
+        peak_rss_mb=None if rss_kb is None else rss_kb * 1024 / 1e6,
+        stdout=out,
+        stderr=err,
+    )
+
+
+def _last_number(text: str) -> float | None:
+    """The last line of GNU time's report that is a number (it may prepend a status line)."""
+    for line in reversed(text.strip().splitlines()):
+        try:
+            return float(line.strip())
+        except ValueError:
+            continue
+    return None
