@@ -1,0 +1,122 @@
+"""The job folder watcher: an initial scan plus watchfiles, taking files once they settle."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import os
+import time
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass
+from pathlib import Path
+
+from watchfiles import awatch
+
+from hostd.jobfolder import is_job_name
+
+log = logging.getLogger("hostd.watcher")
+
+OnSettled = Callable[[Path], Awaitable[None]]
+
+
+@dataclass(frozen=True)
+class _Seen:
+    """What a candidate looked like when last checked, and since when (monotonic s)."""
+
+    signature: tuple[int, int, int] | None
+    since: float
+
+
+class Watcher:
+    """Calls ``on_settled(path)`` once for each job file whose size and mtime held still.
+
+    Only the top level of ``folder`` is watched (``done/`` and ``failed/`` live
+    inside it). A file is settled when its size and modification time were the
+    same for ``settle_s`` seconds. Directories and links with job names are passed
+    on too, so that the intake can refuse them with a reason.
+    """
+
+    def __init__(self, folder: Path, settle_s: float, on_settled: OnSettled) -> None:
+        self.folder = folder
+        self.settle_s = settle_s
+        self.on_settled = on_settled
+        self._pending: dict[Path, _Seen] = {}
+        self._wake = asyncio.Event()
+
+    async def run(self, stop: asyncio.Event | None = None) -> None:
+        """Scan, then watch until cancelled or ``stop`` is set."""
+        self.folder.mkdir(parents=True, exist_ok=True)
+        stop = stop or asyncio.Event()
+        async with asyncio.TaskGroup() as group:
+            group.create_task(self._watch(stop), name="watcher-events")
+            self.scan()
+            group.create_task(self._settle(stop), name="watcher-settle")
+
+    def scan(self) -> None:
+        """Add every job-named entry of the folder to the candidates."""
+        with os.scandir(self.folder) as entries:
+            for entry in entries:
+                self._consider(Path(entry.path))
+
+    def _consider(self, path: Path) -> None:
+        if path.parent != self.folder or not is_job_name(path.name):
+            return
+        if path not in self._pending:
+            self._pending[path] = _Seen(None, time.monotonic())
+            self._wake.set()
+
+    async def _watch(self, stop: asyncio.Event) -> None:
+        async for changes in awatch(
+            self.folder, watch_filter=None, recursive=False, stop_event=stop,
+            debounce=50, step=20,
+        ):
+            for _change, name in changes:
+                self._consider(Path(name))
+
+    async def _settle(self, stop: asyncio.Event) -> None:
+        while not stop.is_set():
+            self._wake.clear()
+            now = time.monotonic()
+            due: list[Path] = []
+            wait = None
+            for path, seen in list(self._pending.items()):
+                signature = _signature(path)
+                if signature is None and not path.is_symlink():
+                    del self._pending[path]  # gone before it settled
+                    continue
+                if signature != seen.signature:
+                    self._pending[path] = _Seen(signature, now)
+                    remaining = self.settle_s
+                else:
+                    remaining = self.settle_s - (now - seen.since)
+                if remaining <= 0:
+                    due.append(path)
+                else:
+                    wait = remaining if wait is None else min(wait, remaining)
+            for path in due:
+                del self._pending[path]
+                try:
+                    await self.on_settled(path)
+                except Exception:  # one bad file must not stop the watcher
+                    log.exception("taking %s failed", path.name)
+            if due:
+                continue
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), timeout=_poll_interval(wait))
+
+
+def _poll_interval(wait: float | None) -> float | None:
+    """How long to sleep: until the next candidate may settle, re-checked at least 4x/s."""
+    if wait is None:
+        return None
+    return max(0.01, min(wait, 0.25))
+
+
+def _signature(path: Path) -> tuple[int, int, int] | None:
+    """(size, mtime ns, kind) of a path, not following links; None when it is gone."""
+    try:
+        stat = path.lstat()
+    except OSError:
+        return None
+    return (stat.st_size, stat.st_mtime_ns, stat.st_mode)

@@ -1,0 +1,170 @@
+"""Job folder watcher and intake: settle time, ignored names, collisions, refusals."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import os
+import shutil
+import time
+from pathlib import Path
+
+from hostd.config import load_config
+from hostd.intake import Intake
+from hostd.jobstore import JobStore
+from hostd.status import StatusHub
+from hostd.watcher import Watcher
+
+DATA = Path(__file__).parent / "data"
+CUBE = DATA / "cube20_xyz.stl"
+
+
+def make_config(tmp_path: Path, extra: str = "", settle: float = 0.2):
+    path = tmp_path / "hostd.toml"
+    path.write_text(f"[jobs]\nsettle_s = {settle}\n{extra}\n")
+    return load_config(path, cwd=tmp_path)
+
+
+async def watch_for(config, seconds: float, action) -> tuple[list[str], JobStore]:
+    """Run a watcher + intake for ``seconds`` while ``action(jobs_folder)`` runs."""
+    store = JobStore(config.state.folder / "jobs.sqlite3")
+    intake = Intake(config, store, StatusHub())
+    taken: list[str] = []
+
+    async def on_settled(path: Path) -> None:
+        taken.append(path.name)
+        await intake.take(path)
+
+    stop = asyncio.Event()
+    watcher = Watcher(config.jobs.folder, config.jobs.settle_s, on_settled)
+    task = asyncio.create_task(watcher.run(stop))
+    await asyncio.sleep(0.3)
+    await action(config.jobs.folder)
+    await asyncio.sleep(seconds)
+    stop.set()
+    task.cancel()
+    with contextlib.suppress(asyncio.CancelledError):
+        await task
+    return taken, store
+
+
+def test_a_growing_file_is_taken_only_once_it_settled(tmp_path: Path) -> None:
+    config = make_config(tmp_path, settle=0.6)
+    data = CUBE.read_bytes()
+    seen_early: list[bool] = []
+
+    async def grow(folder: Path) -> None:
+        target = folder / "slow.stl"
+        with open(target, "wb") as handle:
+            for start in range(0, len(data), len(data) // 5 + 1):
+                handle.write(data[start:start + len(data) // 5 + 1])
+                handle.flush()
+                await asyncio.sleep(0.3)
+                seen_early.append(target.exists())
+        # every chunk came 0.3 s apart, under the settle time: still in the folder
+        assert all(seen_early)
+
+    taken, store = asyncio.run(watch_for(config, 1.5, grow))
+    assert taken == ["slow.stl"]
+    (job,) = store.jobs()
+    assert job.state == "queued"
+    assert Path(job.path).read_bytes() == data
+    assert Path(job.path).parent == config.state.folder / "jobs" / job.id
+
+
+def test_hidden_and_temporary_files_are_ignored(tmp_path: Path) -> None:
+    config = make_config(tmp_path)
+    names = [".part.stl", "part.stl.part", "part.stl~", "part.stl.swp", "part.stl.tmp",
+             "notes.txt", "part.obj"]
+
+    async def drop(folder: Path) -> None:
+        for name in names:
+            shutil.copyfile(CUBE, folder / name)
+
+    taken, store = asyncio.run(watch_for(config, 0.8, drop))
+    assert taken == [] and store.jobs() == []
+    assert sorted(p.name for p in config.jobs.folder.iterdir()) == sorted(names)
+
+
+def test_files_present_at_start_are_taken_by_the_initial_scan(tmp_path: Path) -> None:
+    config = make_config(tmp_path)
+    config.jobs.folder.mkdir(parents=True)
+    shutil.copyfile(CUBE, config.jobs.folder / "early.stl")
+    (config.jobs.folder / "early.gcode").write_text("G28\nG1 X1\n")
+
+    async def nothing(folder: Path) -> None:
+        return None
+
+    taken, store = asyncio.run(watch_for(config, 0.8, nothing))
+    assert sorted(taken) == ["early.gcode", "early.stl"]
+    assert sorted(job.kind for job in store.jobs()) == ["gcode", "stl"]
+
+
+def test_same_name_twice_becomes_two_jobs(tmp_path: Path) -> None:
+    config = make_config(tmp_path)
+
+    async def drop_twice(folder: Path) -> None:
+        shutil.copyfile(CUBE, folder / "part.stl")
+        for _ in range(50):
+            await asyncio.sleep(0.1)
+            if not (folder / "part.stl").exists():
+                break
+        shutil.copyfile(CUBE, folder / "part.stl")
+
+    taken, store = asyncio.run(watch_for(config, 1.0, drop_twice))
+    assert taken == ["part.stl", "part.stl"]
+    jobs = store.jobs()
+    assert [job.name for job in jobs] == ["part.stl", "part.stl"]
+    assert len({job.path for job in jobs}) == 2
+    assert all(Path(job.path).exists() for job in jobs)
+
+
+def test_refusals_end_in_failed_with_a_reason(tmp_path: Path) -> None:
+    config = make_config(tmp_path, extra="max_bytes = 2000")
+    outside = tmp_path / "outside.stl"
+    shutil.copyfile(DATA / "cube20_xyz.stl", outside)
+
+    async def drop(folder: Path) -> None:
+        os.symlink(outside, folder / "escape.stl")
+        (folder / "empty.stl").write_bytes(b"")
+        (folder / "dir.stl").mkdir()
+        (folder / "big.stl").write_bytes(b"x" * 5000)
+        (folder / "tuned.toml").write_text("infill.density = 3\n")
+        (folder / "tuned.stl").write_bytes(b"solid x\nendsolid x\n")
+        (folder / "typo.toml").write_text("[infill]\ndensiti = 0.3\n")
+        (folder / "typo.stl").write_bytes(b"solid x\nendsolid x\n")
+        (folder / "garbled.toml").write_text("infill = [\n")
+        (folder / "garbled.stl").write_bytes(b"solid x\nendsolid x\n")
+
+    _taken, store = asyncio.run(watch_for(config, 1.0, drop))
+    failed = config.jobs.folder / "failed"
+    reasons = {p.name: p.read_text() for p in failed.glob("*.error.txt")}
+    assert "outside the job folder" in reasons["escape.error.txt"]
+    assert "empty (0 bytes)" in reasons["empty.error.txt"]
+    assert "is a directory" in reasons["dir.error.txt"]
+    assert "over the limit of 2000 bytes" in reasons["big.error.txt"]
+    assert "infill.density" in reasons["tuned.error.txt"]
+    assert "infill.densiti" in reasons["typo.error.txt"]
+    assert "not valid TOML" in reasons["garbled.error.txt"]
+    assert (failed / "escape.stl").is_symlink()  # the link moved, its target untouched
+    assert outside.exists()
+    assert (failed / "dir.stl").is_dir() and (failed / "tuned.toml").exists()
+    assert {job.state for job in store.jobs()} == {"failed"}
+    assert len(store.jobs()) == 7
+
+
+def test_a_good_override_is_applied_and_kept_with_the_job(tmp_path: Path) -> None:
+    config = make_config(tmp_path)
+
+    async def drop(folder: Path) -> None:
+        (folder / "dense.toml").write_text(
+            "nozzle_temp = 200\n[infill]\ndensity = 0.6\nfield = 'wave'\n"
+        )
+        time.sleep(0.05)
+        shutil.copyfile(CUBE, folder / "dense.stl")
+
+    _taken, store = asyncio.run(watch_for(config, 0.8, drop))
+    (job,) = store.jobs()
+    assert job.settings["infill.density"] == 0.6 and job.settings["infill.field"] == "wave"
+    assert (Path(job.path).parent / "dense.toml").exists()
+    assert not (config.jobs.folder / "dense.toml").exists()
