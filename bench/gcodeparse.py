@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterable
 from dataclasses import dataclass
 from pathlib import Path
@@ -17,6 +18,8 @@ OUTER_WALL_CONTINUATIONS = frozenset({"Overhang perimeter"})
 
 Z_KEY_SCALE = 100.0  # layers are matched by Z rounded to 0.01 mm
 _MIN_XY_MOVE = 1e-6  # mm: shorter moves count as extruding in place (priming)
+# a move in XY that feeds filament (relative E > 0), optionally numbered with a checksum
+_EXTRUDING_LINE = re.compile(r"^(?:N\d+\s+)?G[01]\s(?=[^;*]*[XY]-?\.?\d)[^;*]*\bE(\d*\.?\d+)")
 
 
 @dataclass(frozen=True)
@@ -61,6 +64,12 @@ class GcodeStats:
     layers: int  # distinct Z levels (0.01 mm) at which material is laid
     filament_mm: float  # filament fed by extruding moves, mm
     moves: int  # G0/G1 moves
+
+
+def is_extruding_line(line: str) -> bool:
+    """True for one G0/G1 line that moves in X or Y and feeds filament (relative E > 0)."""
+    match = _EXTRUDING_LINE.match(line.strip())
+    return bool(match) and float(match.group(1)) > 0
 
 
 class _State:

@@ -116,3 +116,22 @@ def test_read_moves_from_file(tmp_path: Path) -> None:
     moves = g.read_moves(path)
     assert moves.types == ("WALL-OUTER",)
     assert int(moves.extruding.sum()) == 4
+
+
+@pytest.mark.parametrize(
+    ("line", "expected"),
+    [
+        ("G1 X1 Y2 E0.5", True),
+        ("N12 G1 X1 E0.02*33", True),
+        ("G1 X-1 E.3", True),
+        ("G1 E2", False),  # priming in place
+        ("G1 X1 Y1 E-0.8", False),  # retracting while wiping
+        ("G1 X1 Y1 E0", False),
+        ("G0 X1 Y1", False),
+        ("G1 X1.0 Y1 F1200 ; E5", False),  # E only in the comment
+        ("G1 Z0.2 E1", False),
+        ("M104 S200", False),
+    ],
+)
+def test_first_extrusion_detection(line: str, expected: bool) -> None:
+    assert g.is_extruding_line(line) is expected

@@ -1,0 +1,345 @@
+"""Daemon latency and footprint: drop-to-first-extrusion, idle CPU, peak RSS while printing.
+
+For each model a fresh `hostd run` (simulated printer, instant motion, heating skipped)
+gets the model dropped into its job folder; the latency runs from the moment the file
+is settled (fully written, then ``settle_s`` of stability) to the first extruding move
+(a G0/G1 with X or Y and E > 0) in the simulated printer's executed-line log. Next to
+it, CuraEngine's whole-model slicing time on the same model (a batch slicer writes no
+G-code before it has sliced everything). Then the idle daemon's CPU use over 60 s and
+its peak resident memory while printing the largest model to the end.
+
+Usage (from the repository root):
+    .venv/bin/python bench/drop_to_extrusion.py [--models bunny,dragon_100k] [--repeat 3]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import shutil
+import signal
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import proctree
+from bench.gcodeparse import is_extruding_line
+from bench.peers import curaengine
+from bench.slice_vs_peers import MODELS, OUT, hostd_executable, model_paths, stl_faces
+
+_POLL_S = 0.005
+
+
+@dataclass(frozen=True)
+class DaemonSetup:
+    """How each benchmark daemon is configured."""
+
+    settle_s: float = 0.5
+    time_scale: float = 0.0
+    baud: int = 250000
+    bed: tuple[float, float, float] = (220.0, 220.0, 250.0)
+
+    def toml(self, jobs: Path, state: Path) -> str:
+        """The daemon configuration file's text."""
+        bed = ", ".join(f"{v:g}" for v in self.bed)
+        return (
+            f'[jobs]\nfolder = "{jobs}"\nsettle_s = {self.settle_s}\n\n'
+            f'[state]\nfolder = "{state}"\n\n'
+            f'[printer]\nport = "sim"\nbed = [{bed}]\n\n'
+            f"[simulator]\ntime_scale = {self.time_scale}\nbaud = {self.baud}\n\n"
+            "[slicing]\nskip_heating = true\n"
+        )
+
+
+class Daemon:
+    """A `hostd run` started in its own temporary folder, stopped on exit."""
+
+    def __init__(self, setup: DaemonSetup) -> None:
+        self.tmp = Path(tempfile.mkdtemp(prefix="hostd-bench-"))
+        self.jobs = self.tmp / "jobs"
+        self.state = self.tmp / "var"
+        self.jobs.mkdir()
+        self.state.mkdir()
+        self.config = self.tmp / "hostd.toml"
+        self.config.write_text(setup.toml(self.jobs, self.state))
+        self.log = self.tmp / "daemon.log"
+        self.proc: subprocess.Popen[bytes] | None = None
+
+    def __enter__(self) -> Daemon:
+        with open(self.log, "wb") as log:
+            self.proc = subprocess.Popen(
+                [*hostd_executable(), "run", "--config", str(self.config)],
+                stdout=log, stderr=subprocess.STDOUT, cwd=self.tmp, start_new_session=True)
+        return self
+
+    def __exit__(self, *exc_info: object) -> None:
+        self.stop()
+        shutil.rmtree(self.tmp, ignore_errors=True)
+
+    @property
+    def pid(self) -> int:
+        """Process id of the daemon."""
+        assert self.proc is not None
+        return self.proc.pid
+
+    def alive(self) -> bool:
+        """True while the daemon runs."""
+        return self.proc is not None and self.proc.poll() is None
+
+    def wait_ready(self, timeout: float = 30.0) -> None:
+        """Wait until the control socket exists (the daemon is up); raise if it died."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline:
+            if not self.alive():
+                raise RuntimeError(f"hostd run exited: {self.log_tail()}")
+            if any(p.is_socket() for p in self.state.rglob("*")):
+                time.sleep(0.3)  # let the watcher finish its first scan
+                return
+            time.sleep(0.05)
+        raise RuntimeError(f"hostd run not ready after {timeout:.0f} s: {self.log_tail()}")
+
+    def log_tail(self) -> str:
+        """Last line of the daemon's output."""
+        lines = self.log.read_text(errors="replace").strip().splitlines()
+        return lines[-1][:200] if lines else "no output"
+
+    def stop(self) -> None:
+        """SIGTERM, then SIGKILL of the daemon's process group after 10 s."""
+        if self.proc is None or self.proc.poll() is not None:
+            return
+        self.proc.send_signal(signal.SIGTERM)
+        try:
+            self.proc.wait(timeout=10)
+        except subprocess.TimeoutExpired:
+            os.killpg(self.proc.pid, signal.SIGKILL)
+            self.proc.wait()
+
+    def drop(self, model: Path) -> float:
+        """Copy ``model`` into the job folder (hidden copy, then rename); time it is whole."""
+        hidden = self.jobs / f".{model.name}.part"
+        shutil.copyfile(model, hidden)
+        os.replace(hidden, self.jobs / model.name)
+        return time.perf_counter()
+
+    def failure(self, name: str) -> str | None:
+        """The reason a job failed, if ``failed/NAME.error.txt`` exists."""
+        errors = sorted((self.jobs / "failed").glob(f"{Path(name).stem}*.error.txt"))
+        return errors[0].read_text(errors="replace").strip()[:200] if errors else None
+
+    def executed_log(self) -> Path | None:
+        """The simulated printer's executed-line log under the state folder, if any."""
+        logs = sorted(self.state.rglob("*executed*.log"))
+        return logs[0] if logs else None
+
+
+@dataclass
+class Latency:
+    """Drop-to-first-extrusion of one model."""
+
+    model: str
+    faces: int
+    settled_to_extrusion_s: float | None = None  # median
+    dropped_to_extrusion_s: float | None = None  # median, settle time included
+    cura_slice_s: float | None = None  # CuraEngine whole-model slicing, median
+    note: str = ""
+
+    @property
+    def lead(self) -> float | None:
+        """How many times sooner than CuraEngine's whole slicing the first extrusion comes."""
+        if self.settled_to_extrusion_s and self.cura_slice_s:
+            return self.cura_slice_s / self.settled_to_extrusion_s
+        return None
+
+
+def first_extrusion(daemon: Daemon, name: str, timeout: float) -> tuple[float | None, str]:
+    """Poll the executed-line log for the first extruding move; (time, note)."""
+    deadline = time.monotonic() + timeout
+    handle = None
+    pending = ""
+    try:
+        while time.monotonic() < deadline:
+            if handle is None:
+                path = daemon.executed_log()
+                if path is not None:
+                    handle = open(path, encoding="utf-8", errors="replace")  # noqa: SIM115
+            if handle is not None:
+                pending += handle.read()
+                lines = pending.split("\n")
+                pending = lines.pop()
+                for line in lines:
+                    if is_extruding_line(line):
+                        return time.perf_counter(), ""
+            reason = daemon.failure(name)
+            if reason is not None:
+                return None, f"refused: {reason}"
+            if not daemon.alive():
+                return None, f"daemon exited: {daemon.log_tail()}"
+            time.sleep(_POLL_S)
+    finally:
+        if handle is not None:
+            handle.close()
+    where = "no executed-line log under the state folder" if handle is None else "none seen"
+    return None, f"no extruding move within {timeout:.0f} s ({where})"
+
+
+def measure_latency(model: Path, setup: DaemonSetup, timeout: float) -> tuple[float | None,
+                                                                              float | None, str]:
+    """One drop into a fresh daemon: (settled->extrusion, dropped->extrusion, note)."""
+    with Daemon(setup) as daemon:
+        daemon.wait_ready()
+        written = daemon.drop(model)
+        seen, note = first_extrusion(daemon, model.name, timeout)
+    if seen is None:
+        return None, None, note
+    return seen - written - setup.settle_s, seen - written, note
+
+
+def cura_time(model: Path, repeat: int, timeout: float) -> float | None:
+    """Median CuraEngine whole-model slicing time, s (None if CuraEngine is unavailable)."""
+    peer = curaengine()
+    if peer is None:
+        return None
+    times = []
+    with tempfile.TemporaryDirectory(prefix="bench-cura-") as tmp:
+        for _ in range(repeat):
+            result = peer.slice(model, Path(tmp) / "out.gcode", timeout)
+            if result.ok:
+                times.append(result.wall_s)
+    return statistics.median(times) if times else None
+
+
+def idle_cpu(setup: DaemonSetup, seconds: float) -> float:
+    """CPU use of an idle daemon (empty job folder), percent of one core over ``seconds``."""
+    with Daemon(setup) as daemon:
+        daemon.wait_ready()
+        time.sleep(2.0)  # start-up work done
+        start_cpu, start = proctree.cpu_seconds(daemon.pid), time.monotonic()
+        time.sleep(seconds)
+        used = proctree.cpu_seconds(daemon.pid) - start_cpu
+        elapsed = time.monotonic() - start
+    return 100.0 * used / elapsed
+
+
+@dataclass
+class PrintMemory:
+    """Memory while printing one model to the end."""
+
+    model: str
+    faces: int
+    daemon_hwm_mb: float = 0.0  # VmHWM of the daemon process
+    tree_peak_mb: float = 0.0  # highest sampled RSS of the daemon and its children together
+    print_s: float | None = None  # drop to job done
+    note: str = ""
+
+
+def print_memory(model: Path, setup: DaemonSetup, timeout: float) -> PrintMemory:
+    """Print ``model`` to the end (or ``timeout``) and record peak memory."""
+    result = PrintMemory(model=model.stem, faces=stl_faces(model))
+    with Daemon(setup) as daemon:
+        daemon.wait_ready()
+        written = daemon.drop(model)
+        deadline = time.monotonic() + timeout
+        done = daemon.jobs / "done"
+        while time.monotonic() < deadline and daemon.alive():
+            result.tree_peak_mb = max(result.tree_peak_mb, proctree.tree_rss_mb(daemon.pid))
+            result.daemon_hwm_mb = proctree.status_kb(daemon.pid, "VmHWM") * 1024 / 1e6
+            if any(done.glob(f"{model.stem}*.gcode")):
+                result.print_s = time.perf_counter() - written
+                break
+            reason = daemon.failure(model.name)
+            if reason is not None:
+                result.note = f"failed: {reason}"
+                break
+            time.sleep(0.1)
+        else:
+            result.note = (f"not finished within {timeout:.0f} s" if daemon.alive()
+                           else f"daemon exited: {daemon.log_tail()}")
+    return result
+
+
+def latency_table(rows: list[Latency]) -> str:
+    """Markdown table of the latencies."""
+    lines = ["| model | faces | settled -> first extrusion | dropped -> first extrusion "
+             "| CuraEngine whole slicing | CuraEngine / ours | note |",
+             "|---|---|---|---|---|---|---|"]
+    for r in rows:
+        def s(v: float | None) -> str:
+            return "-" if v is None else f"{v:.3f} s"
+        lead = "-" if r.lead is None else f"{r.lead:.1f}x"
+        lines.append(f"| {r.model} | {r.faces:,} | {s(r.settled_to_extrusion_s)} "
+                     f"| {s(r.dropped_to_extrusion_s)} | {s(r.cura_slice_s)} | {lead} "
+                     f"| {r.note} |")
+    return "\n".join(lines)
+
+
+def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
+    """Command-line options."""
+    p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    p.add_argument("--models", default="", help="comma-separated model names (default: all)")
+    p.add_argument("--models-dir", type=Path, default=MODELS)
+    p.add_argument("--repeat", type=int, default=1, help="drops per model (medians if > 1)")
+    p.add_argument("--timeout", type=float, default=120.0, help="seconds per drop")
+    p.add_argument("--settle-s", type=float, default=0.5)
+    p.add_argument("--baud", type=int, default=250000, help="simulated wire speed (0 = no limit)")
+    p.add_argument("--idle-s", type=float, default=60.0, help="idle CPU window, s (0 = skip)")
+    p.add_argument("--print-model", default="3DBenchy",
+                   help="model printed to the end for peak RSS ('' = skip)")
+    p.add_argument("--print-timeout", type=float, default=900.0)
+    p.add_argument("--no-cura", action="store_true", help="skip CuraEngine's timings")
+    p.add_argument("--out", type=Path, default=OUT)
+    return p.parse_args(argv)
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Run the daemon benchmarks and print the results."""
+    args = parse_args(argv)
+    setup = DaemonSetup(settle_s=args.settle_s, baud=args.baud)
+    rows: list[Latency] = []
+    for model in model_paths(args.models_dir, args.models):
+        row = Latency(model=model.stem, faces=stl_faces(model))
+        settled, dropped, notes = [], [], []
+        for _ in range(args.repeat):
+            a, b, note = measure_latency(model, setup, args.timeout)
+            if a is not None and b is not None:
+                settled.append(a)
+                dropped.append(b)
+            elif note:
+                notes.append(note)
+        row.settled_to_extrusion_s = statistics.median(settled) if settled else None
+        row.dropped_to_extrusion_s = statistics.median(dropped) if dropped else None
+        row.note = notes[0] if notes else ""
+        if not args.no_cura and model.stem != "bad_triangle_soup":
+            row.cura_slice_s = cura_time(model, args.repeat, args.timeout)
+        print(f"  {row.model:18s} {row.settled_to_extrusion_s} {row.cura_slice_s} {row.note}",
+              file=sys.stderr)
+        rows.append(row)
+    results: dict[str, object] = {"setup": asdict(setup), "latency": [asdict(r) for r in rows]}
+    print(latency_table(rows))
+    if args.idle_s > 0:
+        idle = idle_cpu(setup, args.idle_s)
+        results["idle_cpu_percent"] = idle
+        print(f"\nidle daemon: {idle:.2f} % of one core over {args.idle_s:.0f} s")
+    if args.print_model:
+        model = model_paths(args.models_dir, args.print_model)[0]
+        memory = print_memory(model, DaemonSetup(settle_s=args.settle_s, baud=0),
+                              args.print_timeout)
+        results["print_memory"] = asdict(memory)
+        took = "-" if memory.print_s is None else f"{memory.print_s:.1f} s"
+        print(f"printing {memory.model} ({memory.faces:,} faces, unlimited wire): daemon peak "
+              f"RSS (VmHWM) {memory.daemon_hwm_mb:.0f} MB, daemon and children together "
+              f"{memory.tree_peak_mb:.0f} MB, drop to done {took} {memory.note}")
+    args.out.mkdir(parents=True, exist_ok=True)
+    (args.out / "drop_to_extrusion.json").write_text(json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

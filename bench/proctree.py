@@ -1,0 +1,73 @@
+"""CPU time and memory of a running process and its descendants, read from /proc (Linux)."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+CLOCK_TICKS = os.sysconf("SC_CLK_TCK")
+
+
+def _stat_fields(pid: int) -> list[str] | None:
+    """Fields of /proc/PID/stat after the command name (field 3 first); None if gone."""
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return text[text.rindex(")") + 2:].split()
+
+
+def descendants(pid: int) -> list[int]:
+    """Every live descendant of ``pid`` (children, grandchildren, ...)."""
+    parent_of: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            fields = _stat_fields(int(entry.name))
+            if fields is not None:
+                parent_of[int(entry.name)] = int(fields[1])
+    found: list[int] = []
+    frontier = [pid]
+    while frontier:
+        current = frontier.pop()
+        kids = [child for child, parent in parent_of.items() if parent == current]
+        found += kids
+        frontier += kids
+    return found
+
+
+def cpu_seconds(pid: int) -> float:
+    """User + system CPU time of ``pid``, its reaped children and its live descendants, s."""
+    total = 0.0
+    fields = _stat_fields(pid)
+    if fields is None:
+        return 0.0
+    # fields[11..14] = utime, stime, cutime, cstime (stat fields 14-17)
+    total += sum(int(v) for v in fields[11:15])
+    for child in descendants(pid):
+        child_fields = _stat_fields(child)
+        if child_fields is not None:
+            total += int(child_fields[11]) + int(child_fields[12])
+    return total / CLOCK_TICKS
+
+
+def status_kb(pid: int, key: str) -> int:
+    """A ``kB`` value of /proc/PID/status (``VmRSS``, ``VmHWM``); 0 if the process is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/status").read_text().splitlines():
+            if line.startswith(key + ":"):
+                return int(line.split()[1])
+    except OSError:
+        return 0
+    return 0
+
+
+def tree_rss_mb(pid: int) -> float:
+    """Resident memory of ``pid`` and its live descendants together, MB (10^6 bytes)."""
+    pids = [pid, *descendants(pid)]
+    return sum(status_kb(p, "VmRSS") for p in pids) * 1024 / 1e6
+
+
+def tree_hwm_mb(pid: int) -> float:
+    """Sum of the peak resident memory (VmHWM) of ``pid`` and its live descendants, MB."""
+    pids = [pid, *descendants(pid)]
+    return sum(status_kb(p, "VmHWM") for p in pids) * 1024 / 1e6
