@@ -1,0 +1,322 @@
+"""The MQTT bridge: status, events and availability out; guarded commands in (design.md topics)."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import logging
+import random
+import ssl
+import time
+from collections import deque
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import aiomqtt
+
+from hostd.api import Snapshot
+from hostd.homeassistant import discovery_messages
+from hostd.status import CommandError, Controller, StatusHub
+
+log = logging.getLogger(__name__)
+
+# The commands MQTT may carry (design.md); nothing else, and never raw G-code.
+MQTT_COMMANDS = ("pause", "resume", "cancel", "resume_job", "cancel_object", "set")
+MAX_COMMAND_BYTES = 64 * 1024
+EVENT_BUFFER = 1000  # events kept while the broker is unreachable (oldest dropped)
+
+
+class MqttSettings(Protocol):
+    """The ``[mqtt]`` section as the bridge reads it (``hostd.config.MqttConfig``)."""
+
+    enabled: bool
+    host: str
+    port: int
+    username: str
+    password: str
+    tls: bool
+    ca_file: str
+    allow_commands: bool
+    homeassistant: bool
+    keepalive: int
+
+
+class MqttSetupError(ValueError):
+    """The MQTT settings cannot work (for example an unreadable CA file)."""
+
+
+@dataclass(frozen=True)
+class Backoff:
+    """Jittered exponential reconnect delays, in seconds."""
+
+    initial_s: float = 0.5
+    maximum_s: float = 30.0
+    factor: float = 2.0
+
+    def delay(self, attempt: int, rng: random.Random) -> float:
+        """The wait before reconnect attempt ``attempt`` (0-based): half to all of the ceiling."""
+        ceiling = min(self.maximum_s, self.initial_s * self.factor ** min(attempt, 64))
+        return rng.uniform(ceiling / 2, ceiling)
+
+
+@dataclass(frozen=True)
+class Topics:
+    """The topics of one printer."""
+
+    online: str
+    status: str
+    event: str
+    cmd: str
+
+    @classmethod
+    def for_printer(cls, printer_id: str) -> Topics:
+        if not printer_id or any(ch in printer_id for ch in "/#+\0"):
+            raise MqttSetupError(f"printer id {printer_id!r} cannot be part of an MQTT topic")
+        base = f"hostd/{printer_id}"
+        return cls(f"{base}/online", f"{base}/status", f"{base}/event", f"{base}/cmd")
+
+
+class _StatusFeed:
+    """The newest snapshot, plus the snapshots that changed ``state`` (published at once)."""
+
+    def __init__(self, first: Snapshot) -> None:
+        self.newest = first
+        self.version = 0
+        self.state_changes: deque[Snapshot] = deque(maxlen=64)
+        self.changed = asyncio.Event()
+
+    def put(self, snapshot: Snapshot) -> None:
+        if snapshot.state != self.newest.state:
+            self.state_changes.append(snapshot)
+        self.newest = snapshot
+        self.version += 1
+        self.changed.set()
+
+
+class _EventFeed:
+    """Events waiting to be published, kept across reconnects (bounded)."""
+
+    def __init__(self) -> None:
+        self.items: deque[dict[str, Any]] = deque(maxlen=EVENT_BUFFER)
+        self.changed = asyncio.Event()
+
+    def put(self, item: dict[str, Any]) -> None:
+        self.items.append(item)
+        self.changed.set()
+
+
+def refusal(cmd: Any, reason: str, request_id: Any = None) -> dict[str, Any]:
+    """The ``error`` event that answers a refused MQTT command."""
+    item: dict[str, Any] = {"event": "error", "cmd": cmd, "reason": reason, "ts": time.time()}
+    if request_id is not None:
+        item["id"] = request_id
+    return item
+
+
+def tls_context(settings: MqttSettings) -> ssl.SSLContext | None:
+    """The TLS context for ``settings`` (None without TLS); ``ca_file`` adds a trusted CA."""
+    if not settings.tls:
+        return None
+    try:
+        return ssl.create_default_context(cafile=settings.ca_file or None)
+    except (OSError, ssl.SSLError) as exc:
+        raise MqttSetupError(f"mqtt.ca_file: cannot load {settings.ca_file!r}: {exc}") from exc
+
+
+class MqttBridge:
+    """Publishes the hub's status and events to a broker and carries allowed commands back.
+
+    ``run()`` lasts until cancelled. It never blocks the hub: it reads
+    ``hub.snapshots()`` and ``hub.events()``, which drop old snapshots for a
+    slow reader, and keeps reconnecting with jittered exponential backoff
+    while the broker is away. On cancellation it publishes ``offline`` itself
+    (a clean disconnect does not fire the last will).
+    """
+
+    def __init__(
+        self,
+        settings: MqttSettings,
+        printer_id: str,
+        hub: StatusHub,
+        controller: Controller,
+        *,
+        status_interval_s: float = 1.0,
+        backoff: Backoff | None = None,
+        rng: random.Random | None = None,
+    ) -> None:
+        self._settings = settings
+        self._printer_id = printer_id
+        self._hub = hub
+        self._controller = controller
+        self._interval = status_interval_s
+        self._backoff = backoff or Backoff()
+        self._rng = rng or random.Random()
+        self.topics = Topics.for_printer(printer_id)
+        self._tls = tls_context(settings)
+        self._status = _StatusFeed(hub.current)
+        self._events = _EventFeed()
+        self.connected = asyncio.Event()  # set while a session is up (for callers and tests)
+
+    async def run(self) -> None:
+        """Bridge until cancelled; returns at once when MQTT is not enabled."""
+        if not self._settings.enabled:
+            return
+        async with asyncio.TaskGroup() as group:
+            group.create_task(self._collect_status(), name="mqtt-collect-status")
+            group.create_task(self._collect_events(), name="mqtt-collect-events")
+            group.create_task(self._stay_connected(), name="mqtt-connection")
+
+    async def _collect_status(self) -> None:
+        async for snapshot in self._hub.snapshots():
+            self._status.put(snapshot)
+
+    async def _collect_events(self) -> None:
+        async for item in self._hub.events():
+            self._events.put(item)
+
+    def _client(self) -> aiomqtt.Client:
+        settings = self._settings
+        return aiomqtt.Client(
+            settings.host,
+            settings.port,
+            username=settings.username or None,
+            password=settings.password or None,
+            identifier=f"hostd-{self._printer_id}",
+            will=aiomqtt.Will(self.topics.online, "offline", qos=1, retain=True),
+            keepalive=settings.keepalive,
+            tls_context=self._tls,
+            timeout=10,
+        )
+
+    async def _stay_connected(self) -> None:
+        attempt = 0
+        while True:
+            try:
+                async with self._client() as client:
+                    attempt = 0
+                    log.info("MQTT connected to %s:%s", self._settings.host, self._settings.port)
+                    try:
+                        await self._session(client)
+                    except asyncio.CancelledError:
+                        await self._say_offline(client)
+                        raise
+            except* (aiomqtt.MqttError, OSError) as group:
+                log.warning("MQTT connection to %s:%s lost or refused: %s",
+                            self._settings.host, self._settings.port, group.exceptions[0])
+            except* Exception:  # a bridge bug must not stop the printer: log and reconnect
+                log.exception("MQTT bridge failed; reconnecting")
+            finally:
+                self.connected.clear()
+            delay = self._backoff.delay(attempt, self._rng)
+            attempt += 1
+            await asyncio.sleep(delay)
+
+    async def _say_offline(self, client: aiomqtt.Client) -> None:
+        """Publish the retained ``offline`` before a clean disconnect (best effort, bounded)."""
+        with contextlib.suppress(aiomqtt.MqttError, TimeoutError):
+            async with asyncio.timeout(2.0):
+                await client.publish(self.topics.online, "offline", qos=1, retain=True)
+
+    async def _session(self, client: aiomqtt.Client) -> None:
+        """One connection: announce, subscribe, then publish and listen until it drops."""
+        await client.publish(self.topics.online, "online", qos=1, retain=True)
+        if self._settings.homeassistant:
+            for topic, payload in discovery_messages(
+                self._printer_id, self.topics.status, self.topics.online
+            ):
+                await client.publish(topic, payload, qos=1, retain=True)
+        await client.subscribe(self.topics.cmd, qos=1)
+        self.connected.set()
+        async with asyncio.TaskGroup() as group:
+            group.create_task(self._publish_status(client), name="mqtt-publish-status")
+            group.create_task(self._publish_events(client), name="mqtt-publish-events")
+            group.create_task(self._listen(client), name="mqtt-commands")
+
+    async def _send_status(self, client: aiomqtt.Client, snapshot: Snapshot) -> None:
+        await client.publish(self.topics.status, snapshot.to_json(), qos=1, retain=True)
+
+    async def _publish_status(self, client: aiomqtt.Client) -> None:
+        """Retained status: every state change at once, other changes at most once an interval."""
+        feed = self._status
+        loop = asyncio.get_running_loop()
+        feed.state_changes.clear()
+        sent_version = feed.version
+        await self._send_status(client, feed.newest)
+        last = loop.time()
+        while True:
+            if feed.state_changes:
+                snapshot = feed.state_changes.popleft()
+                if snapshot is feed.newest:
+                    sent_version = feed.version
+                await self._send_status(client, snapshot)
+                last = loop.time()
+                continue
+            feed.changed.clear()
+            if feed.version == sent_version:
+                await feed.changed.wait()
+                continue
+            delay = last + self._interval - loop.time()
+            if delay > 0:
+                with contextlib.suppress(TimeoutError):
+                    async with asyncio.timeout(delay):
+                        await feed.changed.wait()  # a state change cuts the wait short
+                continue
+            sent_version = feed.version
+            await self._send_status(client, feed.newest)
+            last = loop.time()
+
+    async def _publish_events(self, client: aiomqtt.Client) -> None:
+        """Each hub event as JSON on the event topic, in order; unsent ones survive a drop."""
+        feed = self._events
+        while True:
+            if not feed.items:
+                feed.changed.clear()
+                await feed.changed.wait()
+                continue
+            item = feed.items[0]
+            await client.publish(self.topics.event, json.dumps(item, default=str), qos=1)
+            if feed.items and feed.items[0] is item:
+                feed.items.popleft()
+
+    async def _listen(self, client: aiomqtt.Client) -> None:
+        async for message in client.messages:
+            if not message.topic.matches(self.topics.cmd):
+                continue
+            answer = await self.execute(message.payload, retained=message.retain)
+            if answer is not None:
+                await client.publish(self.topics.event, json.dumps(answer, default=str), qos=1)
+
+    async def execute(self, payload: Any, *, retained: bool = False) -> dict[str, Any] | None:
+        """Carry out one command message; the ``error`` event to publish when refused, else None."""
+        if retained:
+            return refusal(None, "retained command ignored: commands must not be retained")
+        if isinstance(payload, bytes | bytearray) and len(payload) > MAX_COMMAND_BYTES:
+            return refusal(None, f"command larger than {MAX_COMMAND_BYTES} bytes")
+        try:
+            request = json.loads(payload)
+        except (TypeError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError
+            return refusal(None, f"malformed JSON: {exc}")
+        if not isinstance(request, dict):
+            return refusal(None, 'a command must be a JSON object such as {"cmd": "pause"}')
+        cmd = request.get("cmd")
+        request_id = request.get("id")
+        if not isinstance(cmd, str):
+            return refusal(None, 'missing "cmd"', request_id)
+        if not self._settings.allow_commands:
+            return refusal(cmd, "commands are disabled (mqtt.allow_commands = false)", request_id)
+        if not self._settings.username:
+            return refusal(cmd, "commands need broker credentials (mqtt.username)", request_id)
+        if cmd not in MQTT_COMMANDS:
+            return refusal(
+                cmd, f"unknown command {cmd!r}; one of {', '.join(MQTT_COMMANDS)}", request_id
+            )
+        args = {key: value for key, value in request.items() if key not in ("cmd", "id")}
+        try:
+            await self._controller.handle(cmd, args)
+        except CommandError as exc:
+            return refusal(cmd, str(exc), request_id)
+        except Exception as exc:  # a controller bug must not take the bridge down
+            log.exception("MQTT command %s failed", cmd)
+            return refusal(cmd, f"internal error: {type(exc).__name__}: {exc}", request_id)
+        return None

@@ -1,0 +1,454 @@
+"""The MQTT bridge against a real broker: availability, status rate, events, commands, reconnect."""
+
+from __future__ import annotations
+
+import asyncio
+import itertools
+import json
+import ssl
+from collections.abc import Awaitable, Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+import pytest
+from brokers import HOST, Broker, make_self_signed, start_broker
+
+from hostd.api import JobStatus, Snapshot
+from hostd.config import MqttConfig
+from hostd.mqtt import Backoff, MqttBridge, MqttSetupError
+from hostd.status import CommandError, StatusHub
+
+PRINTER = "p1"
+USER, SECRET = "farm", "s3cret"
+FAST = Backoff(initial_s=0.1, maximum_s=0.5)
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Any:
+    running = start_broker(tmp_path / "broker")
+    yield running
+    running.stop()
+
+
+@pytest.fixture
+def secured_broker(tmp_path: Path) -> Any:
+    running = start_broker(tmp_path / "broker", users={USER: SECRET})
+    yield running
+    running.stop()
+
+
+class RecordingController:
+    """A real controller for the tests: records commands, refuses `cancel` without a job."""
+
+    def __init__(self) -> None:
+        self.calls: list[tuple[str, dict[str, Any]]] = []
+
+    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
+        self.calls.append((cmd, args))
+        if cmd == "cancel":
+            raise CommandError("no job is printing")
+        return {}
+
+
+@dataclass
+class Received:
+    topic: str
+    payload: str
+    retain: bool
+    at: float
+
+
+@dataclass
+class Observer:
+    """A second client on the broker that records what the bridge publishes."""
+
+    client: aiomqtt.Client
+    messages: list[Received] = field(default_factory=list)
+    arrived: asyncio.Condition = field(default_factory=asyncio.Condition)
+
+    async def collect(self) -> None:
+        loop = asyncio.get_running_loop()
+        async for message in self.client.messages:
+            payload = message.payload
+            text = payload.decode() if isinstance(payload, bytes) else str(payload)
+            async with self.arrived:
+                self.messages.append(
+                    Received(str(message.topic), text, message.retain, loop.time())
+                )
+                self.arrived.notify_all()
+
+    def on(self, topic: str) -> list[Received]:
+        return [item for item in self.messages if item.topic == topic]
+
+    async def wait_for(self, test: Callable[[], Any], timeout: float = 10.0) -> Any:
+        """Wait until ``test()`` is truthy (re-checked on every message) and return it."""
+        async with asyncio.timeout(timeout), self.arrived:
+            await self.arrived.wait_for(test)
+            return test()
+
+    def last_json(self, topic: str) -> dict[str, Any] | None:
+        items = self.on(topic)
+        return json.loads(items[-1].payload) if items else None
+
+
+def observer_client(broker: Broker, tls: ssl.SSLContext | None = None) -> aiomqtt.Client:
+    creds = {"username": USER, "password": SECRET} if broker.users else {}
+    return aiomqtt.Client(HOST, broker.port, tls_context=tls, identifier=None, **creds)
+
+
+async def observe(
+    broker: Broker, body: Callable[[Observer], Awaitable[None]], tls: ssl.SSLContext | None = None
+) -> None:
+    """Run ``body`` with an observer subscribed to the printer's topics and discovery."""
+    async with observer_client(broker, tls) as client:
+        observer = Observer(client)
+        await client.subscribe(f"hostd/{PRINTER}/#", qos=1)
+        await client.subscribe("homeassistant/#", qos=1)
+        collector = asyncio.create_task(observer.collect(), name="observer")
+        try:
+            await body(observer)
+        finally:
+            collector.cancel()
+
+
+def settings(broker: Broker, **changes: Any) -> MqttConfig:
+    values: dict[str, Any] = {"enabled": True, "host": HOST, "port": broker.port}
+    if broker.users:
+        values.update(username=USER, password=SECRET)
+    values.update(changes)
+    return MqttConfig(**values)
+
+
+def topic(name: str) -> str:
+    return f"hostd/{PRINTER}/{name}"
+
+
+async def with_bridge(bridge: MqttBridge, body: Callable[[], Awaitable[None]]) -> None:
+    """Run ``body`` while ``bridge.run()`` runs; then stop the bridge as the daemon would."""
+    task = asyncio.create_task(bridge.run(), name="bridge")
+    try:
+        async with asyncio.timeout(10):
+            await bridge.connected.wait()
+        await body()
+    finally:
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+
+
+def test_online_status_events_and_offline_on_clean_exit(broker: Broker) -> None:
+    hub = StatusHub(Snapshot(state="idle"))
+    bridge = MqttBridge(settings(broker), PRINTER, hub, RecordingController())
+
+    async def body(observer: Observer) -> None:
+        async def while_running() -> None:
+            await observer.wait_for(lambda: [m for m in observer.on(topic("online"))
+                                             if m.payload == "online"])
+            await observer.wait_for(lambda: observer.on(topic("status")))
+            assert observer.last_json(topic("status")) == hub.current.to_dict()
+            hub.event("failed", job="3", name="junk.stl", reason="not an STL file")
+            event = await observer.wait_for(lambda: observer.last_json(topic("event")))
+            assert event["event"] == "failed" and event["reason"] == "not an STL file"
+
+        await with_bridge(bridge, while_running)
+        await observer.wait_for(lambda: observer.on(topic("online"))[-1].payload == "offline")
+
+    asyncio.run(observe(broker, body))
+
+    async def late_reader(observer: Observer) -> None:
+        # a client arriving later gets the retained availability and the last status
+        await observer.wait_for(lambda: observer.on(topic("online")) and observer.on(
+            topic("status")))
+        online = observer.on(topic("online"))[-1]
+        assert online.retain and online.payload == "offline"
+        assert observer.on(topic("status"))[-1].retain
+        assert observer.last_json(topic("status"))["state"] == "idle"
+
+    asyncio.run(observe(broker, late_reader))
+
+
+def test_status_is_coalesced_to_one_per_second_but_state_changes_go_at_once(
+    broker: Broker,
+) -> None:
+    hub = StatusHub(Snapshot(state="printing"))
+    bridge = MqttBridge(settings(broker), PRINTER, hub, RecordingController())
+
+    async def body(observer: Observer) -> None:
+        async def burst() -> None:
+            await observer.wait_for(lambda: observer.on(topic("status")))
+            start = len(observer.on(topic("status")))
+            loop = asyncio.get_running_loop()
+            began = loop.time()
+            for step in range(250):  # about 2.5 s of updates every 10 ms
+                state = "paused" if step == 120 else "printing"
+                hub.update(state=state, job=JobStatus(id="1", name="a.stl", layer=step,
+                                                      layers=250))
+                await asyncio.sleep(0.01)
+            duration = loop.time() - began
+            final = hub.current.to_dict()
+            await observer.wait_for(lambda: observer.last_json(topic("status")) == final, 5)
+            published = observer.on(topic("status"))[start:]
+            states = [json.loads(item.payload)["state"] for item in published]
+            assert "paused" in states, "a state change is published at once"
+            assert states.count("paused") == 1
+            # 3 state changes (the initial one, to paused and back) may each add one message
+            assert len(published) <= int(duration) + 2 + 3, states
+            for before, after in itertools.pairwise(published):
+                if json.loads(after.payload)["state"] == json.loads(before.payload)["state"]:
+                    assert after.at - before.at >= 0.8, "unchanged state: at most 1 Hz"
+
+        await with_bridge(bridge, burst)
+
+    asyncio.run(observe(broker, body))
+
+
+def test_commands_are_refused_without_allow_commands(secured_broker: Broker) -> None:
+    controller = RecordingController()
+    bridge = MqttBridge(settings(secured_broker), PRINTER, StatusHub(), controller)
+
+    async def body(observer: Observer) -> None:
+        async def send() -> None:
+            await observer.client.publish(topic("cmd"), '{"cmd": "pause", "id": 9}', qos=1)
+            event = await observer.wait_for(lambda: observer.last_json(topic("event")))
+            assert event["event"] == "error" and event["cmd"] == "pause" and event["id"] == 9
+            assert "allow_commands" in event["reason"]
+
+        await with_bridge(bridge, send)
+
+    asyncio.run(observe(secured_broker, body))
+    assert controller.calls == []
+
+
+def test_commands_are_refused_without_credentials(broker: Broker) -> None:
+    controller = RecordingController()
+    bridge = MqttBridge(settings(broker, allow_commands=True), PRINTER, StatusHub(), controller)
+
+    async def body(observer: Observer) -> None:
+        async def send() -> None:
+            await observer.client.publish(topic("cmd"), '{"cmd": "cancel"}', qos=1)
+            event = await observer.wait_for(lambda: observer.last_json(topic("event")))
+            assert event["event"] == "error" and event["cmd"] == "cancel"
+            assert "credentials" in event["reason"]
+
+        await with_bridge(bridge, send)
+
+    asyncio.run(observe(broker, body))
+    assert controller.calls == []
+
+
+def test_allowed_commands_reach_the_controller_and_bad_ones_are_answered(
+    secured_broker: Broker,
+) -> None:
+    controller = RecordingController()
+    bridge = MqttBridge(
+        settings(secured_broker, allow_commands=True), PRINTER, StatusHub(), controller
+    )
+    bad = [
+        ("not json at all", None, "malformed JSON"),
+        ('["pause"]', None, "JSON object"),
+        ('{"cmd": "gcode", "line": "M112"}', "gcode", "unknown command"),
+        ('{"cmd": "queue_remove", "job": "1"}', "queue_remove", "unknown command"),
+        ('{"cmd": "cancel"}', "cancel", "no job is printing"),
+    ]
+
+    async def body(observer: Observer) -> None:
+        async def send() -> None:
+            await observer.client.publish(topic("cmd"), '{"cmd": "pause"}', qos=1)
+            await observer.client.publish(
+                topic("cmd"), '{"cmd": "set", "infill.density": 0.4}', qos=1
+            )
+            for payload, _, _ in bad:
+                await observer.client.publish(topic("cmd"), payload, qos=1)
+            errors = await observer.wait_for(
+                lambda: len(observer.on(topic("event"))) >= len(bad) and observer.on(
+                    topic("event"))
+            )
+            answers = [json.loads(item.payload) for item in errors]
+            for answer, (_, cmd, reason) in zip(answers, bad, strict=True):
+                assert answer["event"] == "error" and answer["cmd"] == cmd
+                assert reason in answer["reason"]
+
+        await with_bridge(bridge, send)
+
+    asyncio.run(observe(secured_broker, body))
+    assert controller.calls == [("pause", {}), ("set", {"infill.density": 0.4}), ("cancel", {})]
+
+
+def test_a_retained_command_is_never_executed(secured_broker: Broker) -> None:
+    controller = RecordingController()
+    bridge = MqttBridge(
+        settings(secured_broker, allow_commands=True), PRINTER, StatusHub(), controller
+    )
+
+    async def body(observer: Observer) -> None:
+        # left on the broker, it would replay at every reconnect of the daemon
+        await observer.client.publish(topic("cmd"), '{"cmd": "cancel"}', qos=1, retain=True)
+
+        async def check() -> None:
+            event = await observer.wait_for(lambda: observer.last_json(topic("event")))
+            assert event["event"] == "error" and "retained" in event["reason"]
+            await observer.client.publish(topic("cmd"), b"", qos=1, retain=True)  # clear it
+
+        await with_bridge(bridge, check)
+
+    asyncio.run(observe(secured_broker, body))
+    assert controller.calls == []
+
+
+def test_a_wrong_password_never_connects(secured_broker: Broker) -> None:
+    bridge = MqttBridge(
+        settings(secured_broker, password="wrong"), PRINTER, StatusHub(), RecordingController(),
+        backoff=FAST,
+    )
+
+    async def main() -> None:
+        task = asyncio.create_task(bridge.run())
+        with pytest.raises(TimeoutError):
+            async with asyncio.timeout(1.5):
+                await bridge.connected.wait()
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+
+    asyncio.run(main())
+    assert "not authorised" in secured_broker.log_file.read_text()
+
+
+def test_reconnects_after_a_broker_restart_while_updates_go_on(broker: Broker) -> None:
+    hub = StatusHub(Snapshot(state="printing"))
+    bridge = MqttBridge(settings(broker), PRINTER, hub, RecordingController(), backoff=FAST)
+    layers: list[int] = []
+
+    async def printing() -> None:
+        for layer in range(10_000):
+            hub.update(job=JobStatus(id="1", name="a.stl", layer=layer, layers=10_000))
+            layers.append(layer)
+            await asyncio.sleep(0.02)
+
+    async def main() -> None:
+        producer = asyncio.create_task(printing(), name="printing")
+
+        async def restart() -> None:
+            loop = asyncio.get_running_loop()
+            broker.stop()
+            await asyncio.sleep(0.05)
+            await _lost(bridge)
+            hub.event("failed", job="2", name="junk.stl", reason="empty file")
+            before = len(layers)
+            await loop.run_in_executor(None, broker.start)
+            async with asyncio.timeout(10):
+                await bridge.connected.wait()
+            assert len(layers) > before, "the hub kept updating while the broker was away"
+            reached = layers[-1]
+
+            async def check(observer: Observer) -> None:
+                await observer.wait_for(
+                    lambda: observer.on(topic("online"))
+                    and observer.on(topic("online"))[-1].payload == "online"
+                )
+                await observer.wait_for(
+                    lambda: (observer.last_json(topic("status")) or {}).get("job", {}).get(
+                        "layer", -1) >= reached
+                )
+
+            await observe(broker, check)
+
+        await with_bridge(bridge, restart)
+        producer.cancel()
+
+    asyncio.run(main())
+
+
+async def _lost(bridge: MqttBridge) -> bool:
+    """Wait until the bridge notices the broker is gone."""
+    async with asyncio.timeout(5):
+        while bridge.connected.is_set():
+            await asyncio.sleep(0.02)
+    return True
+
+
+def test_events_raised_while_the_broker_is_away_are_published_after_reconnect(
+    broker: Broker,
+) -> None:
+    hub = StatusHub()
+    bridge = MqttBridge(settings(broker), PRINTER, hub, RecordingController(), backoff=FAST)
+
+    async def main() -> None:
+        received: list[dict[str, Any]] = []
+        arrived = asyncio.Event()
+
+        async def listen() -> None:
+            while True:
+                try:
+                    async with observer_client(broker) as client:
+                        await client.subscribe(topic("event"), qos=1)
+                        async for message in client.messages:
+                            received.append(json.loads(message.payload))
+                            arrived.set()
+                except aiomqtt.MqttError:
+                    await asyncio.sleep(0.1)
+
+        async def outage() -> None:
+            broker.stop()
+            await _lost(bridge)
+            hub.event("failed", job="2", name="junk.stl", reason="empty file")
+            await asyncio.get_running_loop().run_in_executor(None, broker.start)
+            listener = asyncio.create_task(listen())
+            async with asyncio.timeout(10):
+                while not any(item.get("event") == "failed" for item in received):
+                    arrived.clear()
+                    await arrived.wait()
+            listener.cancel()
+
+        await with_bridge(bridge, outage)
+
+    asyncio.run(main())
+
+
+def test_tls_with_a_self_signed_certificate(tmp_path: Path) -> None:
+    files = make_self_signed(tmp_path)
+    running = start_broker(tmp_path / "broker", users={USER: SECRET}, tls=files)
+    try:
+        hub = StatusHub(Snapshot(state="heating"))
+        trusting = MqttBridge(
+            settings(running, tls=True, ca_file=str(files.cert)), PRINTER, hub,
+            RecordingController(),
+        )
+        context = ssl.create_default_context(cafile=str(files.cert))
+
+        async def body(observer: Observer) -> None:
+            async def check() -> None:
+                status = await observer.wait_for(lambda: observer.last_json(topic("status")))
+                assert status["state"] == "heating"
+
+            await with_bridge(trusting, check)
+
+        asyncio.run(observe(running, body, tls=context))
+
+        # without the CA the broker's certificate is not trusted: no connection
+        untrusting = MqttBridge(
+            settings(running, tls=True), PRINTER, hub, RecordingController(), backoff=FAST
+        )
+
+        async def refused() -> None:
+            task = asyncio.create_task(untrusting.run())
+            with pytest.raises(TimeoutError):
+                async with asyncio.timeout(1.0):
+                    await untrusting.connected.wait()
+            task.cancel()
+            with pytest.raises(asyncio.CancelledError):
+                await task
+
+        asyncio.run(refused())
+    finally:
+        running.stop()
+
+
+def test_a_missing_ca_file_is_refused_at_start(tmp_path: Path) -> None:
+    config = MqttConfig(enabled=True, tls=True, ca_file=str(tmp_path / "missing.pem"))
+    with pytest.raises(MqttSetupError, match="ca_file"):
+        MqttBridge(config, PRINTER, StatusHub(), RecordingController())
+    with pytest.raises(MqttSetupError, match="topic"):
+        MqttBridge(MqttConfig(enabled=True), "a/b", StatusHub(), RecordingController())
