@@ -1,0 +1,99 @@
+"""Settings of the simulated Marlin printer: one frozen, range-checked dataclass."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, fields
+
+# names of the fault probabilities, in the order they are documented
+FAULT_KINDS = (
+    "corrupt_rx",
+    "corrupt_tx",
+    "drop_ok",
+    "resend",
+    "busy",
+    "reset",
+    "disconnect",
+)
+
+
+@dataclass(frozen=True)
+class SimulatorConfig:
+    """Everything that shapes the simulated printer; immutable once built.
+
+    Times are in seconds. ``time_scale`` multiplies every *simulated* duration (moves,
+    dwells, homing, heating, keepalive interval) to give wall time: 1.0 is real time,
+    0.0 is instant. ``baud`` limits the wire in both directions to ``baud / 10`` bytes/s
+    (8N1 framing); 0 means unlimited.
+
+    Fault probabilities (0..1), drawn from one seeded generator per fault kind:
+
+    - ``p_corrupt_rx``: per received line, one bit of one byte flipped (host -> printer);
+    - ``p_corrupt_tx``: per sent line, one bit of one byte flipped (printer -> host);
+    - ``p_drop_ok``: per ``ok``, the line is not sent;
+    - ``p_resend``: per accepted numbered line, a spurious ``Resend: <that line>`` + ``ok``
+      although the line was fine and is executed once;
+    - ``p_busy``: per executed command, a burst of 1-5 ``echo:busy: processing`` lines,
+      each after one keepalive interval of simulated time;
+    - ``p_reset``: per executed command, a reset before it (queue, receive buffer,
+      line numbers, heaters and position lost; ``start`` printed after the boot delay);
+    - ``p_disconnect``: per executed command, the pseudo-terminal is closed before it (the
+      port vanishes); with ``link_path`` the printer comes back on a new pseudo-terminal
+      after ``reconnect_delay_s`` and the link is pointed at it.
+
+    Resets and disconnects happen between commands, after every reply already produced
+    has been written, so an ``ok`` never goes missing with them.
+    """
+
+    time_scale: float = 1.0
+    baud: int = 250000
+    rx_buffer: int = 128
+    bufsize: int = 4
+    planner_blocks: int = 16
+    max_cmd_size: int = 96
+    advanced_ok: bool = False
+    emergency_parser: bool = True
+    ok_after_resend: bool = True
+    reset_on_open: bool = True
+    boot_delay_s: float = 0.05
+    keepalive_s: float = 2.0
+    ambient_c: float = 20.0
+    log_path: str | None = None
+    link_path: str | None = None
+    reconnect_delay_s: float = 0.2
+    seed: int = 0
+    p_corrupt_rx: float = 0.0
+    p_corrupt_tx: float = 0.0
+    p_drop_ok: float = 0.0
+    p_resend: float = 0.0
+    p_busy: float = 0.0
+    p_reset: float = 0.0
+    p_disconnect: float = 0.0
+
+    def __post_init__(self) -> None:
+        _check(self.time_scale >= 0.0, "time_scale", "must be >= 0")
+        _check(self.baud >= 0, "baud", "must be >= 0 (0 = unlimited)")
+        _check(self.rx_buffer >= 1, "rx_buffer", "must be >= 1 byte")
+        _check(self.bufsize >= 1, "bufsize", "must be >= 1 command")
+        _check(self.planner_blocks >= 0, "planner_blocks", "must be >= 0 (0 = no planner)")
+        _check(self.max_cmd_size >= 8, "max_cmd_size", "must be >= 8 bytes")
+        _check(self.boot_delay_s >= 0.0, "boot_delay_s", "must be >= 0")
+        _check(self.keepalive_s > 0.0, "keepalive_s", "must be > 0")
+        _check(self.reconnect_delay_s >= 0.0, "reconnect_delay_s", "must be >= 0")
+        for kind in FAULT_KINDS:
+            p = getattr(self, f"p_{kind}")
+            _check(0.0 <= p <= 1.0, f"p_{kind}", "must be a probability in 0..1")
+
+    @property
+    def bytes_per_second(self) -> float:
+        """Wire speed in bytes/s (8N1: ten bits a byte); 0.0 for an unlimited wire."""
+        return self.baud / 10.0
+
+    @classmethod
+    def keys(cls) -> tuple[str, ...]:
+        """Names of every setting, for callers that build a config from a mapping."""
+        return tuple(f.name for f in fields(cls))
+
+
+def _check(ok: bool, key: str, reason: str) -> None:
+    if not ok:
+        raise ValueError(f"SimulatorConfig.{key}: {reason}")

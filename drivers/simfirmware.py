@@ -1,0 +1,404 @@
+"""Marlin's main loop as the simulated printer runs it: receive buffer, line checks, queue.
+
+The I/O thread plays the UART interrupt (``receive``); the firmware thread (``run``) reads
+lines from the receive buffer into a command queue of ``bufsize`` commands, checking line
+numbers and checksums exactly as Marlin's ``queue.cpp`` does, and executes one command at
+a time, answering ``ok`` once it has been executed (for a move: once it is planned).
+"""
+
+from __future__ import annotations
+
+import re
+import threading
+import time
+from collections import Counter, deque
+from collections.abc import Callable
+
+from drivers import simcommands
+from drivers.faults import FaultInjector
+from drivers.heater import BED, HOTEND, Heater, format_temperatures
+from drivers.simclock import SimClock
+from drivers.simconfig import SimulatorConfig
+from drivers.simmotion import Motion, Planner
+
+ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
+ERR_CHECKSUM = "checksum mismatch, Last Line: "
+ERR_NO_CHECKSUM = "No Checksum with line number, Last Line: "
+ERR_KILLED = "Error:Printer halted. kill() called!"
+BUSY = "echo:busy: processing"
+
+_TERMINATOR = re.compile(rb"[\r\n]")
+_EMERGENCY = re.compile(r"^\s*(?:N\d+\s*)?(M108|M112|M410)(?!\d)")
+
+
+class Abort(Exception):
+    """A reset, a kill or the end of the simulation cut the current command short."""
+
+
+def strtol(text: str) -> int:
+    """C's ``strtol(text, NULL, 10)``: leading blanks, optional sign, digits; else 0."""
+    match = re.match(r"\s*([-+]?\d+)", text)
+    return int(match.group(1)) if match else 0
+
+
+class Firmware:
+    """The simulated Marlin: parser, command queue, executor and machine state."""
+
+    def __init__(
+        self,
+        config: SimulatorConfig,
+        send: Callable[[bytes], None],
+        wait_sent: Callable[[float], bool],
+        vanish: Callable[[], None],
+        executed: Callable[[str], None],
+    ) -> None:
+        self.config = config
+        self._send = send
+        self._wait_sent = wait_sent
+        self._vanish = vanish
+        self._executed = executed
+        self.faults = FaultInjector(config)
+        self.clock = SimClock(config.time_scale)
+        self.hotend = Heater(HOTEND, config.ambient_c)
+        self.bed = Heater(BED, config.ambient_c)
+        self.motion = Motion()
+        self.planner = Planner(config.planner_blocks)
+        self.keepalive_s = config.keepalive_s
+        self.autoreport_s = 0.0
+        self.autoreport_changed = threading.Event()
+        self.last_n = 0
+        self.stats: Counter[str] = Counter()
+        self.times: Counter[str] = Counter()  # simulated seconds by kind: motion, dwell, home
+        self._lock = threading.Lock()
+        self._cond = threading.Condition(self._lock)
+        self._rx = bytearray()
+        self._partial = bytearray()
+        self._eline = bytearray()
+        self._queue: deque[str] = deque()
+        self._interrupt = threading.Event()
+        self._stopping = False
+        self._reset_pending = False
+        self._kill_pending = False
+        self._halted = False
+        self._cancel_wait = False
+        self._quickstop = False
+        self._booting_until = 0.0
+        self._busy_next = 0.0
+
+    # --- called from the I/O thread (the UART interrupt) -----------------------------
+
+    def receive(self, data: bytes) -> None:
+        """Bytes from the wire: into the receive buffer, bytes past its size are lost."""
+        if self.config.emergency_parser:
+            self._emergency_scan(data)
+        with self._cond:
+            if self._halted or time.monotonic() < self._booting_until:
+                self.stats["rx_lost_bytes"] += len(data)
+                return
+            room = self.config.rx_buffer - len(self._rx)
+            if len(data) > room:
+                self.stats["rx_overflow_bytes"] += len(data) - max(0, room)
+                data = data[: max(0, room)]
+            self._rx += data
+            self._cond.notify()
+
+    def port_opened(self) -> None:
+        """The host opened the port: an 8-bit board resets (DTR) unless configured not to."""
+        if self.config.reset_on_open:
+            self.request_reset()
+
+    def request_reset(self) -> None:
+        """Reset the printer as soon as the firmware thread can (thread-safe)."""
+        with self._cond:
+            self._reset_pending = True
+            self._cond.notify()
+        self._interrupt.set()
+
+    def stop(self) -> None:
+        """Make ``run`` return (thread-safe)."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify()
+        self._interrupt.set()
+
+    def _emergency_scan(self, data: bytes) -> None:
+        if self._halted:
+            return
+        self._eline += data
+        *lines, tail = _TERMINATOR.split(bytes(self._eline))
+        self._eline = bytearray(tail[-self.config.max_cmd_size :])
+        for raw in lines:
+            if b"M1" not in raw and b"M4" not in raw:
+                continue
+            match = _EMERGENCY.match(raw.decode("latin-1"))
+            if not match:
+                continue
+            code = match.group(1)
+            with self._cond:
+                if code == "M112":
+                    self._kill_pending = True
+                elif code == "M108":
+                    self._cancel_wait = True
+                else:
+                    self._quickstop = True
+                self._cond.notify()
+            self._interrupt.set()
+
+    # --- the firmware thread --------------------------------------------------------
+
+    def run(self) -> None:
+        """The main loop: until ``stop``."""
+        while True:
+            with self._cond:
+                while not (
+                    self._stopping or self._reset_pending or self._kill_pending
+                    or (not self._halted and (self._rx or self._queue))
+                ):
+                    self._cond.wait()
+                if self._stopping:
+                    return
+            try:
+                if self._reset_pending:
+                    self._reset()
+                elif self._kill_pending:
+                    self.kill("M112")
+                else:
+                    self._fill_queue()
+                    if self._queue:
+                        self._execute_next()
+            except Abort:
+                continue
+
+    def _fill_queue(self) -> None:
+        """Marlin's ``get_serial_commands``: read lines while the queue has room."""
+        limit = self.config.max_cmd_size - 1
+        while len(self._queue) < self.config.bufsize:
+            with self._lock:
+                if not self._rx:
+                    return
+                found = _TERMINATOR.search(self._rx)
+                end = found.start() if found else len(self._rx)
+                room = max(0, limit - len(self._partial))
+                self._partial += self._rx[: min(end, room)]
+                del self._rx[: end + 1 if found else end]
+            if not found:
+                return
+            line = bytes(self._partial)
+            self._partial.clear()
+            if line:
+                self._process_line(line)
+
+    def _process_line(self, raw: bytes) -> None:
+        """Marlin's ``process_line``: checks, then queue the command."""
+        self.stats["lines"] += 1
+        if self.faults.fires("corrupt_rx"):
+            raw = self.faults.flip_bit("corrupt_rx", raw)
+        text = raw.decode("latin-1").split(";", 1)[0].lstrip(" ")
+        if not text.strip():
+            return
+        numbered = text.startswith("N")
+        is_m110 = "M110" in text
+        if numbered:
+            number = strtol(text[1:])
+            if number != self.last_n + 1 and not is_m110:
+                self._line_error(ERR_LINE_NO)
+                return
+            star = text.rfind("*")
+            if star < 0:
+                self._line_error(ERR_NO_CHECKSUM)
+                return
+            cs = 0
+            for byte in text[:star].encode("latin-1"):
+                cs ^= byte
+            if strtol(text[star + 1 :]) != cs:
+                self._line_error(ERR_CHECKSUM)
+                return
+            self.last_n = number
+            command = re.sub(r"^N[-+]?\d*\s*", "", text[:star]).strip()
+        else:
+            command = text.split("*", 1)[0].strip()
+        if is_m110:
+            param = command.find("N", command.find("M110") + 4)
+            if param >= 0:
+                self.last_n = strtol(command[param + 1 :])
+        if not command:
+            return
+        self._queue.append(command)
+        if numbered and not is_m110 and self.faults.fires("resend"):
+            self.emit(f"Resend: {self.last_n}")
+            self.send_ok()
+
+    def _line_error(self, message: str) -> None:
+        """Marlin's ``gcode_line_error``: report, drain the receive buffer, ask for a resend."""
+        self.stats["errors"] += 1
+        self.stats[message.split(",")[0]] += 1
+        self.emit(f"Error:{message}{self.last_n}")
+        with self._lock:
+            self._rx.clear()
+            self._partial.clear()
+        self.emit(f"Resend: {self.last_n + 1}")
+        if self.config.ok_after_resend:
+            self.send_ok()
+
+    def _execute_next(self) -> None:
+        if self.faults.fires("reset"):
+            self._wait_sent(2.0)
+            self._reset()
+            return
+        if self.faults.fires("disconnect"):
+            self._wait_sent(2.0)
+            self._vanish()
+            if self.config.link_path is None:
+                self._reset()  # the port never comes back; nothing more will be received
+            return
+        command = self._queue[0]
+        self._busy_next = self.clock.now() + self.keepalive_s
+        if self.faults.fires("busy"):
+            for _ in range(self.faults.randint("busy", 1, 5)):
+                self.emit(BUSY)
+                self.wait_sim(self.keepalive_s, keepalive=False)
+        send_ok = simcommands.execute(self, command)
+        self._queue.popleft()
+        if send_ok:
+            self.send_ok()
+
+    # --- services for the command handlers ------------------------------------------
+
+    def emit(self, line: str) -> None:
+        """Send one line to the host (subject to the printer -> host corruption fault)."""
+        data = (line + "\n").encode("latin-1", "replace")
+        if self.faults.fires("corrupt_tx"):
+            data = self.faults.flip_bit("corrupt_tx", data)
+        self._send(data)
+
+    def send_ok(self, suffix: str = "") -> None:
+        """Send ``ok`` (advanced ``ok N.. P.. B..`` when configured); may be dropped."""
+        if self.faults.fires("drop_ok"):
+            return
+        if suffix:
+            self.emit("ok" + suffix)
+        elif self.config.advanced_ok:
+            free_q = self.config.bufsize - len(self._queue)
+            free_p = self.planner.free(self.clock.now())
+            self.emit(f"ok N{self.last_n} P{free_p} B{free_q}")
+        else:
+            self.emit("ok")
+
+    def log_executed(self, command: str) -> None:
+        """Record one executed command."""
+        self.stats["executed"] += 1
+        self._executed(command)
+
+    def temperatures(self) -> str:
+        """The heater report as M105 and auto-report print it (leading blank)."""
+        with self._lock:
+            return format_temperatures(self.hotend, self.bed, self.clock.now())
+
+    def set_target(self, heater: Heater, target_c: float) -> None:
+        """Set a heater's target at the current simulated time."""
+        with self._lock:
+            heater.set_target(target_c, self.clock.now())
+
+    def set_autoreport(self, seconds: float) -> None:
+        """M155 S<s>: temperature reports every ``s`` wall seconds (0 = off)."""
+        self.autoreport_s = max(0.0, seconds)
+        self.autoreport_changed.set()
+
+    def wait_sim(self, seconds: float, cancellable: bool = False, keepalive: bool = True) -> bool:
+        """Let ``seconds`` of simulated time pass, sending ``busy`` every keepalive interval.
+
+        Returns False if cut short by M108 (only when ``cancellable``); raises ``Abort`` on a
+        reset, a kill or the end of the simulation.
+        """
+        end = self.clock.now() + seconds
+        while True:
+            self._interrupt.clear()
+            self._check_interrupts()
+            if cancellable and self._cancel_wait:
+                self._cancel_wait = False
+                return False
+            now = self.clock.now()
+            if keepalive and now >= self._busy_next - 1e-9:
+                self.emit(BUSY)
+                self._busy_next = now + self.keepalive_s
+            if now >= end - 1e-9:
+                return True
+            step = end - now
+            if keepalive:
+                step = min(step, self._busy_next - now)
+            self.clock.wait(step, self._interrupt)
+
+    def plan_move(self, duration: float) -> None:
+        """Add a block to the planner, waiting while it is full (no planner: move now)."""
+        if self.config.planner_blocks == 0:
+            self.wait_sim(duration)
+            return
+        now = self.clock.now()
+        free_at = self.planner.next_free_at(now)
+        if free_at > now:
+            self.wait_sim(free_at - now)
+        self.planner.add(self.clock.now(), duration)
+
+    def synchronize(self) -> None:
+        """Marlin's ``planner.synchronize()``: wait until every block has been executed."""
+        now = self.clock.now()
+        idle = self.planner.idle_at(now)
+        if idle > now:
+            self.wait_sim(idle - now)
+
+    def kill(self, command: str | None = None) -> None:
+        """M112: report, switch everything off and halt until a reset."""
+        if command:
+            self.log_executed(command)
+        self.emit(ERR_KILLED)
+        with self._cond:
+            self._kill_pending = False
+            self._halted = True
+            self._rx.clear()
+            self._partial.clear()
+            self._queue.clear()
+        self._power_off()
+        raise Abort
+
+    def _check_interrupts(self) -> None:
+        if self._stopping or self._reset_pending:
+            raise Abort
+        if self._kill_pending:
+            self.kill("M112")
+        if self._quickstop:
+            self._quickstop = False
+            self.planner.clear()
+
+    def _power_off(self) -> None:
+        with self._lock:
+            now = self.clock.now()
+            self.hotend.reset(now)
+            self.bed.reset(now)
+        self.planner.clear()
+        self.set_autoreport(0.0)
+
+    def _reset(self) -> None:
+        """A hardware reset: everything volatile lost, then the boot banner."""
+        self.stats["resets"] += 1
+        boot = self.config.boot_delay_s
+        with self._cond:
+            self._reset_pending = False
+            self._kill_pending = False
+            self._halted = False
+            self._cancel_wait = False
+            self._quickstop = False
+            self._booting_until = time.monotonic() + boot
+            self._rx.clear()
+            self._partial.clear()
+            self._queue.clear()
+            self.last_n = 0
+        self._power_off()
+        self.motion.reset()
+        self.keepalive_s = self.config.keepalive_s
+        if boot > 0.0:
+            self._interrupt.clear()
+            self._interrupt.wait(boot)
+            if self._stopping:
+                raise Abort
+        for line in simcommands.banner():
+            self.emit(line)
