@@ -67,8 +67,8 @@ def status_line(snapshot: Snapshot) -> str:
     """A one-line summary of a snapshot for ``systemctl status`` (``STATUS=``)."""
     job = snapshot.job
     if snapshot.state == "error":
-        return f"error: {snapshot.error or 'unknown'}"
-    if job is None:
+        text = f"error: {snapshot.error or 'unknown'}"
+    elif job is None:
         text = snapshot.state
     else:
         text = f"{snapshot.state} {job.name} layer {job.layer}/{job.layers} ({job.progress:.0%})"
