@@ -1,6 +1,10 @@
-"""Marlin serial protocol: line framing, checksums and comment stripping (pure functions)."""
+"""Marlin serial protocol: line framing, checksums, comment stripping and response parsing."""
 
 from __future__ import annotations
+
+from drivers.responses import Response, parse_response
+
+__all__ = ["Response", "checksum", "frame", "parse_response", "strip_comment"]
 
 
 def checksum(text: str) -> int:

@@ -1,0 +1,54 @@
+"""Sanity checks for resend requests: which line did the printer really ask for?"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+
+
+def edit_distance(a: str, b: str) -> int:
+    """Levenshtein distance between two short strings."""
+    previous = list(range(len(b) + 1))
+    for i, ca in enumerate(a, 1):
+        current = [i]
+        for j, cb in enumerate(b, 1):
+            current.append(min(previous[j] + 1, current[j - 1] + 1,
+                               previous[j - 1] + (ca != cb)))
+        previous = current
+    return previous[-1]
+
+
+def resolve_resend(
+    digits: str,
+    candidates: Sequence[int],
+    error_last_line: int | None = None,
+    max_distance: int = 2,
+) -> int | None:
+    """The line a resend request most plausibly names, or ``None`` if none fits.
+
+    ``digits`` is the number as received (``"034497"``); ``candidates`` are the line
+    numbers the printer can legitimately ask for (sent and unacknowledged, plus the next
+    line to send); ``error_last_line`` is the ``Last Line`` of the error just before, when
+    one was received. A request that names a candidate exactly (without a leading zero) is
+    taken as is; otherwise the ``Last Line`` of the error decides if it is a candidate;
+    otherwise the candidate whose digits differ least (at most ``max_distance`` edits, and
+    a unique best) is taken. Noise can drop or change digits, so a request is never obeyed
+    blindly.
+    """
+    pool = set(candidates)
+    if not pool or not digits.isdigit():
+        return None
+    requested = int(digits)
+    clean = not (len(digits) > 1 and digits.startswith("0"))
+    if error_last_line is not None and error_last_line + 1 in pool:
+        if clean and requested in pool and requested != error_last_line + 1:
+            return min(requested, error_last_line + 1)
+        return error_last_line + 1
+    if clean and requested in pool:
+        return requested
+    scored = sorted((edit_distance(digits, str(n)), n) for n in pool)
+    best_distance, best = scored[0]
+    if best_distance > max_distance:
+        return None
+    if len(scored) > 1 and scored[1][0] == best_distance:
+        return None
+    return best

@@ -1,0 +1,769 @@
+"""The flow-controlled streamer: numbered lines, send-ahead window, resends, timeouts, control."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+from collections import deque
+from collections.abc import Awaitable, Callable, Iterable
+from dataclasses import dataclass, field
+from types import TracebackType
+
+from drivers.protocol import Response, frame, parse_response
+from drivers.resend import resolve_resend
+from drivers.transport import Transport, TransportError
+from drivers.window import InFlight, SendWindow
+
+LONG_COMMANDS = frozenset(
+    {"M109", "M190", "M191", "G28", "G29", "G30", "G32", "G34", "M400", "G4", "M600", "M303",
+     "M226", "M0", "M1"}
+)
+
+# link states
+DISCONNECTED = "disconnected"
+CONNECTING = "connecting"
+READY = "ready"
+PAUSED = "paused"
+CANCELLED = "cancelled"
+ERROR = "error"
+HALTED = "halted"
+
+
+class LinkError(ConnectionError):
+    """The link to the printer failed: port lost, printer silent, halted or emergency stop."""
+
+
+class StreamCancelled(Exception):
+    """The stream was cancelled: ``send()`` no longer accepts job lines."""
+
+
+@dataclass(frozen=True)
+class StreamerConfig:
+    """How the streamer drives the printer. Times in seconds, sizes in bytes.
+
+    - ``rx_buffer``: most unacknowledged bytes on the wire and in the firmware's receive
+      buffer (Marlin: 128-byte ring, so 127).
+    - ``bufsize``: most unacknowledged commands (Marlin ``BUFSIZE``); raised to what the
+      advanced ``ok ... B<n>`` reports when ``learn_bufsize``.
+    - ``history``: lines kept for resends (far more than a window).
+    - ``start_timeout_s``: after opening, how long to wait for ``start`` (board reset).
+    - ``probe_after_s``: silence, with lines in flight, before an ``M105`` probe.
+    - ``probe_retries``: unanswered probes before the link is declared dead.
+    - ``long_command_timeout_s``: silence tolerated while a long command (``M109``,
+      ``G28``...) is in flight; busy and temperature lines reset the silence.
+    - ``temperature_interval_s``: ``M155 S<n>`` auto-report when offered, else ``M105`` polls
+      at this interval; 0 turns both off.
+    - ``renumber_at``: line number beyond which ``M110 N0`` restarts numbering (drained first).
+    - ``park_gcode`` / ``unpark_gcode``: sent by ``pause()`` / ``resume()``.
+    - ``reconnect_attempts`` / ``reconnect_delay_s``: after the port is lost.
+    """
+
+    rx_buffer: int = 127
+    bufsize: int = 4
+    learn_bufsize: bool = True
+    history: int = 2000
+    start_timeout_s: float = 2.0
+    connect_timeout_s: float = 10.0
+    probe_after_s: float = 5.0
+    probe_retries: int = 3
+    long_command_timeout_s: float = 900.0
+    temperature_interval_s: float = 2.0
+    renumber_at: int = 100_000
+    park_gcode: tuple[str, ...] = ()
+    unpark_gcode: tuple[str, ...] = ()
+    reconnect_attempts: int = 0
+    reconnect_delay_s: float = 1.0
+
+    def __post_init__(self) -> None:
+        if self.rx_buffer < 16:
+            raise ValueError("rx_buffer must be at least 16 bytes")
+        if self.bufsize < 1:
+            raise ValueError("bufsize must be at least 1")
+        if self.history < 64:
+            raise ValueError("history must keep at least 64 lines")
+        if self.probe_after_s <= 0 or self.start_timeout_s < 0:
+            raise ValueError("timeouts must be positive")
+        if self.renumber_at < 1000:
+            raise ValueError("renumber_at must be at least 1000")
+
+
+@dataclass
+class StreamStats:
+    """Counters of what the link has done (for logs and tests)."""
+
+    lines_sent: int = 0
+    bytes_sent: int = 0
+    resends: int = 0
+    lines_resent: int = 0
+    duplicate_resends: int = 0
+    implausible_resends: int = 0
+    errors: int = 0
+    probes: int = 0
+    renumbers: int = 0
+    resets: int = 0
+    reconnects: int = 0
+
+
+@dataclass
+class _Renumber:
+    """An ``M110`` in progress: written as line ``line``, sets the last line to ``value``."""
+
+    line: int
+    value: int
+    keep_history: bool
+    waiter: asyncio.Future[int] | None = None
+    sent: bool = False
+    sent_at: float = 0.0
+
+
+@dataclass
+class _Control:
+    command: str
+    internal: bool
+    probe: bool = False
+    force: bool = False
+    waiter: asyncio.Future[int] | None = field(default=None, repr=False)
+
+
+class Streamer:
+    """Streams G-code commands to a Marlin-style printer, each executed once, in order.
+
+    Use as an async context manager around a :class:`~drivers.transport.Transport` (closed
+    on exit)::
+
+        async with Streamer(await open_transport(port, baud), StreamerConfig()) as link:
+            await link.connect()
+            for command in commands:
+                await link.send(command)
+            await link.drain()
+
+    Callbacks (attributes, may be set any time): ``on_ack(number, command)`` for every job
+    line acknowledged, in order; ``on_temperature(response)`` for every temperature report;
+    ``on_error(text)`` for printer errors and link failures.
+    """
+
+    def __init__(
+        self,
+        transport: Transport,
+        config: StreamerConfig | None = None,
+        *,
+        reopen: Callable[[], Awaitable[Transport]] | None = None,
+    ) -> None:
+        """``reopen`` opens the port again after it was lost (default: same port and speed)."""
+        self.config = config or StreamerConfig()
+        self.on_ack: Callable[[int, str], None] | None = None
+        self.on_temperature: Callable[[Response], None] | None = None
+        self.on_error: Callable[[str], None] | None = None
+        self.stats = StreamStats()
+        self.capabilities: dict[str, str] = {}
+        self.firmware = ""
+        self.acked = 0
+        self.state = DISCONNECTED
+        self.error: str | None = None
+        self._transport = transport
+        self._reopen = reopen
+        self._window = SendWindow(self.config.rx_buffer, self.config.bufsize)
+        self._history: dict[int, tuple[str, bool]] = {}
+        self._next_number = 1
+        self._replay_next: int | None = None
+        self._last_acked_number = 0
+        self._control: deque[_Control] = deque()
+        self._pending: deque[tuple[str, asyncio.Future[int]]] = deque()
+        self._renumber: _Renumber | None = None
+        self._expect_resend_ok = False
+        self._last_error_line: int | None = None
+        self._rewind_to: int | None = None
+        self._stale = 0
+        self._implausible: tuple[str, int] = ("", 0)
+        self._advanced_ok = False
+        self._paused = False
+        self._cancelled = False
+        self._started = asyncio.Event()
+        self._wake = asyncio.Event()
+        self._progress = asyncio.Event()
+        self._tasks: list[asyncio.Task[None]] = []
+        self._last_rx = 0.0
+        self._last_poll = 0.0
+        self._probes_unanswered = 0
+
+    # -- context manager ------------------------------------------------------------------
+
+    async def __aenter__(self) -> Streamer:
+        self._start_tasks()
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.close()
+
+    async def close(self) -> None:
+        """Stop the link's tasks, fail every waiter and close the transport."""
+        for task in self._tasks:
+            task.cancel()
+        for task in self._tasks:
+            with contextlib.suppress(asyncio.CancelledError):
+                await task
+        self._tasks.clear()
+        self._fail_waiters(LinkError("link closed"))
+        await self._transport.close()
+        if self.state not in (ERROR, HALTED):
+            self.state = DISCONNECTED
+
+    # -- public API -----------------------------------------------------------------------
+
+    @property
+    def capable(self) -> frozenset[str]:
+        """Names of the capabilities the firmware reported as enabled (``Cap:NAME:1``)."""
+        return frozenset(k for k, v in self.capabilities.items() if v == "1")
+
+    @property
+    def in_flight(self) -> int:
+        """Lines written and not yet acknowledged."""
+        return len(self._window)
+
+    async def connect(self) -> None:
+        """Wait for ``start`` (or a timeout), then ``M110 N0``, ``M115`` and auto-report.
+
+        Raises :class:`LinkError` if the printer does not answer in ``connect_timeout_s``.
+        """
+        self._start_tasks()
+        self.state = CONNECTING
+        loop = asyncio.get_running_loop()
+        self._last_rx = loop.time()
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._started.wait(), self.config.start_timeout_s)
+        try:
+            async with asyncio.timeout(self.config.connect_timeout_s):
+                await self._handshake(reset_to=0, keep_history=False)
+                await self._control_line("M115")
+                if "AUTOREPORT_TEMP" in self.capable and self.config.temperature_interval_s > 0:
+                    seconds = max(1, round(self.config.temperature_interval_s))
+                    await self._control_line(f"M155 S{seconds}")
+        except TimeoutError as exc:
+            self._fail("printer did not answer the connection handshake")
+            raise LinkError(self.error) from exc
+        if self.config.learn_bufsize and not self._advanced_ok:
+            self._window.max_lines = self.config.bufsize
+        self.state = PAUSED if self._paused else READY
+        self._last_poll = loop.time()
+
+    async def send(self, command: str) -> int:
+        """Queue one job command; returns its line number once it has been written.
+
+        Waits while the send-ahead window is full or the stream is paused. Raises
+        :class:`StreamCancelled` after ``cancel()``, :class:`LinkError` if the link failed.
+        """
+        command = command.strip()
+        if not command:
+            raise ValueError("empty command")
+        if self._cancelled:
+            raise StreamCancelled("stream cancelled")
+        self._check_alive()
+        future: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+        self._pending.append((command, future))
+        self._wake.set()
+        return await future
+
+    async def drain(self) -> None:
+        """Wait until every line written has been acknowledged."""
+        while not self._idle():
+            self._check_alive()
+            self._progress.clear()
+            await self._progress.wait()
+        self._check_alive()
+
+    async def pause(self, park: Iterable[str] | None = None) -> None:
+        """Stop after the lines already written; then send the park G-code (if any).
+
+        Returns once the printer has acknowledged everything sent. ``park`` overrides
+        ``config.park_gcode``.
+        """
+        self._paused = True
+        if self.state == READY:
+            self.state = PAUSED
+        for command in self.config.park_gcode if park is None else park:
+            self._queue_control(command, internal=False)
+        self._wake.set()
+        await self.drain()
+
+    async def resume(self, unpark: Iterable[str] | None = None) -> None:
+        """Send the unpark G-code, then continue exactly where the stream stopped."""
+        for command in self.config.unpark_gcode if unpark is None else unpark:
+            await self._control_line(command, internal=False)
+        self._paused = False
+        if self.state == PAUSED:
+            self.state = READY
+        self._wake.set()
+
+    async def cancel(self, end_gcode: Iterable[str] = ()) -> None:
+        """Refuse further job lines, send ``end_gcode`` after what is in flight, drain."""
+        self._cancelled = True
+        self._paused = False
+        while self._pending:
+            _, future = self._pending.popleft()
+            if not future.done():
+                future.set_exception(StreamCancelled("stream cancelled"))
+        for command in end_gcode:
+            self._queue_control(command, internal=False)
+        self._wake.set()
+        await self.drain()
+        if self.state not in (ERROR, HALTED):
+            self.state = CANCELLED
+
+    async def emergency_stop(self) -> None:
+        """``M112`` at once: out of band with an emergency parser, else as the next line."""
+        if "EMERGENCY_PARSER" in self.capable:
+            with contextlib.suppress(TransportError):
+                await self._transport.write(b"M112\n")
+        else:
+            self._control.appendleft(_Control("M112", internal=False, force=True))
+            self._replay_next = None
+            self._wake.set()
+            await asyncio.sleep(0)
+            await self._writer_step()
+        self.state = HALTED
+        self.error = "emergency stop"
+        self._fail_waiters(LinkError("emergency stop"))
+
+    async def interrupt_wait(self) -> None:
+        """``M108``: break out of a heating wait or user prompt (out of band when offered)."""
+        await self._urgent("M108")
+
+    async def quick_stop(self) -> None:
+        """``M410``: stop all moves at once, keeping the printer alive."""
+        await self._urgent("M410")
+
+    # -- internals: connection ------------------------------------------------------------
+
+    def _start_tasks(self) -> None:
+        if self._tasks:
+            return
+        self._last_rx = asyncio.get_running_loop().time()
+        self._tasks = [
+            asyncio.create_task(self._read_loop(), name="streamer-reader"),
+            asyncio.create_task(self._write_loop(), name="streamer-writer"),
+            asyncio.create_task(self._watch_loop(), name="streamer-watchdog"),
+        ]
+
+    async def _handshake(self, reset_to: int, keep_history: bool) -> None:
+        """Drain, then ``M110 N<reset_to>`` until acknowledged."""
+        waiter: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+        self._renumber = _Renumber(self._next_number, reset_to, keep_history, waiter)
+        self._wake.set()
+        await waiter
+
+    async def _control_line(self, command: str, internal: bool = True) -> int:
+        loop = asyncio.get_running_loop()
+        waiter: asyncio.Future[int] = loop.create_future()
+        self._queue_control(command, internal=internal, waiter=waiter)
+        return await waiter
+
+    def _queue_control(
+        self, command: str, *, internal: bool, waiter: asyncio.Future[int] | None = None,
+        probe: bool = False, force: bool = False,
+    ) -> None:
+        self._control.append(_Control(command, internal, probe=probe, force=force, waiter=waiter))
+        self._wake.set()
+
+    async def _urgent(self, command: str) -> None:
+        if "EMERGENCY_PARSER" in self.capable:
+            await self._transport.write(f"{command}\n".encode())
+        else:
+            self._control.appendleft(_Control(command, internal=False, force=True))
+            self._wake.set()
+
+    # -- internals: reading ---------------------------------------------------------------
+
+    async def _read_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        while True:
+            try:
+                text = await self._transport.readline()
+            except TransportError as exc:
+                if not await self._link_lost(str(exc)):
+                    return
+                continue
+            self._last_rx = loop.time()
+            self._probes_unanswered = 0
+            self._handle(parse_response(text))
+
+    def _handle(self, response: Response) -> None:
+        kind = response.kind
+        after_resend = self._expect_resend_ok
+        self._expect_resend_ok = False
+        if kind == "ok":
+            if response.has_temperatures:
+                self._emit_temperature(response)
+            if after_resend:
+                return  # the ok Marlin 2.1 sends after every Resend
+            self._on_ok(response)
+        elif kind == "resend":
+            self._on_resend(response)
+        elif kind == "error":
+            self._on_error(response)
+        elif kind == "temperature":
+            self._emit_temperature(response)
+        elif kind == "capability":
+            if response.name == "FIRMWARE_NAME":
+                self.firmware = response.value
+            else:
+                self.capabilities[response.name] = response.value
+        elif kind == "start":
+            if self.state == CONNECTING or not self._started.is_set():
+                self._started.set()
+            else:
+                self._on_reset()
+
+    def _on_ok(self, response: Response) -> None:
+        if response.queue_free is not None:
+            self._advanced_ok = True
+            if self.config.learn_bufsize:
+                self._window.max_lines = max(self._window.max_lines, response.queue_free + 1)
+        if response.line is not None:
+            done = self._window.ack_through(response.line)
+        elif response.has_temperatures:
+            done = self._window.ack_probe()
+        else:
+            done = self._window.ack_one()
+        for entry in done:
+            self._acknowledged(entry)
+        self._wake.set()
+        self._progress.set()
+
+    def _acknowledged(self, entry: InFlight) -> None:
+        if entry.number is not None:
+            self._last_acked_number = max(self._last_acked_number, entry.number)
+        renumber = self._renumber
+        if renumber is not None and renumber.sent and entry.number == renumber.line \
+                and entry.command.startswith("M110"):
+            self._finish_renumber()
+        if not entry.internal:
+            self.acked += 1
+            if self.on_ack is not None:
+                self.on_ack(entry.number if entry.number is not None else -1, entry.command)
+        if entry.waiter is not None and not entry.waiter.done():
+            entry.waiter.set_result(entry.number if entry.number is not None else -1)
+
+    def _finish_renumber(self) -> None:
+        renumber = self._renumber
+        assert renumber is not None
+        value, keep = renumber.value, renumber.keep_history
+        self._renumber = None
+        if renumber.waiter is not None and not renumber.waiter.done():
+            renumber.waiter.set_result(value)
+        self._rewind_to = None
+        self._stale = 0
+        if keep and value + 1 < self._next_number:
+            self._replay_next = value + 1
+        else:
+            self._history.clear()
+            self._next_number = value + 1
+            self._replay_next = None
+        self._last_acked_number = value
+
+    def _on_resend(self, response: Response) -> None:
+        self._expect_resend_ok = True
+        error_line = self._last_error_line
+        self._last_error_line = None
+        self.stats.resends += 1
+        if self._renumber is not None:
+            if self._renumber.sent:
+                self._window.clear()
+                self._renumber.sent = False
+                self._wake.set()
+            return
+        candidates = sorted(set(self._window.numbers()) | {self._next_number})
+        number = resolve_resend(response.digits, candidates, error_line)
+        if number is None:
+            number = self._repeated_implausible(response)
+            if number is None:
+                self.stats.implausible_resends += 1
+                return
+        self._implausible = ("", 0)
+        if number == self._rewind_to and self._stale > 0:
+            self._stale -= 1
+            self.stats.duplicate_resends += 1
+            return
+        if number >= self._next_number:
+            return  # the printer has every line sent: nothing to replay
+        dropped = self._window.drop_from(number)
+        self._rewind_to = number
+        self._stale = max(0, len(dropped) - 1)
+        self._replay_next = number
+        self._wake.set()
+
+    def _repeated_implausible(self, response: Response) -> int | None:
+        """A request repeated three times for a line we still hold is obeyed after all."""
+        digits, count = self._implausible
+        count = count + 1 if digits == response.digits else 1
+        self._implausible = (response.digits, count)
+        number = response.line
+        if count >= 3 and number is not None and number in self._history:
+            self._implausible = ("", 0)
+            return number
+        return None
+
+    def _on_error(self, response: Response) -> None:
+        self.stats.errors += 1
+        if response.error_kind in ("checksum", "line_number", "no_checksum", "no_line_number"):
+            self._last_error_line = response.line
+            return
+        if response.error_kind in ("halted", "stopped"):
+            self.state = HALTED
+            self.error = response.text
+            self._report(response.text)
+            self._fail_waiters(LinkError(f"printer stopped: {response.text}"))
+            return
+        self._report(response.text)
+
+    def _on_reset(self) -> None:
+        """``start`` mid-stream: the printer rebooted and lost its buffers and line number."""
+        self.stats.resets += 1
+        self._window.clear()
+        self._rewind_to = None
+        self._stale = 0
+        if self._renumber is not None:
+            self._renumber.sent = False
+        else:
+            value = self._last_acked_number
+            self._renumber = _Renumber(value, value, keep_history=True)
+        self._replay_next = None
+        self._wake.set()
+
+    async def _link_lost(self, reason: str) -> bool:
+        """The port failed: report, then try to reopen. True if the link is back."""
+        self.state = DISCONNECTED
+        self._report(f"link lost: {reason}")
+        for _attempt in range(self.config.reconnect_attempts):
+            await asyncio.sleep(self.config.reconnect_delay_s)
+            try:
+                transport = await self._open_again()
+            except TransportError:
+                continue
+            self._transport = transport
+            self.stats.reconnects += 1
+            self._last_rx = asyncio.get_running_loop().time()
+            self._started.clear()
+            self._window.clear()
+            self._rewind_to = None
+            self._stale = 0
+            self._replay_next = self._last_acked_number + 1
+            if self._replay_next >= self._next_number:
+                self._replay_next = None
+            self.state = PAUSED if self._paused else READY
+            self._wake.set()
+            return True
+        self._fail(f"link lost: {reason}")
+        return False
+
+    async def _open_again(self) -> Transport:
+        if self._reopen is not None:
+            return await self._reopen()
+        from drivers.transport import open_transport
+
+        return await open_transport(self._transport.name, self._baud())
+
+    def _baud(self) -> int:
+        return int(getattr(getattr(self._transport, "_port", None), "baudrate", 250000))
+
+    # -- internals: writing ---------------------------------------------------------------
+
+    async def _write_loop(self) -> None:
+        while True:
+            await self._wake.wait()
+            self._wake.clear()
+            await self._writer_step()
+
+    async def _writer_step(self) -> None:
+        while self.state not in (ERROR, HALTED, DISCONNECTED):
+            out = self._next_line()
+            if out is None:
+                return
+            data, entry = out
+            try:
+                await self._transport.write(data)
+            except TransportError:
+                return  # the reader reports the failure
+            if entry is not None:
+                self._window.push(entry)
+            self.stats.lines_sent += 1
+            self.stats.bytes_sent += len(data)
+
+    def _next_line(self) -> tuple[bytes, InFlight | None] | None:
+        """The next line to write, if the window and state allow one."""
+        if self._renumber is not None:
+            return self._next_renumber_line()
+        if self._replay_next is not None:
+            return self._next_replay_line()
+        if self._control:
+            return self._next_control_line()
+        if self._pending and not self._paused and not self._cancelled:
+            if self._next_number >= self.config.renumber_at:
+                self.stats.renumbers += 1
+                self._renumber = _Renumber(self._next_number, 0, keep_history=False)
+                return self._next_renumber_line()
+            command, future = self._pending[0]
+            data = frame(self._next_number, command)
+            if not self._window.has_room(len(data)):
+                return None
+            self._pending.popleft()
+            number = self._assign(command)
+            if not future.done():
+                future.set_result(number)
+            return data, InFlight(number, command, len(data))
+        return None
+
+    def _next_renumber_line(self) -> tuple[bytes, InFlight | None] | None:
+        """``M110`` once nothing else is in flight; only forced lines pass it."""
+        renumber = self._renumber
+        assert renumber is not None
+        if self._control and self._control[0].force and not self._control[0].probe:
+            return self._next_control_line()
+        if renumber.sent or len(self._window):
+            return None
+        command = f"M110 N{renumber.value}"
+        data = frame(renumber.line, command)
+        renumber.sent = True
+        renumber.sent_at = asyncio.get_running_loop().time()
+        return data, InFlight(renumber.line, command, len(data), internal=True)
+
+    def _next_replay_line(self) -> tuple[bytes, InFlight | None] | None:
+        number = self._replay_next
+        assert number is not None
+        if self._control and self._control[0].force:
+            return self._next_control_line()
+        held = self._history.get(number)
+        if held is None:
+            self._fail(f"printer asked for line {number}, which is no longer held")
+            return None
+        command, internal = held
+        data = frame(number, command)
+        if not self._window.has_room(len(data)):
+            return None
+        self._replay_next = number + 1 if number + 1 < self._next_number else None
+        self.stats.lines_resent += 1
+        return data, InFlight(number, command, len(data), internal=internal,
+                              probe=command == "M105" and internal)
+
+    def _next_control_line(self) -> tuple[bytes, InFlight | None] | None:
+        control = self._control[0]
+        data = frame(self._next_number, control.command)
+        if not control.force and not self._window.has_room(len(data)):
+            return None
+        self._control.popleft()
+        number = self._assign(control.command, internal=control.internal)
+        return data, InFlight(number, control.command, len(data), internal=control.internal,
+                              probe=control.probe, waiter=control.waiter)
+
+    def _assign(self, command: str, internal: bool = False) -> int:
+        number = self._next_number
+        self._next_number += 1
+        self._history[number] = (command, internal)
+        self._history.pop(number - self.config.history, None)
+        return number
+
+    # -- internals: watchdog --------------------------------------------------------------
+
+    async def _watch_loop(self) -> None:
+        loop = asyncio.get_running_loop()
+        tick = min(0.25, self.config.probe_after_s / 4)
+        if self.config.temperature_interval_s > 0:
+            tick = min(tick, self.config.temperature_interval_s / 4)
+        while True:
+            await asyncio.sleep(tick)
+            if self.state in (ERROR, HALTED, DISCONNECTED):
+                continue
+            now = loop.time()
+            self._watch_silence(now)
+            self._watch_temperature(now)
+
+    def _watch_silence(self, now: float) -> None:
+        renumber = self._renumber
+        if renumber is not None and renumber.sent:
+            if now - max(self._last_rx, renumber.sent_at) >= self.config.probe_after_s:
+                self._window.clear()  # M110 is idempotent: write it again
+                renumber.sent = False
+                self._probes_unanswered += 1
+                self.stats.probes += 1
+                if self._probes_unanswered > self.config.probe_retries:
+                    self._fail("printer does not answer M110")
+                self._wake.set()
+            return
+        if not len(self._window):
+            return
+        silence = now - self._last_rx
+        long_running = any(e.command.split(" ", 1)[0] in LONG_COMMANDS for e in self._window)
+        due = self.config.probe_after_s * (self._probes_unanswered + 1)
+        if silence < due:
+            return
+        if long_running:
+            if silence >= self.config.long_command_timeout_s:
+                self._fail(f"printer silent for {silence:.0f} s during a long command")
+            elif self._probes_unanswered == 0:
+                self._probe()
+            return
+        if self._probes_unanswered >= self.config.probe_retries:
+            self._fail(f"printer not responding ({self._probes_unanswered} probes unanswered)")
+            return
+        self._probe()
+
+    def _probe(self) -> None:
+        self._probes_unanswered += 1
+        self.stats.probes += 1
+        self._queue_control("M105", internal=True, probe=True, force=True)
+
+    def _watch_temperature(self, now: float) -> None:
+        interval = self.config.temperature_interval_s
+        if interval <= 0 or "AUTOREPORT_TEMP" in self.capable or self.state == CONNECTING:
+            return
+        if now - self._last_poll < interval:
+            return
+        self._last_poll = now
+        if any(e.probe for e in self._window) or any(c.probe for c in self._control):
+            return
+        self._queue_control("M105", internal=True, probe=True)
+
+    # -- internals: state -----------------------------------------------------------------
+
+    def _idle(self) -> bool:
+        return (not len(self._window) and not self._control and not self._pending
+                and self._replay_next is None and self._renumber is None)
+
+    def _check_alive(self) -> None:
+        if self.state in (ERROR, HALTED):
+            raise LinkError(self.error or "link failed")
+
+    def _fail(self, reason: str) -> None:
+        if self.state in (ERROR, HALTED):
+            return
+        self.state = ERROR
+        self.error = reason
+        self._report(reason)
+        self._fail_waiters(LinkError(reason))
+
+    def _fail_waiters(self, error: Exception) -> None:
+        while self._pending:
+            _, future = self._pending.popleft()
+            if not future.done():
+                future.set_exception(error)
+        for control in self._control:
+            if control.waiter is not None and not control.waiter.done():
+                control.waiter.set_exception(error)
+        self._control.clear()
+        for entry in self._window:
+            if entry.waiter is not None and not entry.waiter.done():
+                entry.waiter.set_exception(error)
+        self._progress.set()
+
+    def _report(self, text: str) -> None:
+        if self.on_error is not None:
+            self.on_error(text)
+
+    def _emit_temperature(self, response: Response) -> None:
+        if self.on_temperature is not None:
+            self.on_temperature(response)
+

@@ -1,0 +1,183 @@
+"""Serial transport: pyserial driven from asyncio without ever blocking the event loop."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import errno
+import os
+from types import TracebackType
+
+import serial
+
+_READ_CHUNK = 4096
+_EOF = object()
+
+
+class TransportError(ConnectionError):
+    """The port could not be opened, vanished, or failed while reading or writing."""
+
+
+class Transport:
+    """A byte pipe to the printer: write bytes, read lines.
+
+    Built by :func:`open_transport`. The port's file descriptor is watched by the event
+    loop (``add_reader``/``add_writer``) in non-blocking mode, so neither reads nor writes
+    ever block the loop. A read error, end of file (port unplugged, pseudo-terminal
+    closed) or a write error ends the transport: pending and later ``readline()`` calls
+    raise :class:`TransportError`.
+    """
+
+    def __init__(self, port: serial.SerialBase, loop: asyncio.AbstractEventLoop) -> None:
+        self._port = port
+        self._loop = loop
+        self._fd = port.fileno()
+        self._lines: asyncio.Queue[str | object] = asyncio.Queue()
+        self._partial = bytearray()
+        self._out = bytearray()
+        self._writing = False
+        self._error: TransportError | None = None
+        self._closed = False
+        self.bytes_written = 0
+        self.bytes_read = 0
+        loop.add_reader(self._fd, self._on_readable)
+
+    @property
+    def name(self) -> str:
+        """The port this transport was opened on."""
+        return str(self._port.port)
+
+    @property
+    def is_open(self) -> bool:
+        """False once closed or failed."""
+        return not self._closed and self._error is None
+
+    async def write(self, data: bytes) -> None:
+        """Queue ``data`` for the wire, in order; returns at once (never waits for the UART)."""
+        if self._error is not None:
+            raise self._error
+        if self._closed:
+            raise TransportError(f"{self.name}: transport closed")
+        self._out += data
+        self.bytes_written += len(data)
+        self._flush()
+
+    async def readline(self) -> str:
+        """The next line received, without its line ending (``\\r`` stripped too)."""
+        if self._error is not None and self._lines.empty():
+            raise self._error
+        item = await self._lines.get()
+        if item is _EOF:
+            self._lines.put_nowait(_EOF)
+            raise self._error or TransportError(f"{self.name}: transport closed")
+        assert isinstance(item, str)
+        return item
+
+    async def close(self) -> None:
+        """Stop watching the port and close it; pending ``readline()`` calls fail."""
+        if self._closed:
+            return
+        self._closed = True
+        self._detach()
+        with contextlib.suppress(OSError, serial.SerialException):
+            self._port.close()
+        self._lines.put_nowait(_EOF)
+
+    async def __aenter__(self) -> Transport:
+        return self
+
+    async def __aexit__(
+        self,
+        exc_type: type[BaseException] | None,
+        exc: BaseException | None,
+        tb: TracebackType | None,
+    ) -> None:
+        await self.close()
+
+    # -- event-loop callbacks -------------------------------------------------------------
+
+    def _on_readable(self) -> None:
+        try:
+            data = os.read(self._fd, _READ_CHUNK)
+        except BlockingIOError:
+            return
+        except OSError as exc:
+            self._fail(TransportError(f"{self.name}: read failed: {exc.strerror or exc}"))
+            return
+        if not data:
+            self._fail(TransportError(f"{self.name}: port closed by the other end"))
+            return
+        self.bytes_read += len(data)
+        self._partial += data
+        while True:
+            end = self._partial.find(b"\n")
+            if end < 0:
+                break
+            raw = bytes(self._partial[:end])
+            del self._partial[: end + 1]
+            self._lines.put_nowait(raw.decode("ascii", "replace").rstrip("\r"))
+
+    def _flush(self) -> None:
+        while self._out:
+            try:
+                sent = os.write(self._fd, self._out)
+            except BlockingIOError:
+                sent = 0
+            except OSError as exc:
+                if exc.errno in (errno.EAGAIN, errno.EINTR):
+                    sent = 0
+                else:
+                    self._fail(TransportError(f"{self.name}: write failed: {exc.strerror}"))
+                    return
+            if sent == 0:
+                if not self._writing:
+                    self._writing = True
+                    self._loop.add_writer(self._fd, self._on_writable)
+                return
+            del self._out[:sent]
+        if self._writing:
+            self._writing = False
+            self._loop.remove_writer(self._fd)
+
+    def _on_writable(self) -> None:
+        self._flush()
+
+    def _fail(self, error: TransportError) -> None:
+        if self._error is not None or self._closed:
+            return
+        self._error = error
+        self._detach()
+        with contextlib.suppress(OSError, serial.SerialException):
+            self._port.close()
+        self._lines.put_nowait(_EOF)
+
+    def _detach(self) -> None:
+        with contextlib.suppress(ValueError, OSError):
+            self._loop.remove_reader(self._fd)
+        if self._writing:
+            self._writing = False
+            with contextlib.suppress(ValueError, OSError):
+                self._loop.remove_writer(self._fd)
+
+
+async def open_transport(port: str, baud: int = 250000) -> Transport:
+    """Open ``port`` (a device path, pseudo-terminal path or pyserial URL) at ``baud``.
+
+    Opening asserts DTR, which resets many 8-bit boards: the caller waits for ``start``.
+    Raises :class:`TransportError` if the port cannot be opened or has no file descriptor.
+    """
+    loop = asyncio.get_running_loop()
+
+    def _open() -> serial.SerialBase:
+        return serial.serial_for_url(port, baudrate=baud, timeout=0, write_timeout=0)
+
+    try:
+        handle = await loop.run_in_executor(None, _open)
+    except (serial.SerialException, OSError, ValueError) as exc:
+        raise TransportError(f"{port}: cannot open: {exc}") from exc
+    try:
+        handle.fileno()
+    except (AttributeError, NotImplementedError, serial.SerialException) as exc:
+        handle.close()
+        raise TransportError(f"{port}: not a file-descriptor port") from exc
+    return Transport(handle, loop)

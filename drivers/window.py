@@ -1,0 +1,119 @@
+"""Send-ahead window: lines written but not yet acknowledged, bounded by bytes and commands."""
+
+from __future__ import annotations
+
+import asyncio
+from collections import deque
+from dataclasses import dataclass, field
+
+
+@dataclass
+class InFlight:
+    """One line on the wire or in the printer's buffers, awaiting its ``ok``.
+
+    ``number`` is its line number (``None`` for an unnumbered line), ``nbytes`` its framed
+    length in bytes, ``internal`` marks lines the link adds itself (M110, M105, M115, M155),
+    ``probe`` marks an ``M105`` whose ``ok T:...`` answer proves every earlier line done.
+    """
+
+    number: int | None
+    command: str
+    nbytes: int
+    internal: bool = False
+    probe: bool = False
+    waiter: asyncio.Future[int] | None = field(default=None, repr=False)
+
+
+class SendWindow:
+    """FIFO of :class:`InFlight` lines; oks acknowledge them in order.
+
+    ``max_bytes`` bounds the bytes not yet acknowledged (the firmware's receive buffer,
+    127 for Marlin's 128-byte ring); ``max_lines`` bounds the commands (``BUFSIZE``).
+    """
+
+    def __init__(self, max_bytes: int, max_lines: int) -> None:
+        self.max_bytes = max_bytes
+        self.max_lines = max_lines
+        self._entries: deque[InFlight] = deque()
+        self._bytes = 0
+
+    def __len__(self) -> int:
+        return len(self._entries)
+
+    def __iter__(self):
+        return iter(self._entries)
+
+    @property
+    def bytes_in_flight(self) -> int:
+        """Framed bytes written and not yet acknowledged."""
+        return self._bytes
+
+    def has_room(self, nbytes: int) -> bool:
+        """True if a line of ``nbytes`` may be written now (always, when nothing is in flight)."""
+        if not self._entries:
+            return True
+        return self._bytes + nbytes <= self.max_bytes and len(self._entries) < self.max_lines
+
+    def push(self, entry: InFlight) -> None:
+        """Record a line just written."""
+        self._entries.append(entry)
+        self._bytes += entry.nbytes
+
+    def ack_one(self) -> list[InFlight]:
+        """A plain ``ok``: the oldest line is done."""
+        if not self._entries:
+            return []
+        return [self._pop()]
+
+    def ack_through(self, number: int) -> list[InFlight]:
+        """An advanced ``ok N<number>``: every line up to ``number`` is done."""
+        done: list[InFlight] = []
+        if not any(e.number == number for e in self._entries):
+            return done
+        while self._entries:
+            entry = self._pop()
+            done.append(entry)
+            if entry.number == number:
+                break
+        return done
+
+    def ack_probe(self) -> list[InFlight]:
+        """An ``ok T:...``: the oldest probe and every line before it are done."""
+        if not any(e.probe for e in self._entries):
+            return self.ack_one()
+        done: list[InFlight] = []
+        while self._entries:
+            entry = self._pop()
+            done.append(entry)
+            if entry.probe:
+                break
+        return done
+
+    def drop_from(self, number: int) -> list[InFlight]:
+        """Forget lines numbered ``number`` and later (the printer discarded them)."""
+        kept: deque[InFlight] = deque()
+        dropped: list[InFlight] = []
+        for entry in self._entries:
+            if entry.number is not None and entry.number >= number:
+                dropped.append(entry)
+            else:
+                kept.append(entry)
+        self._entries = kept
+        self._bytes = sum(e.nbytes for e in kept)
+        return dropped
+
+    def clear(self) -> list[InFlight]:
+        """Forget every line (the printer reset or the link was lost)."""
+        dropped = list(self._entries)
+        self._entries.clear()
+        self._bytes = 0
+        return dropped
+
+    def numbers(self) -> list[int]:
+        """Line numbers in flight, oldest first."""
+        return [e.number for e in self._entries if e.number is not None]
+
+    def _pop(self) -> InFlight:
+        entry = self._entries.popleft()
+        self._bytes -= entry.nbytes
+        return entry
