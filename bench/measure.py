@@ -8,10 +8,13 @@ import shutil
 import signal
 import subprocess
 import tempfile
+import threading
 import time
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from pathlib import Path
+
+from bench import proctree
 
 GNU_TIME = "/usr/bin/time"
 
@@ -24,6 +27,7 @@ class RunResult:
     returncode: int | None  # None when the timeout ended it
     wall_s: float  # wall time, s
     peak_rss_mb: float | None  # peak RSS of the largest process of the run, MB (10^6 bytes)
+    tree_peak_mb: float  # highest sampled RSS of all the run's processes together, MB
     stdout: str
     stderr: str
 
@@ -31,6 +35,13 @@ class RunResult:
     def ok(self) -> bool:
         """True when the command exited with status 0 in time."""
         return self.returncode == 0
+
+    @property
+    def rss_mb(self) -> float | None:
+        """Peak memory of the run: the larger of the largest process and the sampled sum."""
+        if self.peak_rss_mb is None:
+            return self.tree_peak_mb or None
+        return max(self.peak_rss_mb, self.tree_peak_mb)
 
     def reason(self) -> str:
         """One line saying why the run failed (empty when it succeeded)."""
@@ -61,8 +72,9 @@ def run_measured(
 ) -> RunResult:
     """Run ``cmd`` to completion or ``timeout`` seconds; measure wall time and peak RSS.
 
-    Peak RSS comes from GNU time (``%M``) when available, otherwise from
-    ``getrusage(RUSAGE_CHILDREN)`` (exact only when it grows past every earlier child).
+    Peak RSS of the largest process comes from GNU time (``%M``) when available, otherwise
+    from ``getrusage(RUSAGE_CHILDREN)`` (exact only when it grows past every earlier child);
+    the summed RSS of all its processes is sampled every 0.1 s (for multi-process runs).
     The command runs in its own process group, which is killed on timeout.
     """
     full_env = dict(os.environ)
@@ -76,6 +88,8 @@ def run_measured(
         start = time.perf_counter()
         proc = subprocess.Popen(argv, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                 text=True, env=full_env, cwd=cwd, start_new_session=True)
+        sampler = _TreeSampler(proc.pid, skip_root=use_time)
+        sampler.start()
         try:
             out, err = proc.communicate(timeout=timeout)
             code: int | None = proc.returncode
@@ -84,6 +98,7 @@ def run_measured(
             out, err = proc.communicate()
             code = None
         wall = time.perf_counter() - start
+        sampler.stop()
         rss_kb: float | None = None
         if use_time and report.exists():
             rss_kb = _last_number(report.read_text())
@@ -95,9 +110,34 @@ def run_measured(
         returncode=code,
         wall_s=wall,
         peak_rss_mb=None if rss_kb is None else rss_kb * 1024 / 1e6,
+        tree_peak_mb=sampler.peak_mb,
         stdout=out,
         stderr=err,
     )
+
+
+class _TreeSampler(threading.Thread):
+    """Samples the summed RSS of a process tree every ``interval`` s until stopped."""
+
+    def __init__(self, pid: int, skip_root: bool, interval: float = 0.1) -> None:
+        super().__init__(daemon=True)
+        self.pid = pid
+        self.skip_root = skip_root  # the root is GNU time itself: count only what it runs
+        self.interval = interval
+        self.peak_mb = 0.0
+        self._stop_event = threading.Event()
+
+    def run(self) -> None:
+        while not self._stop_event.wait(self.interval):
+            pids = proctree.descendants(self.pid)
+            if not self.skip_root:
+                pids.append(self.pid)
+            total = sum(proctree.status_kb(p, "VmRSS") for p in pids) * 1024 / 1e6
+            self.peak_mb = max(self.peak_mb, total)
+
+    def stop(self) -> None:
+        self._stop_event.set()
+        self.join()
 
 
 def _last_number(text: str) -> float | None:

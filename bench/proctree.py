@@ -17,8 +17,35 @@ def _stat_fields(pid: int) -> list[str] | None:
     return text[text.rindex(")") + 2:].split()
 
 
+def _children(pid: int) -> list[int] | None:
+    """Child pids of ``pid`` from /proc/PID/task/*/children; None where the kernel lacks it."""
+    tasks = Path(f"/proc/{pid}/task")
+    kids: list[int] = []
+    try:
+        for task in tasks.iterdir():
+            kids += [int(v) for v in (task / "children").read_text().split()]
+    except FileNotFoundError:
+        return None if tasks.exists() else []
+    except OSError:
+        return []
+    return kids
+
+
 def descendants(pid: int) -> list[int]:
     """Every live descendant of ``pid`` (children, grandchildren, ...)."""
+    if _children(pid) is None:
+        return _descendants_by_scan(pid)
+    found: list[int] = []
+    frontier = [pid]
+    while frontier:
+        kids = _children(frontier.pop()) or []
+        found += kids
+        frontier += kids
+    return found
+
+
+def _descendants_by_scan(pid: int) -> list[int]:
+    """Descendants of ``pid`` from the parent pids of every process in /proc."""
     parent_of: dict[int, int] = {}
     for entry in Path("/proc").iterdir():
         if entry.name.isdigit():

@@ -153,7 +153,7 @@ def measure_model(
             runs[runner.name].append(result)
             print(f"  {model.stem:18s} {runner.name:12s} "
                   f"{'ok ' if result.ok else 'FAIL'} {result.wall_s:7.2f} s "
-                  f"{result.peak_rss_mb or 0:7.1f} MB {result.reason()}", file=sys.stderr)
+                  f"{result.rss_mb or 0:7.1f} MB {result.reason()}", file=sys.stderr)
     row = Row(model=model.stem, faces=stl_faces(model), results={})
     moves: dict[str, gcodeparse.Moves] = {}
     for name, results in runs.items():
@@ -179,7 +179,7 @@ def summarise(results: list[RunResult]) -> Measured:
     good = [r for r in results if r.ok]
     if not good:
         return Measured(ok=False, reason=results[-1].reason() if results else "not run")
-    rss = [r.peak_rss_mb for r in good if r.peak_rss_mb is not None]
+    rss = [r.rss_mb for r in good if r.rss_mb is not None]
     return Measured(
         ok=True,
         wall_s=statistics.median(r.wall_s for r in good),
