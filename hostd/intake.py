@@ -101,8 +101,14 @@ class Intake:
             raise Rejected(f"{override.name}: {exc}") from exc
         return settings.to_mapping()
 
-    def fail(self, job: Job, reason: str, extra: list[Path] | None = None) -> Path:
-        """Move the job's model to failed/NAME.* with NAME.error.txt; record and announce."""
+    def fail(
+        self, job: Job, reason: str, extra: list[Path] | None = None, state: str = "failed"
+    ) -> Path:
+        """Move the job's model to failed/NAME.* with NAME.error.txt; record and announce.
+
+        ``state`` is the job's final state: ``failed``, or ``cancelled`` for a job
+        stopped by a command (its files go to failed/ too, with the reason).
+        """
         folder = self.jobs_folder / "failed"
         stem, suffix = split_name(job.name)
         free = free_stem(folder, stem)
@@ -115,9 +121,9 @@ class Intake:
         self._drop_area(job)
         current = self.store.get(job.id)
         if current.state not in ("failed", "done", "cancelled"):
-            self.store.transition(job.id, "failed", note=reason, error=reason, outcome=str(error))
-        log.error("job %s: %s failed: %s", job.id, job.name, reason)
-        self.hub.event("failed", id=job.id, name=job.name, reason=reason)
+            self.store.transition(job.id, state, note=reason, error=reason, outcome=str(error))
+        log.error("job %s %s: %s: %s", job.id, job.name, state, reason)
+        self.hub.event(state, id=job.id, name=job.name, reason=reason)
         return error
 
     def finish(self, job: Job, gcode: Path, summary: str, cancelled: bool = False) -> Path:

@@ -1,0 +1,158 @@
+"""Commands from the control socket and MQTT, carried out on the daemon's jobs.
+
+Arguments: ``resume_job {"job": ID or NAME}``; ``cancel_object {"object": N}`` (a body
+index from 0, also accepted as ``"body"``); ``set {"settings": {KEY: VALUE, ...}}`` or
+``set {"key": KEY, "value": VALUE}`` with the flat slicing keys of the configuration;
+``queue_move {"job": ID, "index": N}`` (0 = next); ``queue_remove {"job": ID}``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+from hostd.intake import Intake
+from hostd.jobstore import JobStore, JobStoreError
+from hostd.printjob import PrintJob
+from hostd.status import CommandError, StatusHub
+from slicer.settings import SettingsError
+
+
+class DaemonController:
+    """Implements ``hostd.status.Controller`` for the daemon.
+
+    ``current`` returns the job being printed (or None); ``changed`` is called
+    after the queue or the set of interrupted jobs changed.
+    """
+
+    def __init__(
+        self,
+        store: JobStore,
+        hub: StatusHub,
+        intake: Intake,
+        current: Callable[[], PrintJob | None],
+        changed: Callable[[], None],
+    ) -> None:
+        self.store = store
+        self.hub = hub
+        self.intake = intake
+        self.current = current
+        self.changed = changed
+
+    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
+        """Carry out one command; raises CommandError with the reason when refused."""
+        handler = getattr(self, f"_cmd_{cmd}", None)
+        if handler is None:
+            raise CommandError(f"unknown command {cmd!r}")
+        try:
+            return await handler(args)
+        except JobStoreError as exc:
+            raise CommandError(str(exc)) from exc
+
+    def _printing(self) -> PrintJob:
+        job = self.current()
+        if job is None or job.runner is None:
+            raise CommandError("no job is printing")
+        return job
+
+    async def _cmd_status(self, args: dict[str, Any]) -> dict[str, Any]:
+        return {"status": self.hub.current.to_dict()}
+
+    async def _cmd_pause(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self._printing()
+        if job.runner.paused:
+            raise CommandError("already paused")
+        job.runner.pause()
+        return {"job": job.job.id}
+
+    async def _cmd_resume(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self._printing()
+        if not job.runner.paused:
+            raise CommandError("not paused")
+        job.runner.resume()
+        return {"job": job.job.id}
+
+    async def _cmd_cancel(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self._printing()
+        job.runner.cancel()
+        return {"job": job.job.id}
+
+    async def _cmd_resume_job(self, args: dict[str, Any]) -> dict[str, Any]:
+        ref = _text(args, "job")
+        job = self.store.find(ref)
+        if job.state != "interrupted":
+            raise CommandError(f"job {job.id} ({job.name}) is {job.state}, not interrupted")
+        if job.kind == "gcode" and job.layer >= 0:
+            raise CommandError(f"job {job.id} is a G-code file; it cannot be resumed mid-file")
+        first = job.layer + 1 if job.layer >= 0 else None
+        self.store.transition(job.id, "queued", note="resume requested", resume_from=first)
+        self.changed()
+        return {"job": job.id, "name": job.name, "from_layer": first or 0}
+
+    async def _cmd_cancel_object(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self._printing()
+        raw = args.get("object", args.get("body"))
+        if isinstance(raw, bool) or not isinstance(raw, int):
+            raise CommandError("cancel_object needs \"object\": a body number from 0")
+        if job.schedule is None or job.source is None:
+            raise CommandError("a G-code job has no objects to cancel")
+        count = int(job.schedule.base_plan.body_count)
+        if not 0 <= raw < count:
+            raise CommandError(f"object {raw} does not exist: the model has {count} bodies")
+        if raw in job.schedule.excluded_at(job.schedule.layer_count):
+            raise CommandError(f"object {raw} is already cancelled")
+        if len(job.schedule.excluded_at(job.schedule.layer_count)) + 1 >= count:
+            raise CommandError("that would leave no object: cancel the job instead")
+        first = job.source.next_unsliced
+        job.schedule.cancel_body(raw, first)
+        self.store.record_cancelled_object(job.job.id, raw, first)
+        self.hub.event("object_cancelled", id=job.job.id, name=job.job.name, object=raw,
+                       from_layer=first)
+        return {"job": job.job.id, "object": raw, "from_layer": first}
+
+    async def _cmd_set(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self._printing()
+        if "settings" in args:
+            changes = args["settings"]
+            if not isinstance(changes, dict) or not changes:
+                raise CommandError("set needs \"settings\": {KEY: VALUE, ...}")
+        elif "key" in args and "value" in args:
+            changes = {_text(args, "key"): args["value"]}
+        else:
+            raise CommandError("set needs \"settings\" or \"key\" and \"value\"")
+        if job.schedule is None or job.source is None:
+            raise CommandError("a G-code job cannot be retuned")
+        first = job.source.next_unsliced
+        try:
+            job.schedule.retune(first, changes)
+        except SettingsError as exc:
+            raise CommandError(str(exc)) from exc
+        self.store.record_settings(job.job.id, first, changes)
+        return {"job": job.job.id, "from_layer": first, "settings": changes}
+
+    async def _cmd_queue_move(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self.store.find(_text(args, "job"))
+        index = args.get("index")
+        if isinstance(index, bool) or not isinstance(index, int) or index < 0:
+            raise CommandError("queue_move needs \"index\": 0 or more")
+        queue = self.store.move(job.id, index)
+        self.changed()
+        return {"queue": [item.id for item in queue]}
+
+    async def _cmd_queue_remove(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self.store.find(_text(args, "job"))
+        if job.state not in ("queued", "interrupted"):
+            raise CommandError(f"job {job.id} is {job.state}; only queued or interrupted jobs "
+                               "can be removed")
+        self.intake.fail(job, "removed from the queue", state="cancelled")
+        self.changed()
+        return {"job": job.id}
+
+
+def _text(args: dict[str, Any], key: str) -> str:
+    value = args.get(key)
+    if isinstance(value, int) and not isinstance(value, bool):
+        value = str(value)
+    if not isinstance(value, str) or not value:
+        raise CommandError(f"missing \"{key}\"")
+    return value

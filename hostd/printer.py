@@ -1,0 +1,51 @@
+"""The printer connection: the built-in simulated printer or a serial port, behind a Streamer."""
+
+from __future__ import annotations
+
+import contextlib
+import logging
+from collections.abc import AsyncIterator
+
+from drivers.simconfig import SimulatorConfig
+from drivers.simulator import SimulatedPrinter
+from drivers.streamer import Streamer, StreamerConfig
+from drivers.transport import open_transport
+from hostd.config import Config
+
+log = logging.getLogger("hostd.printer")
+
+SIM_LOG = "simulator-executed.log"
+
+
+@contextlib.asynccontextmanager
+async def printer_link(config: Config) -> AsyncIterator[Streamer]:
+    """Open the configured printer and yield a connected streamer; close everything on exit.
+
+    ``port = "sim"`` starts the simulated printer in-process on a pseudo-terminal,
+    at ``[simulator]`` speed, logging every executed line to
+    ``<state>/simulator-executed.log``.
+    """
+    simulator: SimulatedPrinter | None = None
+    port = config.printer.port
+    baud = config.printer.baud
+    if port == "sim":
+        config.state.folder.mkdir(parents=True, exist_ok=True)
+        simulator = SimulatedPrinter(
+            SimulatorConfig(
+                time_scale=config.simulator.time_scale,
+                baud=config.simulator.baud,
+                log_path=str(config.state.folder / SIM_LOG),
+            )
+        )
+        port = simulator.start()
+        log.info("simulated printer on %s (time scale %g, baud %d)",
+                 port, config.simulator.time_scale, config.simulator.baud)
+    try:
+        transport = await open_transport(port, baud)
+        async with Streamer(transport, StreamerConfig()) as streamer:
+            await streamer.connect()
+            log.info("printer connected on %s: %s", port, streamer.firmware or "unknown firmware")
+            yield streamer
+    finally:
+        if simulator is not None:
+            simulator.stop()

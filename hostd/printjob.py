@@ -1,0 +1,180 @@
+"""One job from queue to outcome: whole-model pass, just-in-time run, G-code file, done/failed."""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures
+import contextlib
+import logging
+import os
+import shutil
+import time
+from collections.abc import Iterator
+from pathlib import Path
+
+from drivers.streamer import LinkError, Streamer
+from hostd.config import Config
+from hostd.intake import Intake
+from hostd.jobfolder import split_name
+from hostd.jobstore import Job, JobStore
+from hostd.runner import JobCancelled, JobRunner, open_output
+from hostd.schedule import LayerSchedule
+from hostd.sources import FileSource, LayerSource, SlicedSource
+from hostd.status import StatusHub
+from slicer.errors import ModelError
+from slicer.gcode import header_lines, summarize
+from slicer.plan import SlicePlan
+from slicer.settings import SettingsError, SliceSettings
+
+log = logging.getLogger("hostd.job")
+
+# sent when a job is cancelled: heaters and fan off, motors released
+CANCEL_GCODE = ("M104 S0", "M140 S0", "M107", "M84")
+
+
+class PrintJob:
+    """Carries one queued job through slicing, heating and printing to its outcome."""
+
+    def __init__(
+        self,
+        job: Job,
+        config: Config,
+        store: JobStore,
+        hub: StatusHub,
+        intake: Intake,
+        executor: concurrent.futures.Executor,
+    ) -> None:
+        self.job = job
+        self.config = config
+        self.store = store
+        self.hub = hub
+        self.intake = intake
+        self.executor = executor
+        self.runner: JobRunner | None = None
+        self.schedule: LayerSchedule | None = None
+        self.source: LayerSource | None = None
+        stem, _suffix = split_name(job.name)
+        self.home = Path(job.path).parent
+        self.partial = self.home / f"{stem}.gcode.part"
+        self.final = self.home / f"{stem}.gcode"
+
+    async def run(self, link: Streamer) -> str:
+        """Print the job on ``link``; returns its final state (done, failed, cancelled).
+
+        CancelledError (the daemon stopping) leaves the job interrupted at its last
+        checkpoint. LinkError leaves it interrupted too, and is raised again.
+        """
+        job = self.store.transition(self.job.id, "slicing")
+        self.hub.update(state="heating", error=None)
+        resume = job.resume_from is not None and job.resume_from > 0
+        try:
+            first = job.resume_from if resume else 0
+            self.source = await self._source(job, first or 0, resume)
+            if self.source.layer_count and first >= self.source.layer_count:
+                raise ModelError(f"cannot resume at layer {first}: the model has "
+                                 f"{self.source.layer_count} layers")
+            output = await asyncio.to_thread(
+                open_output, self.partial, job.gcode_bytes if resume else 0
+            )
+        except (ModelError, SettingsError, OSError) as exc:
+            self.intake.fail(self.store.get(job.id), str(exc))
+            return "failed"
+        with output:
+            self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
+                                    first or 0, write_preamble=not resume)
+            link.on_ack = lambda number, _command: self.runner.on_ack(number)
+            verb = f"resumed at layer {first}" if resume else "started"
+            log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
+            self.hub.event("started", id=job.id, name=job.name, layers=self.source.layer_count,
+                           resumed_from=first if resume else None)
+            try:
+                await self.runner.run()
+            except JobCancelled as exc:
+                await self._cancelled(link, str(exc))
+                return "cancelled"
+            except (asyncio.CancelledError, LinkError) as exc:
+                self._interrupted(f"stopped: {type(exc).__name__}")
+                raise
+            finally:
+                link.on_ack = None
+                self.source.close()
+        summary_text = await asyncio.to_thread(self._write_final, job)
+        self._finish(summary_text)
+        return "done"
+
+    async def _source(self, job: Job, first: int, resume: bool) -> LayerSource:
+        if job.kind == "gcode":
+            if resume:
+                raise ModelError("a G-code job cannot be resumed mid-file")
+            return await asyncio.to_thread(FileSource, Path(job.path))
+        settings = SliceSettings.from_mapping(job.settings)
+        started = time.monotonic()
+        plan = await asyncio.to_thread(
+            SlicePlan.from_file, Path(job.path), settings, self.config.printer.bed
+        )
+        log.info("job %s %s: whole-model pass %.2f s, %d layers, %d bodies", job.id, job.name,
+                 time.monotonic() - started, plan.layer_count, plan.body_count)
+        for warning in plan.warnings:
+            log.warning("job %s %s: %s", job.id, job.name, warning)
+        self.schedule = LayerSchedule(
+            plan, settings, self.store.settings_changes(job.id),
+            self.store.cancelled_objects(job.id),
+        )
+        return SlicedSource(self.schedule, first, self.config.runner.lookahead, self.executor,
+                            resume)
+
+    async def _cancelled(self, link: Streamer, reason: str) -> None:
+        with contextlib.suppress(LinkError):
+            for command in CANCEL_GCODE:
+                await link.send(command)
+            await link.drain()
+        job = self.store.get(self.job.id)
+        self.intake.fail(job, reason, state="cancelled")
+
+    def _interrupted(self, note: str) -> None:
+        job = self.store.get(self.job.id)
+        if job.state in ("slicing", "heating", "printing", "paused"):
+            self.store.transition(job.id, "interrupted", note=note)
+            self.hub.event("interrupted", id=job.id, name=job.name, layer=job.layer)
+
+    def _write_final(self, job: Job) -> str:
+        """Header (from the whole file) + body into NAME.gcode; returns the summary text."""
+        if job.kind == "gcode":
+            shutil.copyfile(self.partial, self.final)
+            summary_text = f"printed {job.name} as is\n"
+        else:
+            summary = summarize(_lines(self.partial))
+            settings = self.schedule.base_settings if self.schedule else SliceSettings()
+            with open(self.final, "w", encoding="utf-8", newline="\n") as out:
+                for line in header_lines(summary, settings):
+                    out.write(line + "\n")
+                with open(self.partial, encoding="utf-8") as body:
+                    shutil.copyfileobj(body, out)
+                out.flush()
+                os.fsync(out.fileno())
+            summary_text = (
+                f"job {job.id} {job.name}\nlayers {summary.layers}\n"
+                f"filament {summary.filament_mm:.0f} mm ({summary.filament_g:.1f} g)\n"
+                f"estimated print time {summary.time_s:.0f} s\n"
+            )
+        self.partial.unlink(missing_ok=True)
+        return summary_text
+
+    def _finish(self, summary_text: str) -> None:
+        """Move the finished job to done/ and record it."""
+        job = stored = self.store.get(self.job.id)
+        changes = self.store.settings_changes(job.id)
+        cancelled = self.store.cancelled_objects(job.id)
+        summary_text += f"sha256 {stored.sha256}\nlines acknowledged {stored.lines_acked}\n"
+        summary_text += "".join(f"from layer {first}: {c}\n" for first, c in changes)
+        summary_text += "".join(f"body {b} cancelled from layer {f}\n" for b, f in cancelled)
+        target = self.intake.finish(stored, self.final, summary_text)
+        self.store.transition(job.id, "done", outcome=str(target))
+        log.info("job %s %s: done, G-code in %s", job.id, job.name, target)
+        self.hub.event("done", id=job.id, name=job.name, gcode=str(target))
+
+
+def _lines(path: Path) -> Iterator[str]:
+    with open(path, encoding="utf-8") as handle:
+        for line in handle:
+            yield line.rstrip("\n")

@@ -1,0 +1,247 @@
+"""The just-in-time runner: streams a job layer by layer while later layers are sliced."""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+from typing import IO, Protocol
+
+from drivers.protocol import strip_comment
+from hostd.api import JobStatus
+from hostd.jobstore import Job, JobStore
+from hostd.sources import LayerSource
+from hostd.status import StatusHub
+
+log = logging.getLogger("hostd.runner")
+
+PREAMBLE = -1  # mark of the start (or resume) block, before layer 0
+ENDING = -2  # mark of the end block
+
+
+class Link(Protocol):
+    """What the runner needs of the printer connection (a ``drivers.streamer.Streamer``)."""
+
+    async def send(self, command: str) -> int: ...
+
+    async def drain(self) -> None: ...
+
+
+class JobCancelled(Exception):
+    """The job was cancelled by a command."""
+
+
+@dataclass(frozen=True)
+class _Mark:
+    """A point in the stream: once line ``number`` is acknowledged, ``layer`` is complete."""
+
+    number: int
+    layer: int
+    offset: int
+
+
+class JobRunner:
+    """Prints one job: preamble, layers ``first..n-1`` and ending, checkpointing each layer.
+
+    Lines go to the printer through ``link`` and, with their comments, to
+    ``output`` (the job's G-code file being written). Acknowledgements come back
+    through :meth:`on_ack`; when every line of a layer is acknowledged the layer
+    is complete and the job store records it (last layer, acknowledged lines,
+    bytes of ``output``), in one transaction.
+    """
+
+    def __init__(
+        self,
+        job: Job,
+        source: LayerSource,
+        link: Link,
+        store: JobStore,
+        hub: StatusHub,
+        output: IO[str],
+        first: int,
+        write_preamble: bool,
+    ) -> None:
+        self.job = job
+        self.source = source
+        self.link = link
+        self.store = store
+        self.hub = hub
+        self.output = output
+        self.first = first
+        self.write_preamble = write_preamble
+        self.layers = source.layer_count
+        self.completed = first - 1
+        self.lines_acked = job.lines_acked if first > 0 else 0
+        self.state = "slicing"
+        self._sent: collections.deque[int] = collections.deque()
+        self._marks: collections.deque[_Mark] = collections.deque()
+        self._last_sent = 0
+        self._last_acked = 0
+        self._running = asyncio.Event()
+        self._running.set()
+        self._cancelled = False
+        self._done = asyncio.Event()
+        self._started = time.monotonic()
+        self._print_started: float | None = None
+        self._layers_timed = 0
+        self._last_publish = 0.0
+        self.streaming_layer = first
+
+    # -- commands -------------------------------------------------------------
+
+    def pause(self) -> None:
+        """Stop sending after the current line; the printer empties its buffer."""
+        if self.state == "paused":
+            return
+        self._running.clear()
+        self._set_state("paused")
+        self.hub.event("paused", id=self.job.id, name=self.job.name, layer=self.completed)
+
+    def resume(self) -> None:
+        """Continue sending after a pause."""
+        if self.state != "paused":
+            return
+        self._set_state("printing" if self._print_started is not None else "heating")
+        self._running.set()
+        self.hub.event("resumed", id=self.job.id, name=self.job.name, layer=self.completed)
+
+    def cancel(self) -> None:
+        """Stop the job: no further line of it is sent."""
+        self._cancelled = True
+        self._running.set()
+
+    @property
+    def paused(self) -> bool:
+        return self.state == "paused"
+
+    # -- streaming ------------------------------------------------------------
+
+    async def run(self) -> None:
+        """Stream the whole job; returns when every line is acknowledged.
+
+        Raises JobCancelled after :meth:`cancel`; CancelledError propagates (the
+        daemon stopping), leaving the last checkpoint in the store.
+        """
+        self._set_state("heating")
+        await self._stream(self.source.preamble(), PREAMBLE, write=self.write_preamble)
+        for index in range(self.first, self.layers):
+            self.streaming_layer = index
+            lines = await self.source.layer(index)
+            await self._stream(lines, index, write=True)
+        await self._stream(self.source.ending(), ENDING, write=True)
+        await self.link.drain()
+        self._check_marks()
+        self.output.flush()
+
+    async def _stream(self, lines: list[str], layer: int, write: bool) -> None:
+        if write and lines:
+            self.output.write("\n".join(lines) + "\n")
+        for line in lines:
+            command = strip_comment(line)
+            if not command:
+                continue
+            if not self._running.is_set():
+                await self._running.wait()
+            if self._cancelled:
+                raise JobCancelled(f"cancelled at layer {self.completed + 1}")
+            number = await self.link.send(command)
+            self._sent.append(number)
+            self._last_sent = number
+        if self._cancelled:
+            raise JobCancelled(f"cancelled at layer {self.completed + 1}")
+        self._marks.append(_Mark(self._last_sent, layer, self.output.tell()))
+        self._check_marks()
+
+    def on_ack(self, number: int) -> None:
+        """The printer acknowledged line ``number`` (and every one before it)."""
+        sent = self._sent
+        while sent and sent[0] <= number:
+            sent.popleft()
+            self.lines_acked += 1
+        self._last_acked = max(self._last_acked, number)
+        self._check_marks()
+        now = time.monotonic()
+        if now - self._last_publish > 0.25:
+            self._publish()
+
+    def _check_marks(self) -> None:
+        marks = self._marks
+        while marks and (marks[0].number <= self._last_acked or marks[0].number == 0):
+            mark = marks.popleft()
+            if mark.layer == PREAMBLE:
+                self._print_started = time.monotonic()
+                if self.state == "heating":
+                    self._set_state("printing")
+            elif mark.layer >= 0:
+                self._layer_complete(mark)
+
+    def _layer_complete(self, mark: _Mark) -> None:
+        self.output.flush()
+        os.fsync(self.output.fileno())
+        self.completed = mark.layer
+        self._layers_timed += 1
+        self.store.checkpoint(self.job.id, mark.layer, self.lines_acked, mark.offset)
+        status = self._publish()
+        eta = "--" if status.eta_s is None else _clock(status.eta_s)
+        log.info(
+            "job %s %s: layer %d/%d, %.1f %%, ETA %s",
+            self.job.id, self.job.name, mark.layer + 1, self.layers, status.progress * 100, eta,
+        )
+        self.hub.event("layer", id=self.job.id, name=self.job.name, layer=mark.layer,
+                       layers=self.layers)
+
+    # -- status ---------------------------------------------------------------
+
+    def status(self) -> JobStatus:
+        """The job part of the status snapshot."""
+        done = self.completed + 1
+        progress = done / self.layers if self.layers else 0.0
+        eta = None
+        if self._print_started is not None and self._layers_timed:
+            per_layer = (time.monotonic() - self._print_started) / self._layers_timed
+            eta = round(per_layer * (self.layers - done), 1)
+        return JobStatus(
+            id=self.job.id,
+            name=self.job.name,
+            layer=max(self.completed, 0),
+            layers=self.layers,
+            progress=round(min(progress, 1.0), 4),
+            lines_acked=self.lines_acked,
+            elapsed_s=round(time.monotonic() - self._started, 1),
+            eta_s=eta,
+            layers_ready_ahead=self.source.ready_ahead,
+        )
+
+    def _publish(self) -> JobStatus:
+        self._last_publish = time.monotonic()
+        status = self.status()
+        self.hub.update(job=status)
+        return status
+
+    def _set_state(self, state: str) -> None:
+        if state != self.state or self.store.get(self.job.id).state != state:
+            self.store.transition(self.job.id, state, layers=self.layers)
+        self.state = state
+        self.hub.update(state=state, job=self.status())
+
+
+def _clock(seconds: float) -> str:
+    minutes, secs = divmod(int(seconds), 60)
+    hours, minutes = divmod(minutes, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
+
+
+def open_output(path: Path, keep_bytes: int) -> IO[str]:
+    """The job's G-code file being written: fresh, or cut back to a checkpoint's length."""
+    if keep_bytes <= 0 or not path.exists():
+        return open(path, "w", encoding="utf-8", newline="\n")
+    if path.stat().st_size < keep_bytes:
+        raise OSError(f"{path.name} is shorter than its checkpoint ({keep_bytes} bytes)")
+    handle = open(path, "r+", encoding="utf-8", newline="\n")  # noqa: SIM115
+    handle.truncate(keep_bytes)
+    handle.seek(keep_bytes)
+    return handle

@@ -1,0 +1,77 @@
+"""A job's layer schedule: which slicing settings and which bodies apply to each layer."""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Mapping
+from typing import Any
+
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+
+
+class LayerSchedule:
+    """Settings and excluded bodies per layer, after every retune and cancelled object.
+
+    ``changes`` is the list of retunes ``(first layer, flat keys)`` in the order they
+    were made; ``cancelled`` the list of ``(body index, first layer without it)``.
+    The same lists, read back from the job store, rebuild the same schedule, so a
+    resumed job slices every layer exactly as the first run did.
+    """
+
+    def __init__(
+        self,
+        plan: SlicePlan,
+        settings: SliceSettings,
+        changes: list[tuple[int, dict[str, Any]]] | None = None,
+        cancelled: list[tuple[int, int]] | None = None,
+    ) -> None:
+        self.base_plan = plan
+        self.base_settings = settings
+        self.changes: list[tuple[int, dict[str, Any]]] = list(changes or [])
+        self.cancelled: list[tuple[int, int]] = list(cancelled or [])
+        self._plans: dict[SliceSettings, SlicePlan] = {settings: plan}
+        self._lock = threading.Lock()
+
+    @property
+    def layer_count(self) -> int:
+        return int(self.base_plan.layer_count)
+
+    def settings_at(self, layer: int) -> SliceSettings:
+        """The settings layer ``layer`` is sliced with."""
+        settings = self.base_settings
+        for first, changed in self.changes:
+            if first <= layer:
+                settings = SliceSettings.from_mapping(changed, base=settings)
+        return settings
+
+    def excluded_at(self, layer: int) -> frozenset[int]:
+        """Bodies left out of layer ``layer``."""
+        return frozenset(body for body, first in self.cancelled if first <= layer)
+
+    def plan_at(self, layer: int) -> SlicePlan:
+        """The plan (same geometry, the layer's settings) that slices layer ``layer``."""
+        settings = self.settings_at(layer)
+        with self._lock:
+            plan = self._plans.get(settings)
+            if plan is None:
+                plan = self.base_plan.with_settings(settings)
+                self._plans[settings] = plan
+        return plan
+
+    def layer_gcode(self, layer: int) -> list[str]:
+        """G-code lines of one layer (safe to call from worker threads)."""
+        return list(self.plan_at(layer).layer_gcode(layer, self.excluded_at(layer)))
+
+    def retune(self, first: int, changed: Mapping[str, Any]) -> SliceSettings:
+        """Apply ``changed`` from layer ``first`` on; raises SettingsError when refused."""
+        settings = SliceSettings.from_mapping(changed, base=self.settings_at(first))
+        plan = self.base_plan.with_settings(settings)  # refuses geometry changes
+        with self._lock:
+            self._plans.setdefault(settings, plan)
+        self.changes.append((first, dict(changed)))
+        return settings
+
+    def cancel_body(self, body: int, first: int) -> None:
+        """Leave body ``body`` out from layer ``first`` on."""
+        self.cancelled.append((body, first))

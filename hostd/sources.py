@@ -1,0 +1,160 @@
+"""Where a job's G-code comes from: layers sliced just in time, or a G-code file read lazily."""
+
+from __future__ import annotations
+
+import asyncio
+import collections
+import concurrent.futures
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Protocol
+
+from hostd.schedule import LayerSchedule
+
+
+class LayerSource(Protocol):
+    """The G-code of one job, in order: a preamble, numbered layers, an ending."""
+
+    layer_count: int
+
+    def preamble(self) -> list[str]:
+        """Lines before the first layer streamed (start block, or resume block)."""
+        ...
+
+    async def layer(self, index: int) -> list[str]:
+        """The lines of layer ``index``; layers are asked for in increasing order."""
+        ...
+
+    def ending(self) -> list[str]:
+        """Lines after the last layer."""
+        ...
+
+    @property
+    def ready_ahead(self) -> int:
+        """Layers already made and waiting to be streamed."""
+        ...
+
+    @property
+    def next_unsliced(self) -> int:
+        """The first layer whose G-code has not been started yet."""
+        ...
+
+    def close(self) -> None:
+        """Stop making layers (pending work is dropped)."""
+        ...
+
+
+class SlicedSource:
+    """Layers sliced in a thread pool, at most ``depth`` ahead of the one streaming.
+
+    The bound is the backpressure: a layer is submitted only when one is taken,
+    so memory holds at most ``depth`` layers however many the model has.
+    """
+
+    def __init__(
+        self,
+        schedule: LayerSchedule,
+        first: int,
+        depth: int,
+        executor: concurrent.futures.Executor,
+        resume: bool,
+    ) -> None:
+        self.schedule = schedule
+        self.layer_count = schedule.layer_count
+        self.first = first
+        self.depth = depth
+        self.executor = executor
+        self.resume = resume
+        self._futures: collections.deque[tuple[int, concurrent.futures.Future[list[str]]]] = (
+            collections.deque()
+        )
+        self._next = first
+        self._fill()
+
+    def _fill(self) -> None:
+        while len(self._futures) < self.depth and self._next < self.layer_count:
+            index = self._next
+            self._futures.append((index, self.executor.submit(self.schedule.layer_gcode, index)))
+            self._next += 1
+
+    def preamble(self) -> list[str]:
+        plan = self.schedule.plan_at(self.first)
+        return list(plan.resume_gcode(self.first) if self.resume else plan.start_gcode())
+
+    async def layer(self, index: int) -> list[str]:
+        if not self._futures:
+            self._fill()
+        queued, future = self._futures[0]
+        if queued != index:
+            raise RuntimeError(f"layer {index} asked for, layer {queued} is next")
+        lines = await asyncio.wrap_future(future)
+        self._futures.popleft()
+        self._fill()
+        return lines
+
+    def ending(self) -> list[str]:
+        return list(self.schedule.plan_at(self.layer_count - 1).end_gcode())
+
+    @property
+    def ready_ahead(self) -> int:
+        return sum(1 for _index, future in self._futures if future.done())
+
+    @property
+    def next_unsliced(self) -> int:
+        return self._next
+
+    def close(self) -> None:
+        for _index, future in self._futures:
+            future.cancel()
+        self._futures.clear()
+
+
+class FileSource:
+    """A G-code file printed as is, cut into layers at its ``;LAYER:`` comments."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self.layer_count = 0
+        preamble: list[str] = []
+        with open(path, encoding="utf-8", errors="replace") as handle:
+            for line in handle:
+                if line.startswith(";LAYER:"):
+                    self.layer_count += 1
+                elif self.layer_count == 0:
+                    preamble.append(line.rstrip("\r\n"))
+        self._preamble = preamble
+        self._chunks = self._read_layers()
+
+    def _read_layers(self) -> Iterator[list[str]]:
+        with open(self.path, encoding="utf-8", errors="replace") as handle:
+            chunk: list[str] | None = None
+            for raw in handle:
+                line = raw.rstrip("\r\n")
+                if line.startswith(";LAYER:"):
+                    if chunk is not None:
+                        yield chunk
+                    chunk = [line]
+                elif chunk is not None:
+                    chunk.append(line)
+            if chunk is not None:
+                yield chunk
+
+    def preamble(self) -> list[str]:
+        return list(self._preamble)
+
+    async def layer(self, index: int) -> list[str]:
+        return next(self._chunks, [])
+
+    def ending(self) -> list[str]:
+        return []
+
+    @property
+    def ready_ahead(self) -> int:
+        return 1
+
+    @property
+    def next_unsliced(self) -> int:
+        return self.layer_count
+
+    def close(self) -> None:
+        self._chunks.close()
