@@ -1,0 +1,28 @@
+"""The eggcrate field: H = sin(a u)^2 + sin(a v)^2, a cell pattern of period infill.scale."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slicer.fields.base import LayerContext, register
+from slicer.fields.coords import rotated
+from slicer.fields.grid import GridField
+
+
+@register("eggcrate")
+class EggcrateField(GridField):
+    """Bumps and dimples of period ``infill.scale`` mm along axes turned by ``infill.angle``.
+
+    Levels near 0 and 2 are rings around the dimples and bumps, levels near 1 the
+    diagonal lattice through the saddles; the level placement keeps them apart.
+    """
+
+    name = "eggcrate"
+
+    def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
+        """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64 in [0, 2]."""
+        u, v = rotated(x, y, ctx.bounds, self.settings.infill_angle)
+        a = math.pi / self.settings.infill_scale
+        return np.sin(a * u) ** 2 + np.sin(a * v) ** 2
