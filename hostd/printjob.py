@@ -70,9 +70,6 @@ class PrintJob:
         try:
             first = job.resume_from if resume else 0
             self.source = await self._source(job, first or 0, resume)
-            if self.source.layer_count and first >= self.source.layer_count:
-                raise ModelError(f"cannot resume at layer {first}: the model has "
-                                 f"{self.source.layer_count} layers")
             output = await asyncio.to_thread(
                 open_output, self.partial, job.gcode_bytes if resume else 0
             )
@@ -157,7 +154,6 @@ class PrintJob:
                 f"filament {summary.filament_mm:.0f} mm ({summary.filament_g:.1f} g)\n"
                 f"estimated print time {summary.time_s:.0f} s\n"
             )
-        self.partial.unlink(missing_ok=True)
         return summary_text
 
     def _finish(self, summary_text: str) -> None:

@@ -78,6 +78,8 @@ class SlicedSource:
             self._next += 1
 
     def preamble(self) -> list[str]:
+        if self.first >= self.layer_count:
+            return []  # every layer was printed: only the ending is left
         plan = self.schedule.plan_at(self.first)
         return list(plan.resume_gcode(self.first) if self.resume else plan.start_gcode())
 

@@ -43,11 +43,16 @@ class DaemonProcess:
             cwd=self.folder, stdout=log, stderr=log, env={**os.environ, "PYTHONPATH": str(ROOT)},
         )
         log.close()
-        self.wait_for(lambda: "printer connected" in self.log(), 20, "the printer link")
+        self.wait_for(lambda: "printer connected" in self.run_log(), 20, "the printer link")
         return self
 
     def log(self) -> str:
+        """Everything every run of the daemon logged."""
         return self.log_path.read_text(errors="replace")
+
+    def run_log(self) -> str:
+        """What the latest run logged."""
+        return self.log().split(f"--- run {self.runs}\n", 1)[-1]
 
     def drop(self, source: Path | bytes, name: str) -> Path:
         """Put a file into the job folder atomically (written aside as a dotfile, renamed)."""
