@@ -1,0 +1,91 @@
+"""`hostd run` with MQTT on a real broker: a bad model's `failed` event, commands, availability."""
+
+from __future__ import annotations
+
+import asyncio
+import json
+import os
+import signal
+import subprocess
+import sys
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+import pytest
+from brokers import HOST, Broker, start_broker
+
+REPO = Path(__file__).resolve().parents[1]
+HOSTD = ["-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+PRINTER = "farm7"
+USER, SECRET = "daemon", "pw-7"
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Any:
+    running = start_broker(tmp_path / "broker", users={USER: SECRET})
+    yield running
+    running.stop()
+
+
+def start_daemon(folder: Path, broker: Broker) -> subprocess.Popen[str]:
+    config = folder / "hostd.toml"
+    config.write_text(
+        "[jobs]\nfolder = \"jobs\"\nsettle_s = 0.2\n"
+        "[state]\nfolder = \"var\"\n"
+        f"[printer]\nid = \"{PRINTER}\"\n"
+        "[simulator]\ntime_scale = 0\nbaud = 0\n"
+        f"[mqtt]\nenabled = true\nhost = \"{HOST}\"\nport = {broker.port}\n"
+        f"username = \"{USER}\"\npassword = \"{SECRET}\"\nallow_commands = true\n"
+    )
+    return subprocess.Popen(
+        [sys.executable, *HOSTD, "run", "--config", str(config)],
+        cwd=folder, env={**os.environ, "PYTHONPATH": str(REPO)},
+        stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True,
+    )
+
+
+def test_a_bad_model_fails_with_an_mqtt_event_and_commands_are_answered(
+    tmp_path: Path, broker: Broker
+) -> None:
+    daemon = start_daemon(tmp_path, broker)
+
+    async def watch() -> tuple[dict[str, Any], dict[str, Any], str]:
+        failed: dict[str, Any] | None = None
+        refused: dict[str, Any] | None = None
+        async with aiomqtt.Client(HOST, broker.port, username=USER, password=SECRET) as client:
+            await client.subscribe(f"hostd/{PRINTER}/#", qos=1)
+            async with asyncio.timeout(40):
+                async for message in client.messages:
+                    topic = str(message.topic)
+                    if topic.endswith("/online") and message.payload == b"online":
+                        # the daemon is up: drop a model that cannot be printed, send a command
+                        (tmp_path / "jobs" / "junk.stl").write_bytes(b"\x00" * 40)
+                        await client.publish(f"hostd/{PRINTER}/cmd", '{"cmd": "pause"}', qos=1)
+                    elif topic.endswith("/event"):
+                        event = json.loads(message.payload)
+                        if event["event"] == "failed":
+                            failed = event
+                        elif event["event"] == "error" and event.get("cmd") == "pause":
+                            refused = event
+                    if failed and refused:
+                        break
+            daemon.send_signal(signal.SIGTERM)
+            async with asyncio.timeout(30):
+                async for message in client.messages:
+                    if str(message.topic).endswith("/online"):
+                        return failed, refused, message.payload.decode()
+        raise AssertionError("unreachable")
+
+    try:
+        failed, refused, availability = asyncio.run(watch())
+        output, _ = daemon.communicate(timeout=30)
+    finally:
+        if daemon.poll() is None:
+            daemon.kill()
+            daemon.wait()
+    assert "junk" in json.dumps(failed)
+    assert (tmp_path / "jobs" / "failed" / "junk.error.txt").exists()
+    assert refused["reason"] == "no job is printing"  # the daemon's controller answered
+    assert availability == "offline", output
+    assert daemon.returncode == 0, output
