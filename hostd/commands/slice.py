@@ -1,0 +1,187 @@
+"""`hostd slice MODEL -o OUT.gcode`: slice a whole model to a file, with a progress bar."""
+
+from __future__ import annotations
+
+import os
+import shutil
+import sys
+import tempfile
+import time
+import tomllib
+from collections import deque
+from collections.abc import Callable, Iterator
+from concurrent.futures import ThreadPoolExecutor
+from pathlib import Path
+from typing import Any, TextIO
+
+from hostd.cli import UsageError
+from slicer.errors import ModelError
+from slicer.gcode import GcodeSummary, LayerCode, filament_grams, header_lines
+from slicer.plan import SlicePlan
+from slicer.settings import SettingsError, SliceSettings, parse_assignment
+
+DEFAULT_BED = (220.0, 220.0, 250.0)
+
+
+def load_settings(config: str | None, assignments: list[str]) -> tuple[SliceSettings, tuple]:
+    """Slicing settings and bed size from ``--config FILE`` and ``--set KEY=VALUE`` options.
+
+    The file's ``[slicing]`` table and ``[printer].bed`` are used; ``--set``
+    overrides them. Raises UsageError naming the bad key or file.
+    """
+    table: dict[str, Any] = {}
+    bed = DEFAULT_BED
+    if config:
+        try:
+            with open(config, "rb") as fh:
+                doc = tomllib.load(fh)
+        except OSError as exc:
+            raise UsageError(f"cannot read config {config}: {exc.strerror or exc}") from exc
+        except tomllib.TOMLDecodeError as exc:
+            raise UsageError(f"config {config}: {exc}") from exc
+        table = doc.get("slicing", {}) or {}
+        raw_bed = (doc.get("printer", {}) or {}).get("bed", DEFAULT_BED)
+        try:
+            bed = tuple(float(v) for v in raw_bed)
+            if len(bed) != 3 or min(bed) <= 0:
+                raise ValueError
+        except (TypeError, ValueError):
+            raise UsageError(f"printer.bed: expected [x, y, z] in mm, got {raw_bed!r}") from None
+    try:
+        settings = SliceSettings.from_mapping(table)
+        overrides = dict(parse_assignment(a) for a in assignments)
+        settings = SliceSettings.from_mapping(overrides, base=settings)
+    except SettingsError as exc:
+        raise UsageError(str(exc)) from exc
+    return settings, bed
+
+
+def load_plan(model: str, settings: SliceSettings, bed: tuple) -> SlicePlan:
+    """The model's plan; a model that cannot be sliced is bad input (UsageError)."""
+    if not os.path.exists(model):
+        raise UsageError(f"{model}: no such file")
+    try:
+        return SlicePlan.from_file(model, settings, bed)
+    except ModelError as exc:
+        raise UsageError(f"{model}: {exc}") from exc
+    except SettingsError as exc:
+        raise UsageError(str(exc)) from exc
+
+
+def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCode]:
+    """Every layer's G-code in order, sliced on a thread pool a bounded window ahead.
+
+    At most ``2 * workers`` layers are held at once, so memory does not grow
+    with the layer count.
+    """
+    workers = workers or max(1, os.cpu_count() or 1)
+    n = plan.layer_count
+    with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="slice") as pool:
+        window: deque = deque()
+        nxt = 0
+        while nxt < n and len(window) < 2 * workers:
+            window.append(pool.submit(plan.layer_code, nxt))
+            nxt += 1
+        while window:
+            code = window.popleft().result()
+            if nxt < n:
+                window.append(pool.submit(plan.layer_code, nxt))
+                nxt += 1
+            yield code
+
+
+def write_gcode(
+    plan: SlicePlan, out: str | os.PathLike[str], progress: Callable[[int, int], None] | None = None
+) -> GcodeSummary:
+    """Write the whole program to ``out`` (header, start, layers, end); return its totals.
+
+    Layers are streamed to a temporary file beside ``out``; the header, which
+    needs the totals, is written first into the final file, then the body is
+    copied after it and the result renamed into place.
+    """
+    out = Path(out)
+    directory = out.parent if str(out.parent) else Path(".")
+    filament = 0.0
+    seconds = 0.0
+    n = plan.layer_count
+    with tempfile.TemporaryFile("w+", encoding="ascii", newline="\n") as body:
+        for i, code in enumerate(iter_layers(plan)):
+            body.write("\n".join(code.lines))
+            body.write("\n")
+            filament += code.filament_mm
+            seconds += code.time_s
+            if progress:
+                progress(i + 1, n)
+        body.write("\n".join(plan.end_gcode()) + "\n")
+        summary = GcodeSummary(n, filament, filament_grams(filament, plan.settings), seconds)
+        body.seek(0)
+        fd, tmp = tempfile.mkstemp(prefix=".hostd-", suffix=".gcode", dir=directory)
+        try:
+            with os.fdopen(fd, "w", encoding="ascii", newline="\n") as fh:
+                fh.write("\n".join(header_lines(summary, plan.settings)) + "\n")
+                fh.write("\n".join(plan.start_gcode()) + "\n")
+                shutil.copyfileobj(body, fh, 1 << 20)
+            os.replace(tmp, out)
+        except BaseException:
+            if os.path.exists(tmp):
+                os.unlink(tmp)
+            raise
+    return summary
+
+
+class ProgressBar:
+    """A one-line text progress bar on a stream (stderr), redrawn at most 10 times a second."""
+
+    def __init__(self, stream: TextIO, label: str, width: int = 30) -> None:
+        self.stream = stream
+        self.label = label
+        self.width = width
+        self.started = time.monotonic()
+        self._last = 0.0
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if done < total and now - self._last < 0.1:
+            return
+        self._last = now
+        frac = done / total if total else 1.0
+        filled = round(frac * self.width)
+        bar = "#" * filled + "-" * (self.width - filled)
+        self.stream.write(
+            f"\r{self.label} [{bar}] {100 * frac:5.1f}% layer {done}/{total} "
+            f"{now - self.started:5.1f}s"
+        )
+        if done >= total:
+            self.stream.write("\n")
+        self.stream.flush()
+
+
+def format_duration(seconds: float) -> str:
+    """``1h 02m 03s`` style."""
+    s = round(seconds)
+    h, rem = divmod(s, 3600)
+    m, s = divmod(rem, 60)
+    return f"{h}h {m:02d}m {s:02d}s" if h else f"{m}m {s:02d}s"
+
+
+def run(args) -> int:
+    """Slice ``args.model`` to ``args.output`` and print a summary."""
+    settings, bed = load_settings(args.config, args.set)
+    started = time.monotonic()
+    plan = load_plan(args.model, settings, bed)
+    bar = None if args.quiet else ProgressBar(sys.stderr, "slicing")
+    try:
+        summary = write_gcode(plan, args.output, bar)
+    except OSError as exc:
+        raise UsageError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
+    elapsed = time.monotonic() - started
+    print(
+        f"{args.output}: {summary.layers} layers, "
+        f"filament {summary.filament_mm / 1000.0:.2f} m ({summary.filament_g:.1f} g), "
+        f"estimated time {format_duration(summary.time_s)}; sliced in {elapsed:.2f} s"
+    )
+    if plan.body_count > 1:
+        print(f"{plan.body_count} objects")
+    for warning in plan.warnings:
+        print(f"warning: {warning}")
+    return 0

@@ -1,0 +1,320 @@
+"""Marlin G-code: one layer's toolpaths to lines, start/end blocks, header and summary.
+
+Extrusion is relative (``M83``): every layer starts by retracting, moving to
+its height and priming, so a layer's lines depend on that layer alone.
+E per move is by volume: length x line width x layer height / filament area.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Iterable, Sequence
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from slicer.layer import Path
+from slicer.motion import run_time, runs_time, segment_times
+from slicer.settings import SliceSettings
+
+# points of a path closer than this to the previous one are dropped, mm
+_MIN_STEP = 0.005
+# lift used when a print ends or resumes, mm
+END_LIFT = 10.0
+RESUME_LIFT = 0.6
+
+
+@dataclass(frozen=True)
+class GcodeSummary:
+    """Totals of a G-code program: layers, filament length (mm) and mass (g), time (s)."""
+
+    layers: int
+    filament_mm: float
+    filament_g: float
+    time_s: float
+
+
+@dataclass(frozen=True)
+class LayerCode:
+    """One layer's G-code lines with its filament use (mm) and estimated time (s)."""
+
+    lines: list[str]
+    filament_mm: float
+    time_s: float
+
+
+def fan_command(settings: SliceSettings, index: int) -> str:
+    """The fan command that holds from layer ``index`` on (``M106 S..`` or ``M107``)."""
+    if index >= settings.fan_first_layer and settings.fan_speed > 0:
+        return f"M106 S{round(255 * settings.fan_speed)}"
+    return "M107"
+
+
+def layer_code(
+    index: int,
+    z: float,
+    height: float,
+    paths: Sequence[Path],
+    outline: shapely.Geometry,
+    settings: SliceSettings,
+) -> LayerCode:
+    """G-code of one layer: ``;LAYER:index``, then every path with travels between.
+
+    ``z`` is the layer's top (nozzle height), ``height`` its thickness, both mm;
+    ``outline`` the layer's solid region: a travel that leaves it retracts.
+    """
+    lines = [f";LAYER:{index}"]
+    if not paths:
+        return LayerCode(lines, 0.0, 0.0)
+    e_per_mm = settings.line_width * height / settings.filament_area
+    first = index == 0
+    wall_f = settings.first_layer_speed if first else settings.wall_speed
+    fill_f = settings.first_layer_speed if first else settings.print_speed
+    travel_f = settings.travel_speed
+    r = settings.retract_length
+    r_line = f"G1 E{-r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
+    p_line = f"G1 E{r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
+    accel = settings.acceleration
+
+    coords = [_thin(p.coords) for p in paths]
+    starts = np.array([c[0] for c in coords])
+    ends = np.array([c[-1] for c in coords])
+    leaves = _travels_leave(ends[:-1], starts[1:], outline, settings.line_width)
+
+    if index == settings.fan_first_layer or (index == 0 and settings.fan_first_layer > 0):
+        lines.append(fan_command(settings, index))
+    time_s = 0.0
+    if r_line:
+        lines.append(r_line)
+        time_s += 2 * r / settings.retract_speed
+    lines.append(f"G0 F{_fpm(travel_f)} X{starts[0, 0]:.3f} Y{starts[0, 1]:.3f} Z{z:.3f}")
+    if p_line:
+        lines.append(p_line)
+    filament = 0.0
+    kind = None
+    chunks: list[str] = []
+    runs: list[np.ndarray] = []
+    speeds: list[float] = []
+    for k, (path, pts) in enumerate(zip(paths, coords, strict=True)):
+        if k > 0:
+            a, b = ends[k - 1], starts[k]
+            if leaves[k - 1] and r_line:
+                chunks.append(r_line + "\n")
+                time_s += 2 * r / settings.retract_speed
+            chunks.append(f"G0 F{_fpm(travel_f)} X{b[0]:.3f} Y{b[1]:.3f}\n")
+            runs.append(np.stack([a, b]))
+            speeds.append(travel_f)
+            if leaves[k - 1] and p_line:
+                chunks.append(p_line + "\n")
+        if path.kind != kind:
+            kind = path.kind
+            chunks.append(f";TYPE:{kind}\n")
+        speed = wall_f if kind.startswith("WALL") else fill_f
+        seg = np.diff(pts, axis=0)
+        e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm
+        filament += float(e.sum())
+        runs.append(pts)
+        speeds.append(speed)
+        chunks.append(_moves(pts[1:], e, speed))
+    time_s += runs_time(runs, np.array(speeds), accel)
+    lines.extend("".join(chunks).splitlines())
+    return LayerCode(lines, filament, time_s)
+
+
+def _fpm(speed_mm_s: float) -> int:
+    """Feedrate word value: mm/min, whole."""
+    return round(speed_mm_s * 60.0)
+
+
+def _thin(pts: np.ndarray) -> np.ndarray:
+    """Drop points closer than ``_MIN_STEP`` to the previous kept one (keeps both ends)."""
+    if len(pts) <= 2:
+        return pts
+    step = np.hypot(*np.diff(pts, axis=0).T)
+    keep = np.concatenate(([True], step >= _MIN_STEP))
+    keep[-1] = True
+    return pts[keep]
+
+
+def _moves(xy: np.ndarray, e: np.ndarray, speed: float) -> str:
+    """``G1`` lines for points (k, 2) with extrusion (k,); the first line sets the feedrate."""
+    k = len(xy)
+    flat = np.column_stack([xy, e]).ravel().tolist()
+    head = f"G1 F{_fpm(speed)} X%.3f Y%.3f E%.5f\n" % tuple(flat[:3])
+    return head + ("G1 X%.3f Y%.3f E%.5f\n" * (k - 1)) % tuple(flat[3:])
+
+
+def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: float) -> np.ndarray:
+    """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave the part (retraction needed)."""
+    if len(a) == 0:
+        return np.zeros(0, dtype=bool)
+    lines = shapely.linestrings(np.stack([a, b], axis=1))
+    zero = np.all(a == b, axis=1)
+    area = shapely.buffer(outline, 0.05 * w, quad_segs=2)
+    shapely.prepare(area)
+    return ~(shapely.covered_by(lines, area) | zero)
+
+
+def start_block(settings: SliceSettings) -> list[str]:
+    """Heat (unless ``skip_heating``), home, absolute XYZ, relative E."""
+    lines = []
+    if not settings.skip_heating:
+        lines += [
+            f"M140 S{settings.bed_temp:g}",
+            f"M104 S{settings.nozzle_temp:g}",
+            f"M190 S{settings.bed_temp:g}",
+            f"M109 S{settings.nozzle_temp:g}",
+        ]
+    lines += ["G28", "G90", "M83", "G92 E0", fan_command(settings, 0)]
+    return lines
+
+
+def end_block(settings: SliceSettings, top_z: float, bed_z: float) -> list[str]:
+    """Retract, lift clear of the part, heaters and fan off, motors off."""
+    lift = min(top_z + END_LIFT, bed_z)
+    lines = [";END"]
+    if settings.retract_length > 0:
+        lines.append(f"G1 E{-settings.retract_length:.5f} F{_fpm(settings.retract_speed)}")
+    lines += [
+        f"G0 F{_fpm(settings.travel_speed)} Z{lift:.3f}",
+        "M107",
+        "M104 S0",
+        "M140 S0",
+        "M84",
+    ]
+    return lines
+
+
+def resume_block(settings: SliceSettings, index: int, below_z: float) -> list[str]:
+    """The preamble that restarts a print at layer ``index``.
+
+    ``below_z`` is the top of the last completed layer (0 for layer 0): the
+    nozzle is there; declare that height, lift clear, heat (unless
+    ``skip_heating``), home X and Y only, and restore relative E from zero.
+    """
+    lift = below_z + RESUME_LIFT
+    lines = [f";RESUME:{index}", "G90", f"G92 Z{below_z:.3f}", f"G0 F600 Z{lift:.3f}"]
+    if not settings.skip_heating:
+        lines += [
+            f"M140 S{settings.bed_temp:g}",
+            f"M104 S{settings.nozzle_temp:g}",
+            f"M190 S{settings.bed_temp:g}",
+            f"M109 S{settings.nozzle_temp:g}",
+        ]
+    lines += ["G28 X Y", "M83", "G92 E0", fan_command(settings, index)]
+    return lines
+
+
+def header_lines(summary: GcodeSummary, settings: SliceSettings) -> list[str]:
+    """Comment header with totals in the forms Cura and PrusaSlicer viewers read."""
+    t = round(summary.time_s)
+    h, rem = divmod(t, 3600)
+    m, s = divmod(rem, 60)
+    return [
+        ";FLAVOR:Marlin",
+        ";Generated with hostd (implicit slicer)",
+        f";TIME:{t}",
+        f";Filament used: {summary.filament_mm / 1000.0:.5f}m",
+        f";Filament mass: {summary.filament_g:.2f}g",
+        f";Layer height: {settings.layer_height:g}",
+        f";LAYER_COUNT:{summary.layers}",
+        ";Extrusion: relative (M83)",
+        f"; estimated printing time (normal mode) = {h}h {m}m {s}s",
+        f"; filament used [mm] = {summary.filament_mm:.2f}",
+        f"; filament used [g] = {summary.filament_g:.2f}",
+        f"; infill = {settings.infill_field} {settings.infill_density:g}",
+    ]
+
+
+def filament_grams(filament_mm: float, settings: SliceSettings) -> float:
+    """Mass of a length of filament, g (density in g/cm^3)."""
+    return filament_mm * settings.filament_area * settings.filament_density / 1000.0
+
+
+def summarize(lines: Iterable[str], settings: SliceSettings | None = None) -> GcodeSummary:
+    """Totals of G-code lines: ``;LAYER:`` count, net filament, time by the same motion model.
+
+    Understands G0/G1 (X Y Z E F), G90/G91, M82/M83, G92; acceleration and
+    filament density come from ``settings`` (defaults when None).
+    """
+    settings = settings or SliceSettings()
+    accel = settings.acceleration
+    pos = [0.0, 0.0, 0.0]
+    feed = settings.travel_speed
+    rel_xyz = False
+    rel_e = False
+    e_abs = 0.0
+    filament = 0.0
+    time_s = 0.0
+    layers = 0
+    run: list[tuple[float, float]] = []
+    run_speed = 0.0
+    run_kind = ""
+
+    def flush() -> float:
+        nonlocal run
+        t = run_time(np.array(run), run_speed, accel) if len(run) > 1 else 0.0
+        run = []
+        return t
+
+    for raw in lines:
+        if raw.startswith(";LAYER:"):
+            layers += 1
+            continue
+        code, _, _ = raw.partition(";")
+        words = code.split()
+        if not words:
+            continue
+        cmd = words[0].upper()
+        if cmd in ("G0", "G1"):
+            vals = {w[0].upper(): float(w[1:]) for w in words[1:] if len(w) > 1}
+            if "F" in vals:
+                feed = vals["F"] / 60.0
+            new = list(pos)
+            for i, ax in enumerate("XYZ"):
+                if ax in vals:
+                    new[i] = pos[i] + vals[ax] if rel_xyz else vals[ax]
+            de = 0.0
+            if "E" in vals:
+                de = vals["E"] if rel_e else vals["E"] - e_abs
+                e_abs = e_abs + de
+                filament += de
+            moved_xy = new[0] != pos[0] or new[1] != pos[1]
+            if moved_xy and new[2] == pos[2]:
+                if run and (cmd != run_kind or "F" in vals or feed != run_speed):
+                    time_s += flush()
+                if not run:
+                    run = [(pos[0], pos[1])]
+                    run_kind = cmd
+                    run_speed = feed
+                run.append((new[0], new[1]))
+            else:
+                time_s += flush()
+                dist = math.dist(pos, new)
+                if dist > 0:
+                    time_s += float(
+                        segment_times(np.array([dist]), feed, np.zeros(1), np.zeros(1), accel)[0]
+                    )
+                elif de:
+                    time_s += abs(de) / feed
+            pos = new
+        else:
+            time_s += flush()
+            if cmd == "G90":
+                rel_xyz = False
+            elif cmd == "G91":
+                rel_xyz = True
+            elif cmd == "M82":
+                rel_e = False
+            elif cmd == "M83":
+                rel_e = True
+            elif cmd == "G92":
+                for w in words[1:]:
+                    ax = w[0].upper()
+                    if ax == "E":
+                        e_abs = float(w[1:])
+                    elif ax in "XYZ":
+                        pos["XYZ".index(ax)] = float(w[1:])
+    time_s += flush()
+    return GcodeSummary(layers, filament, filament_grams(filament, settings), time_s)

@@ -1,0 +1,266 @@
+"""One layer's toolpaths: walls, skins, infill and support, ordered for printing.
+
+Walls are level sets of the signed distance to the outline at
+``c_k = w/2, 3w/2, ...``: on the exact vector route an inward offset of the
+outline *is* that level set, so each wall is the boundary of
+``buffer(outline, -c_k)`` (exterior and interior rings alike). Infill is the
+level sets of the selected field, clipped to the contracted domain ``w'``.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from slicer import order
+from slicer.fields.base import InfillField, LayerContext
+from slicer.fields.linear import line_family
+from slicer.settings import SliceSettings
+
+WALL_OUTER = "WALL-OUTER"
+WALL_INNER = "WALL-INNER"
+SKIN = "SKIN"
+FILL = "FILL"
+SUPPORT = "SUPPORT"
+
+# arcs of offset corners: segments per quarter circle
+_QUAD_SEGS = 6
+# paths shorter than this fraction of the line width are not printed
+_MIN_PATH = 0.5
+
+
+@dataclass(frozen=True)
+class Path:
+    """One extruded path: ``kind`` (a ``;TYPE:`` name) and ``coords`` (k, 2) float64 mm.
+
+    Closed loops repeat their first point at the end.
+    """
+
+    kind: str
+    coords: np.ndarray
+
+
+@dataclass(frozen=True)
+class LayerRegions:
+    """The regions one layer is made of (bed coordinates, mm).
+
+    ``islands`` (p,) Polygons, the layer's solid region per connected part;
+    ``skin`` where solid skin is needed (may be empty); ``support`` the
+    support region and ``interface`` its part just under the part (or None).
+    """
+
+    islands: np.ndarray
+    skin: shapely.Geometry
+    support: shapely.Geometry | None = None
+    interface: shapely.Geometry | None = None
+
+
+def fill_distance(settings: SliceSettings) -> float:
+    """Distance from the outline to the edge of the infill domain w', mm.
+
+    With ``P`` walls of width ``w`` the innermost wall's inner edge is at
+    ``P w``; infill lines reach ``infill.overlap * w`` into that wall so they
+    bond. Without walls the infill's bead edge lies on the outline.
+    """
+    w = settings.line_width
+    p = settings.perimeters
+    if p == 0:
+        return w / 2.0
+    return p * w - settings.infill_overlap * w
+
+
+def sparse_spacing(settings: SliceSettings) -> float:
+    """Mean distance between sparse infill lines for ``infill.density``, mm.
+
+    Lines of width ``w`` every ``s`` mm extrude the volume fraction ``w / s``,
+    so ``s = w / density`` makes the extruded fraction equal the density.
+    """
+    if settings.infill_density <= 0:
+        return 0.0
+    return settings.line_width / min(1.0, settings.infill_density)
+
+
+def layer_paths(
+    regions: LayerRegions,
+    ctx: LayerContext,
+    field: InfillField,
+    support_paths=None,
+) -> list[Path]:
+    """Every toolpath of one layer, in print order.
+
+    ``support_paths`` is :func:`slicer.support.support_paths` when support is
+    enabled (imported lazily by the plan), else None.
+    """
+    settings = ctx.settings
+    islands = regions.islands
+    if len(islands) == 0:
+        return []
+    w = settings.line_width
+    levels = (np.arange(settings.perimeters) + 0.5) * w
+    walls = (
+        shapely.buffer(islands[:, None], -levels[None, :], quad_segs=_QUAD_SEGS)
+        if len(levels)
+        else np.empty((len(islands), 0), dtype=object)
+    )
+    fill = shapely.buffer(islands, -fill_distance(settings), quad_segs=_QUAD_SEGS)
+    if regions.skin is not None and not regions.skin.is_empty:
+        skin = shapely.intersection(fill, regions.skin)
+        sparse = shapely.difference(fill, regions.skin)
+    else:
+        skin = np.full(len(islands), None, dtype=object)
+        sparse = fill
+    skin_lines = _skin_lines(skin, ctx)
+    sparse_lines = _sparse_lines(sparse, ctx, field)
+    grow = shapely.buffer(fill, w / 2.0, quad_segs=2)
+
+    out: list[Path] = []
+    pos = _start_position(islands)
+    for k in _island_order(islands, pos):
+        loops = _wall_loops(walls[k], settings.wall_order)
+        for kind, ring in _order_loops(loops, pos):
+            out.append(Path(kind, ring))
+            pos = ring[-1]
+        for kind, lines in ((SKIN, skin_lines[k]), (FILL, sparse_lines[k])):
+            if not lines:
+                continue
+            ordered, pos = order.order_open_paths(lines, pos)
+            for coords in order.join_paths(ordered, grow[k], 2.0 * w):
+                out.append(Path(kind, coords))
+    if support_paths is not None and regions.support is not None and not regions.support.is_empty:
+        out.extend(_support(regions, ctx, support_paths, pos))
+    return out
+
+
+def _start_position(islands: np.ndarray) -> np.ndarray:
+    """Where ordering starts: the rear-left corner of the layer (a fixed, layer-local point)."""
+    b = shapely.total_bounds(islands)
+    return np.array([b[0], b[3]])
+
+
+def _island_order(islands: np.ndarray, pos: np.ndarray) -> list[int]:
+    """Islands in greedy nearest-neighbour order of their rear seams."""
+    if len(islands) == 1:
+        return [0]
+    b = shapely.bounds(islands)
+    seams = np.stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 3]], axis=1)
+    left = list(range(len(islands)))
+    out = []
+    here = pos
+    while left:
+        d = np.linalg.norm(seams[left] - here, axis=1)
+        j = left.pop(int(np.argmin(d)))
+        out.append(j)
+        here = seams[j]
+    return out
+
+
+def _wall_loops(levels: np.ndarray, wall_order: str) -> list[tuple[str, list[np.ndarray]]]:
+    """Rings of each wall level as point arrays, in the wall order the settings ask for."""
+    out = []
+    for k, geom in enumerate(levels):
+        if geom is None or geom.is_empty:
+            continue
+        geom = shapely.orient_polygons(geom)
+        rings = []
+        for poly in shapely.get_parts(geom):
+            rings.append(order.ring_points(shapely.get_coordinates(poly.exterior)))
+            rings.extend(order.ring_points(shapely.get_coordinates(r)) for r in poly.interiors)
+        rings = [r for r in rings if len(r) >= 3]
+        if rings:
+            out.append((WALL_OUTER if k == 0 else WALL_INNER, rings))
+    if wall_order == "inner_first":
+        out.reverse()
+    return out
+
+
+def _order_loops(
+    levels: list[tuple[str, list[np.ndarray]]], pos: np.ndarray
+) -> list[tuple[str, np.ndarray]]:
+    """Closed loops level by level, nearest first; outer walls seam at the rear."""
+    out = []
+    here = np.asarray(pos, dtype=np.float64)
+    for kind, rings in levels:
+        left = list(range(len(rings)))
+        while left:
+            dists = [float(np.min(np.linalg.norm(rings[j] - here, axis=1))) for j in left]
+            j = left.pop(int(np.argmin(dists)))
+            pts = rings[j]
+            start = order.rear_seam(pts) if kind == WALL_OUTER else order.nearest_vertex(pts, here)
+            ring = order.start_ring_at(pts, start)
+            out.append((kind, ring))
+            here = ring[-1]
+    return out
+
+
+def _skin_lines(skin: np.ndarray, ctx: LayerContext) -> list[list[np.ndarray]]:
+    """Solid linear fill (spacing = line width), alternating direction per layer, per island."""
+    w = ctx.settings.line_width
+    out: list[list[np.ndarray]] = []
+    for region in skin:
+        if region is None or region.is_empty:
+            out.append([])
+            continue
+        lines = line_family(region, ctx.settings.infill_angle, ctx.index % 2 == 1, w)
+        out.append(_as_coords(lines, w))
+    return out
+
+
+def _sparse_lines(
+    sparse: np.ndarray, ctx: LayerContext, field: InfillField
+) -> list[list[np.ndarray]]:
+    """Sparse infill of every island from the field, split back per island."""
+    spacing = sparse_spacing(ctx.settings)
+    n = len(sparse)
+    out: list[list[np.ndarray]] = [[] for _ in range(n)]
+    if spacing <= 0:
+        return out
+    nonempty = [i for i in range(n) if sparse[i] is not None and not sparse[i].is_empty]
+    if not nonempty:
+        return out
+    region = sparse[nonempty[0]] if len(nonempty) == 1 else shapely.union_all(sparse[nonempty])
+    lines = field.paths(region, ctx, spacing)
+    parts = shapely.get_parts(lines)
+    if len(parts) == 0:
+        return out
+    if len(nonempty) == 1:
+        out[nonempty[0]] = _as_coords(parts, ctx.settings.line_width)
+        return out
+    probe = shapely.get_point(parts, 0)
+    tree = shapely.STRtree(sparse[nonempty])
+    pi, ti = tree.query(probe, predicate="intersects")
+    first = np.unique(pi, return_index=True)[1]
+    owner = np.full(len(parts), -1)
+    owner[pi[first]] = np.asarray(nonempty)[ti[first]]
+    for i in nonempty:
+        out[i] = _as_coords(parts[owner == i], ctx.settings.line_width)
+    return out
+
+
+def _as_coords(lines: shapely.Geometry | np.ndarray, w: float) -> list[np.ndarray]:
+    """Point arrays of the line parts long enough to print."""
+    parts = shapely.get_parts(lines)
+    if len(parts) == 0:
+        return []
+    parts = parts[shapely.length(parts) >= _MIN_PATH * w]
+    coords, index = shapely.get_coordinates(parts, return_index=True)
+    cuts = np.flatnonzero(np.diff(index)) + 1
+    return np.split(coords, cuts) if len(coords) else []
+
+
+def _support(
+    regions: LayerRegions, ctx: LayerContext, support_paths, pos: np.ndarray
+) -> list[Path]:
+    """Support toolpaths (wall, interface and infill), nearest first."""
+    outline = shapely.union_all(regions.islands)
+    parts = support_paths(regions.support, outline, ctx, regions.interface)
+    out: list[Path] = []
+    lines: list[np.ndarray] = []
+    for key in ("wall", "interface", "infill"):
+        geom = parts.get(key)
+        if geom is not None and not geom.is_empty:
+            lines.extend(_as_coords(geom, ctx.settings.line_width))
+    ordered, _ = order.order_open_paths(lines, pos)
+    out.extend(Path(SUPPORT, c) for c in ordered)
+    return out

@@ -1,0 +1,269 @@
+"""Layer outlines: cut chains become shapely polygons with holes, per layer and per body.
+
+Closed loops are nested by even-odd containment, vectorised across all layers
+of a block at once (one STRtree over boxes shifted apart by layer, one
+vectorised ``contains``). Open chains (open meshes) are joined end to start
+when the gap is small and closed; layers whose polygons overlap (overlapping
+shells, self-intersections) are made valid by a union per layer.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+import numpy as np
+import shapely
+
+from slicer.section import Chains
+
+# shortest ring worth keeping, mm^2 of area
+_MIN_RING_AREA = 1e-4
+
+
+@dataclass(frozen=True)
+class OutlineTolerances:
+    """Tolerances of the outline stage, mm.
+
+    ``simplify``: largest deviation allowed when thinning cut loops;
+    ``max_gap``: widest gap of an open mesh closed per layer.
+    """
+
+    simplify: float = 0.005
+    max_gap: float = 10.0
+
+
+@dataclass
+class GapReport:
+    """What the outline stage had to fix, over all layers.
+
+    ``closed``/``dropped``: gaps of open meshes bridged and chains left open;
+    ``gap_layers``: layers where that happened; ``repaired_layers``: layers made
+    valid by a union; ``merged``: pairs of bodies found overlapping.
+    """
+
+    closed: int = 0
+    dropped: int = 0
+    gap_layers: set[int] = field(default_factory=set)
+    repaired_layers: set[int] = field(default_factory=set)
+    merged: set[tuple[int, int]] = field(default_factory=set)
+
+
+def close_open_chains(
+    coords: list[np.ndarray], max_gap: float
+) -> tuple[list[np.ndarray], int, int]:
+    """Join oriented open chains end to start where the gap is at most ``max_gap``.
+
+    ``coords``: open chains, each (k, 2) float64 mm, ordered with the solid on
+    the left. Repeatedly joins the globally closest end/start pair (a chain's
+    own start closes it into a loop). Returns the loops made (each (k, 2)),
+    the number of gaps bridged and the number of chains left open (dropped).
+    """
+    chains = [c for c in coords if len(c) >= 2]
+    loops: list[np.ndarray] = []
+    gaps = 0
+    while chains:
+        ends = np.array([c[-1] for c in chains])
+        starts = np.array([c[0] for c in chains])
+        dist = np.linalg.norm(ends[:, None, :] - starts[None, :, :], axis=2)
+        i, j = np.unravel_index(int(np.argmin(dist)), dist.shape)
+        if dist[i, j] > max_gap:
+            break
+        gaps += 1
+        if i == j:
+            loops.append(chains.pop(i))
+            continue
+        joined = np.concatenate([chains[i], chains[j]])
+        for k in sorted((i, j), reverse=True):
+            chains.pop(k)
+        chains.append(joined)
+    return loops, gaps, len(chains)
+
+
+def build_layers(
+    chains: Chains,
+    face_body: np.ndarray,
+    layer_ids: np.ndarray,
+    tol: OutlineTolerances,
+    report: GapReport,
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Polygons with holes for each layer of a block.
+
+    ``chains`` from :func:`slicer.section.cut_block`; ``face_body`` (f,) int64,
+    the body (connected shell) of each mesh face; ``layer_ids`` the layers of
+    this block. Returns ``{layer: (polygons (p,) object, body (p,) int64)}``;
+    a layer without polygons is absent.
+    """
+    coords, offsets, layer, face = _close_gaps(chains, tol, report)
+    if len(layer) == 0:
+        return {}
+    sizes = np.diff(offsets)
+    keep = sizes >= 3
+    ring_idx = np.repeat(np.arange(len(sizes)), sizes)
+    rings = shapely.linearrings(coords, indices=ring_idx)
+    rings = rings[keep]
+    layer = layer[keep]
+    face = face[keep]
+    if tol.simplify > 0:
+        rings = shapely.simplify(rings, tol.simplify, preserve_topology=False)
+        ok = (shapely.get_type_id(rings) == 2) & (shapely.get_num_coordinates(rings) >= 4)
+        rings, layer, face = rings[ok], layer[ok], face[ok]
+    polys = shapely.polygons(rings)
+    area = shapely.area(polys)
+    ok = area > _MIN_RING_AREA
+    rings, polys, layer, face, area = rings[ok], polys[ok], layer[ok], face[ok], area[ok]
+    if len(rings) == 0:
+        return {}
+    body = face_body[face]
+    exterior, parent = _even_odd(polys, layer, area)
+    owner = np.where(exterior, np.arange(len(rings)), parent)
+    valid = owner >= 0
+    order = np.lexsort((~exterior[valid], np.nonzero(valid)[0], owner[valid]))
+    members = np.nonzero(valid)[0][order]
+    groups, index = np.unique(owner[members], return_inverse=True)
+    built = shapely.polygons(rings[members], indices=index)
+    built_layer = layer[groups]
+    built_body = body[groups]
+    return _per_layer(built, built_layer, built_body, report)
+
+
+def _close_gaps(
+    chains: Chains, tol: OutlineTolerances, report: GapReport
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Turn the open chains of each layer into loops; return all loops as flat arrays."""
+    if chains.closed.all():
+        return chains.coords, chains.offsets, chains.layer, chains.face
+    coords_parts = []
+    sizes = []
+    layers = []
+    faces = []
+    closed_idx = np.nonzero(chains.closed)[0]
+    lo = chains.offsets[closed_idx]
+    hi = chains.offsets[closed_idx + 1]
+    pick = (
+        np.concatenate([np.arange(a, b) for a, b in zip(lo, hi, strict=True)])
+        if len(closed_idx)
+        else np.empty(0, dtype=np.int64)
+    )
+    coords_parts.append(chains.coords[pick])
+    sizes.append(hi - lo)
+    layers.append(chains.layer[closed_idx])
+    faces.append(chains.face[closed_idx])
+    open_idx = np.nonzero(~chains.closed)[0]
+    for lay in np.unique(chains.layer[open_idx]):
+        members = open_idx[chains.layer[open_idx] == lay]
+        pieces = [chains.coords[chains.offsets[k] : chains.offsets[k + 1]] for k in members]
+        loops, gaps, dropped = close_open_chains(pieces, tol.max_gap)
+        report.closed += gaps
+        report.dropped += dropped
+        report.gap_layers.add(int(lay))
+        for loop in loops:
+            coords_parts.append(loop)
+            sizes.append(np.array([len(loop)]))
+            layers.append(np.array([lay]))
+            faces.append(np.array([chains.face[members[0]]]))
+    size = np.concatenate(sizes).astype(np.int64)
+    return (
+        np.concatenate(coords_parts),
+        np.concatenate(([0], np.cumsum(size))),
+        np.concatenate(layers).astype(np.int64),
+        np.concatenate(faces).astype(np.int64),
+    )
+
+
+def _even_odd(
+    polys: np.ndarray, layer: np.ndarray, area: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """Nesting of loops within each layer: (exterior flags, parent loop of each hole).
+
+    A loop inside an odd number of other loops of its layer is a hole, owned by
+    the smallest loop containing it. ``polys`` (r,) loop polygons without holes.
+    """
+    n = len(polys)
+    bounds = shapely.bounds(polys)
+    span = float(np.ptp(bounds[:, [0, 2]]) + 10.0)
+    shift = layer * span
+    boxes = shapely.box(bounds[:, 0] + shift, bounds[:, 1], bounds[:, 2] + shift, bounds[:, 3])
+    tree = shapely.STRtree(boxes)
+    inner, outer = tree.query(boxes, predicate="within")
+    mask = (inner != outer) & (area[outer] > area[inner])
+    inner, outer = inner[mask], outer[mask]
+    parent = np.full(n, -1, dtype=np.int64)
+    if len(inner) == 0:
+        return np.ones(n, dtype=bool), parent
+    probe = shapely.point_on_surface(polys)
+    inside = shapely.contains(polys[outer], probe[inner])
+    inner, outer = inner[inside], outer[inside]
+    depth = np.bincount(inner, minlength=n)
+    exterior = depth % 2 == 0
+    # the direct container is the one with the smallest area
+    order = np.lexsort((area[outer], inner))
+    inner_s, outer_s = inner[order], outer[order]
+    first = np.ones(len(inner_s), dtype=bool)
+    first[1:] = inner_s[1:] != inner_s[:-1]
+    parent[inner_s[first]] = outer_s[first]
+    return exterior, parent
+
+
+def _per_layer(
+    polys: np.ndarray, layer: np.ndarray, body: np.ndarray, report: GapReport
+) -> dict[int, tuple[np.ndarray, np.ndarray]]:
+    """Split polygons by layer; layers whose polygons overlap or are invalid are unioned."""
+    out: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    order = np.argsort(layer, kind="stable")
+    polys, layer, body = polys[order], layer[order], body[order]
+    starts = np.flatnonzero(np.diff(layer)) + 1
+    firsts = np.concatenate(([0], starts))
+    lasts = np.append(starts, len(layer))
+    _, index = np.unique(layer, return_inverse=True)
+    multi = shapely.multipolygons(polys, indices=index)
+    valid = shapely.is_valid(multi)
+    for k, (a, b) in enumerate(zip(firsts, lasts, strict=True)):
+        lay = int(layer[a])
+        p, bd = polys[a:b], body[a:b]
+        if not valid[k]:
+            p, bd = _repair_layer(p, bd, report)
+            report.repaired_layers.add(lay)
+        if len(p):
+            out[lay] = (p, bd)
+    return out
+
+
+def _repair_layer(
+    polys: np.ndarray, body: np.ndarray, report: GapReport
+) -> tuple[np.ndarray, np.ndarray]:
+    """Make one layer's polygons valid and disjoint (the nonzero fill of overlapping shells).
+
+    Bodies whose regions overlap are reported in ``report.merged`` (they are one
+    object) and their union is labelled with the lower body number.
+    """
+    fixed = shapely.make_valid(polys)
+    bodies = np.unique(body)
+    regions = [_polygonal(shapely.union_all(fixed[body == b])) for b in bodies]
+    label = {int(b): int(b) for b in bodies}
+    for i in range(len(bodies)):
+        for j in range(i + 1, len(bodies)):
+            if shapely.intersection(regions[i], regions[j]).area > _MIN_RING_AREA:
+                report.merged.add((int(bodies[i]), int(bodies[j])))
+                label[int(bodies[j])] = label[int(bodies[i])]
+    out_p = []
+    out_b = []
+    for b in sorted(set(label.values())):
+        members = [r for k, r in zip(bodies, regions, strict=True) if label[int(k)] == b]
+        region = _polygonal(shapely.union_all(members))
+        parts = shapely.get_parts(region)
+        parts = parts[shapely.area(parts) > _MIN_RING_AREA]
+        out_p.append(parts)
+        out_b.append(np.full(len(parts), b, dtype=np.int64))
+    if not out_p:
+        return np.empty(0, dtype=object), np.empty(0, dtype=np.int64)
+    return np.concatenate(out_p), np.concatenate(out_b)
+
+
+def _polygonal(geom: shapely.Geometry) -> shapely.Geometry:
+    """The polygonal part of a geometry (make_valid can return lines and points too)."""
+    if geom.geom_type in ("Polygon", "MultiPolygon"):
+        return geom
+    parts = [g for g in shapely.get_parts(geom) if g.geom_type in ("Polygon", "MultiPolygon")]
+    if not parts:
+        return shapely.Polygon()
+    return shapely.union_all(parts)

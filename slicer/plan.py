@@ -1,0 +1,360 @@
+"""SlicePlan: the whole-model pass once, then any layer's G-code on demand.
+
+The whole-model pass keeps only the layer outlines (shapely polygons with a
+body number each); every per-layer product (walls, skins, infill, support,
+G-code) is computed from the plan and the layer index alone, so layers can be
+sliced in any order, from any thread, with identical bytes.
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from slicer import gcode
+from slicer.errors import ModelError
+from slicer.fields.base import LayerContext, get_field
+from slicer.layer import LayerRegions, Path, layer_paths
+from slicer.mesh import PlacedMesh, prepare, read_stl
+from slicer.outline import GapReport, OutlineTolerances, build_layers
+from slicer.section import cut_block, face_layer_ranges
+from slicer.settings import SettingsError, SliceSettings
+
+# the whole-model pass cuts at most this many (face, layer) crossings at once
+_BLOCK_CROSSINGS = 1_500_000
+_EMPTY = np.empty(0, dtype=object)
+_NO_BODY = np.empty(0, dtype=np.int64)
+
+
+def layer_tops(height: float, settings: SliceSettings) -> np.ndarray:
+    """Top z of every layer (n,) float64 mm: a layer exists while its middle is inside the model."""
+    first = settings.first_layer_height
+    h = settings.layer_height
+    if height <= first / 2.0:
+        return np.array([first])
+    n = 1 + max(0, int(np.ceil((height - first) / h - 0.5 - 1e-9)))
+    tops = first + np.arange(n) * h
+    return tops
+
+
+def cut_planes(tops: np.ndarray, settings: SliceSettings) -> np.ndarray:
+    """Where each layer is cut: the middle of the layer, mm."""
+    planes = tops - settings.layer_height / 2.0
+    planes[0] = settings.first_layer_height / 2.0
+    return planes
+
+
+@dataclass(frozen=True)
+class _Geometry:
+    """What the whole-model pass produces, shared by plans with different settings."""
+
+    tops: np.ndarray
+    layers: tuple[tuple[np.ndarray, np.ndarray], ...]  # per layer: polygons, body numbers
+    bounds: tuple[float, float, float, float]
+    body_count: int
+    bed: tuple[float, float, float]
+    warnings: tuple[str, ...]
+
+
+class SlicePlan:
+    """A model cut into layer outlines, ready to slice any layer on demand (thread-safe)."""
+
+    def __init__(self, geometry: _Geometry, settings: SliceSettings) -> None:
+        self._geo = geometry
+        self.settings = settings
+        self._field = get_field(settings)
+        self._support: list[shapely.Geometry] | None = None
+        self._interface: list[shapely.Geometry] | None = None
+        if settings.support_enabled:
+            self._plan_support()
+
+    # ---- construction -------------------------------------------------
+    @classmethod
+    def from_file(
+        cls,
+        path: str | os.PathLike[str],
+        settings: SliceSettings,
+        bed: tuple[float, float, float] = (220.0, 220.0, 250.0),
+    ) -> SlicePlan:
+        """Load, validate, repair, place on the bed and cut every layer outline.
+
+        Raises ModelError with a specific reason when the file cannot be sliced.
+        """
+        bed = (float(bed[0]), float(bed[1]), float(bed[2]))
+        vertices, faces = read_stl(path)
+        mesh = prepare(vertices, faces, bed)
+        del vertices, faces
+        return cls(_cut_model(mesh, settings, bed), settings)
+
+    def with_settings(self, settings: SliceSettings) -> SlicePlan:
+        """The same geometry with new per-layer settings; layer heights may not change."""
+        for key in ("layer_height", "first_layer_height"):
+            if getattr(settings, key) != getattr(self.settings, key):
+                raise SettingsError(key, "cannot change once a model is cut into layers")
+        return SlicePlan(self._geo, settings)
+
+    # ---- facts ----------------------------------------------------------
+    @property
+    def layer_count(self) -> int:
+        """Number of layers."""
+        return len(self._geo.tops)
+
+    def layer_z(self, i: int) -> float:
+        """Top of layer ``i`` (the nozzle height while printing it), mm."""
+        return float(self._geo.tops[self._check(i)])
+
+    def layer_height(self, i: int) -> float:
+        """Thickness of layer ``i``, mm."""
+        self._check(i)
+        return self.settings.first_layer_height if i == 0 else self.settings.layer_height
+
+    @property
+    def warnings(self) -> list[str]:
+        """What was repaired or worked around, one sentence each."""
+        return list(self._geo.warnings)
+
+    @property
+    def body_count(self) -> int:
+        """Separate objects in the model (``excluded_bodies`` numbers them 0..n-1)."""
+        return self._geo.body_count
+
+    @property
+    def bounds(self) -> tuple[float, float, float, float]:
+        """(xmin, ymin, xmax, ymax) of the placed model on the bed, mm."""
+        return self._geo.bounds
+
+    @property
+    def bed(self) -> tuple[float, float, float]:
+        """Build volume x, y, z, mm."""
+        return self._geo.bed
+
+    def outline(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> shapely.Geometry:
+        """Layer ``i``'s solid region as a (Multi)Polygon, mm."""
+        return _multi(self._islands(self._check(i), excluded_bodies))
+
+    # ---- per layer ------------------------------------------------------
+    def layer_toolpaths(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> list[Path]:
+        """Every toolpath of layer ``i`` in print order."""
+        i = self._check(i)
+        islands = self._islands(i, excluded_bodies)
+        ctx = LayerContext(
+            index=i,
+            z=float(self._geo.tops[i]),
+            domain=_multi(islands),
+            bounds=self._geo.bounds,
+            settings=self.settings,
+        )
+        regions = LayerRegions(
+            islands=islands,
+            skin=self._skin_region(i, excluded_bodies) if len(islands) else None,
+            support=self._support[i] if self._support is not None else None,
+            interface=self._interface[i] if self._interface is not None else None,
+        )
+        support_fn = None
+        if self._support is not None:
+            from slicer.support import support_paths
+
+            support_fn = support_paths
+        return layer_paths(regions, ctx, self._field, support_fn)
+
+    def layer_code(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> gcode.LayerCode:
+        """Layer ``i``'s G-code with its filament (mm) and time (s)."""
+        paths = self.layer_toolpaths(i, excluded_bodies)
+        outline = self.outline(i, excluded_bodies)
+        if self._support is not None and self._support[i] is not None:
+            outline = shapely.union(outline, self._support[i])
+        return gcode.layer_code(
+            i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings
+        )
+
+    def layer_gcode(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> list[str]:
+        """G-code lines of layer ``i`` (starting with ``;LAYER:i``); the same bytes every time."""
+        return self.layer_code(i, excluded_bodies).lines
+
+    def start_gcode(self) -> list[str]:
+        """Heating, homing and modes before layer 0."""
+        return gcode.start_block(self.settings)
+
+    def end_gcode(self) -> list[str]:
+        """Retract, lift, heaters and motors off."""
+        return gcode.end_block(self.settings, float(self._geo.tops[-1]), self._geo.bed[2])
+
+    def resume_gcode(self, i: int) -> list[str]:
+        """Preamble that restarts an interrupted print at layer ``i``."""
+        i = self._check(i)
+        below = float(self._geo.tops[i - 1]) if i > 0 else 0.0
+        return gcode.resume_block(self.settings, i, below)
+
+    # ---- internals ------------------------------------------------------
+    def _check(self, i: int) -> int:
+        i = int(i)
+        if not 0 <= i < self.layer_count:
+            raise IndexError(f"layer {i} out of range 0..{self.layer_count - 1}")
+        return i
+
+    def _islands(self, i: int, excluded: frozenset[int]) -> np.ndarray:
+        if not 0 <= i < self.layer_count:
+            return _EMPTY
+        polys, body = self._geo.layers[i]
+        if excluded and len(polys):
+            polys = polys[~np.isin(body, list(excluded))]
+        return polys
+
+    def _skin_region(self, i: int, excluded: frozenset[int]) -> shapely.Geometry:
+        """Where layer ``i`` needs solid skin: within top/bottom layers of open air.
+
+        Bottom skin is the part of the layer not covered by every one of the
+        ``bottom_layers`` layers below (the bed counts as air); top skin
+        likewise with the ``top_layers`` layers above.
+        """
+        here = self.outline(i, excluded)
+        need = []
+        for count, step in ((self.settings.bottom_layers, -1), (self.settings.top_layers, 1)):
+            if count <= 0:
+                continue
+            cover = None
+            same = True  # every neighbour so far has exactly this layer's outline
+            for k in range(1, count + 1):
+                j = i + step * k
+                other = self.outline(j, excluded) if 0 <= j < self.layer_count else None
+                if other is None or other.is_empty:
+                    cover = None
+                    break
+                if same and shapely.equals_exact(other, here, 0.0):
+                    cover = here
+                    continue
+                same = False
+                cover = other if cover is None else shapely.intersection(cover, other)
+                if cover.is_empty:
+                    break
+            if cover is here:
+                continue
+            need.append(
+                here if cover is None or cover.is_empty else shapely.difference(here, cover)
+            )
+        if not need:
+            return shapely.Polygon()
+        return need[0] if len(need) == 1 else shapely.union(need[0], need[1])
+
+    def _plan_support(self) -> None:
+        from slicer.support import support_interfaces, support_regions
+
+        outlines = [self.outline(i) for i in range(self.layer_count)]
+        regions = support_regions(outlines, self.settings, self.settings.layer_height)
+        interfaces = support_interfaces(
+            outlines, regions, self.settings, self.settings.layer_height
+        )
+        for g in (*regions, *interfaces):
+            if g is not None:
+                shapely.prepare(g)
+        self._support = list(regions)
+        self._interface = list(interfaces)
+
+
+def _multi(polys: np.ndarray) -> shapely.Geometry:
+    if len(polys) == 0:
+        return shapely.MultiPolygon()
+    if len(polys) == 1:
+        return polys[0]
+    return shapely.MultiPolygon(list(polys))
+
+
+def _cut_model(
+    mesh: PlacedMesh,
+    settings: SliceSettings,
+    bed: tuple[float, float, float],
+    progress: Callable[[float], None] | None = None,
+) -> _Geometry:
+    """The whole-model pass: cut all layers in blocks, nest loops, number the bodies."""
+    tops = layer_tops(mesh.height, settings)
+    planes = cut_planes(tops, settings)
+    face_z = mesh.vertices[mesh.faces, 2]
+    lo, hi = face_layer_ranges(face_z, planes)
+    del face_z
+    tol = OutlineTolerances()
+    report = GapReport()
+    layers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    n = len(planes)
+    first = 0
+    # crossings per layer, to size the blocks
+    crossings = np.zeros(n + 1, dtype=np.int64)
+    np.add.at(crossings, np.minimum(lo, n), 1)
+    np.add.at(crossings, np.minimum(hi, n), -1)
+    crossings = np.cumsum(crossings)[:n]
+    while first < n:
+        total = np.cumsum(crossings[first:])
+        last = first + max(1, int(np.searchsorted(total, _BLOCK_CROSSINGS, side="right")))
+        last = min(last, n)
+        chains = cut_block(mesh.vertices, mesh.faces, planes, lo, hi, first, last)
+        layers.update(build_layers(chains, mesh.face_body, np.arange(first, last), tol, report))
+        first = last
+    body_map = _merge_bodies(mesh.bodies, report.merged, layers)
+    out_layers = []
+    for i in range(n):
+        polys, body = layers.get(i, (_EMPTY, _NO_BODY))
+        out_layers.append((polys, body_map[body] if len(body) else body))
+    nonempty = [i for i in range(n) if len(out_layers[i][0])]
+    if not nonempty:
+        raise ModelError("no layer has a closed outline: the mesh does not enclose a solid")
+    # trailing empty layers are not printed
+    tops = tops[: nonempty[-1] + 1]
+    out_layers = out_layers[: nonempty[-1] + 1]
+    warnings = list(mesh.warnings)
+    if report.closed or report.dropped:
+        warnings.append(
+            f"open outlines in {len(report.gap_layers)} layers: closed {report.closed} gaps"
+            + (f", dropped {report.dropped} open pieces" if report.dropped else "")
+        )
+    if report.repaired_layers:
+        warnings.append(
+            "self-intersecting or overlapping outlines made valid in "
+            f"{len(report.repaired_layers)} layers"
+        )
+    empty = len(tops) - len(nonempty)
+    if empty:
+        warnings.append(f"{empty} layers have no area and print nothing")
+    for polys, _ in out_layers:
+        if len(polys):
+            shapely.prepare(polys)
+    body_count = int(max((b.max() + 1 for _, b in out_layers if len(b)), default=0))
+    return _Geometry(
+        tops=tops,
+        layers=tuple(out_layers),
+        bounds=mesh.bounds,
+        body_count=body_count,
+        bed=bed,
+        warnings=tuple(warnings),
+    )
+
+
+def _merge_bodies(
+    count: int, merged: set[tuple[int, int]], layers: dict[int, tuple[np.ndarray, np.ndarray]]
+) -> np.ndarray:
+    """Map mesh shells to objects 0..k-1.
+
+    Overlapping shells join; shells that own no polygon (cavities) vanish.
+    """
+    parent = np.arange(max(count, 1))
+    for a, b in sorted(merged):
+        ra, rb = a, b
+        while parent[ra] != ra:
+            ra = parent[ra]
+        while parent[rb] != rb:
+            rb = parent[rb]
+        if ra != rb:
+            parent[max(ra, rb)] = min(ra, rb)
+    roots = parent.copy()
+    for k in range(len(roots)):
+        r = k
+        while parent[r] != r:
+            r = parent[r]
+        roots[k] = r
+    used = sorted({int(roots[b]) for _, body in layers.values() for b in np.unique(body)})
+    rank = np.zeros(len(roots), dtype=np.int64)
+    for j, r in enumerate(used):
+        rank[r] = j
+    return rank[roots]

@@ -1,0 +1,103 @@
+"""SlicePlan end to end: layer addressability, determinism, geometry of walls, holes."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+from hostd.commands.slice import write_gcode
+from slicer.layer import WALL_OUTER
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+from tests.slicer_helpers import DATA, box_stl, extrusions, layer_blocks
+
+SETTINGS = SliceSettings()
+
+
+@pytest.fixture(scope="module")
+def feature_plan() -> SlicePlan:
+    return SlicePlan.from_file(DATA / "featuretype_mm.stl", SETTINGS)
+
+
+def test_layer_alone_equals_layer_of_full_run(feature_plan: SlicePlan, tmp_path) -> None:
+    out = tmp_path / "f.gcode"
+    write_gcode(feature_plan, out)
+    blocks = layer_blocks(out.read_text().splitlines())
+    assert sorted(blocks) == list(range(feature_plan.layer_count))
+    fresh = SlicePlan.from_file(DATA / "featuretype_mm.stl", SETTINGS)
+    for i in (0, 1, 7, feature_plan.layer_count // 2, feature_plan.layer_count - 1):
+        assert fresh.layer_gcode(i) == blocks[i]
+
+
+def test_same_input_same_bytes(tmp_path) -> None:
+    a = SlicePlan.from_file(DATA / "bunny.stl", SETTINGS)
+    b = SlicePlan.from_file(DATA / "bunny.stl", SETTINGS)
+    write_gcode(a, tmp_path / "a.gcode")
+    write_gcode(b, tmp_path / "b.gcode")
+    assert (tmp_path / "a.gcode").read_bytes() == (tmp_path / "b.gcode").read_bytes()
+    # and in reverse order, layer by layer, from one plan
+    for i in reversed(range(0, a.layer_count, 37)):
+        assert a.layer_gcode(i) == b.layer_gcode(i)
+
+
+def test_outer_wall_is_the_outline_offset_by_half_a_line(tmp_path) -> None:
+    plan = SlicePlan.from_file(box_stl(tmp_path / "box.stl", (20, 20, 6)), SETTINGS)
+    w = SETTINGS.line_width
+    cx, cy = plan.bed[0] / 2, plan.bed[1] / 2
+    expected = shapely.box(cx - 10 + w / 2, cy - 10 + w / 2, cx + 10 - w / 2, cy + 10 - w / 2)
+    for i in (0, 5, plan.layer_count - 1):
+        walls = extrusions(plan.layer_gcode(i), WALL_OUTER)
+        assert len(walls) == 1
+        ring = shapely.LineString(walls[0])
+        assert shapely.hausdorff_distance(ring, expected.exterior) <= 0.05
+
+
+def test_cube20_outer_wall_within_005_of_offset_outline() -> None:
+    plan = SlicePlan.from_file(DATA / "cube20_xyz.stl", SETTINGS)
+    w = SETTINGS.line_width
+    for i in range(0, plan.layer_count, 9):
+        offset = plan.outline(i).buffer(-w / 2)
+        walls = extrusions(plan.layer_gcode(i), WALL_OUTER)
+        rings = shapely.multilinestrings([shapely.LineString(p) for p in walls])
+        expected = shapely.boundary(offset)
+        assert shapely.hausdorff_distance(rings, expected) <= 0.05, i
+
+
+def test_holes_survive(feature_plan: SlicePlan) -> None:
+    i = feature_plan.layer_count // 2
+    outline = feature_plan.outline(i)
+    holes = sum(len(p.interiors) for p in shapely.get_parts(outline))
+    assert holes >= 2
+    walls = extrusions(feature_plan.layer_gcode(i), WALL_OUTER)
+    # one outer wall per exterior ring and per hole
+    rings = sum(
+        1 + len(p.interiors) for p in shapely.get_parts(outline.buffer(-SETTINGS.line_width / 2))
+    )
+    assert len(walls) == rings
+    # no extrusion inside a hole
+    for poly in shapely.get_parts(outline):
+        for hole in poly.interiors:
+            inner = shapely.Polygon(hole).buffer(-0.05)
+            for path in walls:
+                assert not shapely.LineString(path).intersects(inner)
+
+
+def test_layer_heights_and_count(tmp_path) -> None:
+    plan = SlicePlan.from_file(box_stl(tmp_path / "b.stl", (10, 10, 4)), SETTINGS)
+    assert plan.layer_count == 20
+    assert plan.layer_z(0) == pytest.approx(0.2)
+    assert plan.layer_z(19) == pytest.approx(4.0)
+    assert plan.layer_gcode(3)[0] == ";LAYER:3"
+    with pytest.raises(IndexError):
+        plan.layer_gcode(20)
+
+
+def test_model_is_centred_on_the_bed(tmp_path) -> None:
+    plan = SlicePlan.from_file(
+        box_stl(tmp_path / "b.stl", (30, 10, 2)), SETTINGS, bed=(200, 180, 100)
+    )
+    xmin, ymin, xmax, ymax = plan.bounds
+    assert (xmin + xmax) / 2 == pytest.approx(100)
+    assert (ymin + ymax) / 2 == pytest.approx(90)
+    assert np.isclose(xmax - xmin, 30)
