@@ -142,7 +142,10 @@ def finish(
         clipped, priority = parts[keep], np.asarray(priority, dtype=float)[source[keep]]
     else:
         clipped = clip(lines, region)
-    tidy = declutter(clipped, line_width, priority, tolerance=line_width / 40.0)
+    tidy = declutter(clipped, line_width, priority)
+    tidy = clip(
+        shapely.simplify(tidy, line_width / 40.0), region
+    )  # chords may cut corners
     tidy = tidy[shapely.length(tidy) >= 2.0 * line_width] if tidy.size else tidy
     return as_multiline(tidy)
 

@@ -1,0 +1,60 @@
+"""The stress field (Eq. 14): a scalar field read from a file modulating the linear field."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from slicer.fields.base import LayerContext, register
+from slicer.fields.coords import centre
+from slicer.fields.grid import GridField
+from slicer.fields.stress_data import KEY, load_stress
+from slicer.settings import SettingsError, SliceSettings
+
+FLOOR = 0.05  # least modulation, as a fraction of the peak, so unloaded areas keep sparse lines
+
+
+@register("stress")
+class StressField(GridField):
+    """H = sigma(x, y, z) * H_lin(x, y, z; t) * k, the paper's Eq. 14.
+
+    ``sigma`` is read from ``infill.file`` (see :func:`load_stress`) and scaled to
+    its peak (floored at 5 %), ``H_lin = x sin t + y cos t (-1)^layer`` with
+    ``t = infill.angle``; ``k`` is set by the level placement from
+    ``infill.density``. The file's samples are in the model's own frame: their
+    lower corner is lined up with the placed model's. Contours crowd where the
+    stress is high (down to one line width) and thin out where it is low (up to
+    six times the mean spacing).
+    """
+
+    name = "stress"
+    gap = 6.0
+
+    def __init__(self, settings: SliceSettings) -> None:
+        super().__init__(settings)
+        if not settings.infill_file:
+            raise SettingsError(KEY, "the stress field needs a file of x,y,z,value samples")
+        self.data = load_stress(settings.infill_file)
+        self.peak = float(np.max(np.abs(self.data.values))) or 1.0
+
+    def stress(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
+        """Interpolated field from the file at points (n,) mm on this layer -> (n,) float64."""
+        corner = self.data.lower_corner
+        mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0)
+        return self.data.at(
+            np.asarray(x, dtype=float) - ctx.bounds[0] + corner[0],
+            np.asarray(y, dtype=float) - ctx.bounds[1] + corner[1],
+            mid_z + corner[2],
+        )
+
+    def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
+        """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64."""
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
+        sigma = np.maximum(np.abs(self.stress(x, y, ctx)) / self.peak, FLOOR)
+        cx, cy = centre(ctx.bounds)
+        t = math.radians(self.settings.infill_angle)
+        mirror = -1.0 if ctx.index % 2 else 1.0
+        linear = (x - cx) * math.sin(t) + (y - cy) * math.cos(t) * mirror
+        return (sigma.reshape(x.shape) * linear).reshape(x.shape)
