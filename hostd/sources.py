@@ -9,7 +9,9 @@ from collections.abc import Iterator
 from pathlib import Path
 from typing import Protocol
 
+from drivers.protocol import strip_comment
 from hostd.schedule import LayerSchedule
+from slicer.errors import ModelError
 
 
 class LayerSource(Protocol):
@@ -118,12 +120,19 @@ class FileSource:
         self.path = path
         self.layer_count = 0
         preamble: list[str] = []
+        commands = 0
         with open(path, encoding="utf-8", errors="replace") as handle:
-            for line in handle:
+            for number, line in enumerate(handle, start=1):
+                text = line.rstrip("\r\n")
+                if not _is_text(text):
+                    raise ModelError(f"not a G-code text file: line {number} holds binary data")
+                commands += bool(strip_comment(text))
                 if line.startswith(";LAYER:"):
                     self.layer_count += 1
                 elif self.layer_count == 0:
-                    preamble.append(line.rstrip("\r\n"))
+                    preamble.append(text)
+        if not commands:
+            raise ModelError("the G-code file has no commands")
         self._preamble = preamble
         self._chunks = self._read_layers()
 
@@ -160,3 +169,8 @@ class FileSource:
 
     def close(self) -> None:
         self._chunks.close()
+
+
+def _is_text(line: str) -> bool:
+    """True for a line of printable text (tabs allowed): no NUL, control or invalid bytes."""
+    return "\ufffd" not in line and line.replace("\t", " ").isprintable()

@@ -99,11 +99,16 @@ class DaemonProcess:
             self.proc.wait()
 
 
-def sim_config(time_scale: float = 0.0, settle_s: float = 0.2, extra: str = "") -> str:
-    """A daemon configuration on the simulated printer, ./jobs and ./var."""
+def sim_config(
+    time_scale: float = 0.0, settle_s: float = 0.2, extra: str = "", jobs_extra: str = ""
+) -> str:
+    """A daemon configuration on the simulated printer, ./jobs and ./var.
+
+    ``jobs_extra`` goes into ``[jobs]``; ``extra`` (whole sections) at the end.
+    """
     return (
-        f"[jobs]\nsettle_s = {settle_s}\n[simulator]\ntime_scale = {time_scale}\nbaud = 0\n"
-        f"{extra}\n"
+        f"[jobs]\nsettle_s = {settle_s}\n{jobs_extra}\n"
+        f"[simulator]\ntime_scale = {time_scale}\nbaud = 0\n{extra}\n"
     )
 
 
