@@ -2,12 +2,19 @@
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 
+import numpy as np
 import shapely
 
 from slicer.fields.base import LayerContext
+from slicer.fields.eggcrate import EggcrateField
+from slicer.fields.paths import as_multiline, clip, empty_paths, linestring_parts
 from slicer.settings import SliceSettings
+
+INTERFACE_LAYERS = 2  # layers of denser lines right under the part
+INTERFACE_SPACING = 2.0  # interface line spacing, in line widths: sparse so it breaks away
 
 
 def support_regions(
@@ -22,9 +29,33 @@ def support_regions(
     overhangs the one below it by more than ``layer_height * tan(support.angle)``),
     minus the part dilated by ``support.clearance``. Support stops
     ``ceil(support.clearance / layer_height)`` layers below the surface it holds
-    up, and rests on the bed or on the part below.
+    up, and rests on the bed or on the part below. Regions narrower than a line
+    width are dropped.
     """
-    raise NotImplementedError
+    count = len(outlines)
+    if count == 0:
+        return []
+    solid = np.array([g if g is not None else shapely.Polygon() for g in outlines], dtype=object)
+    empty = shapely.Polygon()
+    slope = math.tan(math.radians(settings.support_angle))
+    if settings.support_angle >= 89.999 or count < 2:
+        return [empty] * count
+    reach = shapely.buffer(solid[:-1], layer_height * slope)
+    overhang = np.concatenate(([empty], shapely.difference(solid[1:], reach)))
+    gap = _gap_layers(settings, layer_height)
+    regions = np.empty(count, dtype=object)
+    carried = empty
+    for i in range(count - 1, -1, -1):
+        above = i + 1 + gap
+        if above < count and not overhang[above].is_empty:
+            carried = shapely.union(carried, overhang[above])
+        if not carried.is_empty:
+            carried = shapely.difference(carried, solid[i])
+        regions[i] = carried
+    width = settings.line_width
+    regions = shapely.difference(regions, shapely.buffer(solid, settings.support_clearance))
+    regions = shapely.buffer(shapely.buffer(regions, -0.5 * width), 0.5 * width)
+    return [empty if g is None or g.is_empty else g for g in regions]
 
 
 def support_interfaces(
@@ -36,9 +67,21 @@ def support_interfaces(
     """The part of each support region just under the part (the interface layers).
 
     ``regions`` is what :func:`support_regions` returned for the same outlines.
-    Returns one (Multi)Polygon per layer, a subset of ``regions[i]``.
+    Returns one (Multi)Polygon per layer, a subset of ``regions[i]``: the area
+    under the part within ``INTERFACE_LAYERS`` layers above the z gap.
     """
-    raise NotImplementedError
+    count = len(regions)
+    empty = shapely.Polygon()
+    gap = _gap_layers(settings, layer_height)
+    result: list[shapely.Geometry] = []
+    for i in range(count):
+        if regions[i] is None or regions[i].is_empty:
+            result.append(empty)
+            continue
+        window = [g for g in outlines[i + 1 : i + 2 + gap + INTERFACE_LAYERS] if g is not None]
+        roof = shapely.union_all(window) if window else empty
+        result.append(shapely.intersection(regions[i], roof))
+    return result
 
 
 def support_paths(
@@ -57,4 +100,43 @@ def support_paths(
     infill at ``support.density`` inside the wall, and sparse parallel lines on
     the interface.
     """
-    raise NotImplementedError
+    settings = ctx.settings
+    width = settings.line_width
+    nothing = {"wall": empty_paths(), "infill": empty_paths(), "interface": empty_paths()}
+    if region is None or region.is_empty:
+        return nothing
+    wall_rings = linestring_parts(shapely.boundary(shapely.buffer(region, -0.5 * width)))
+    wall = as_multiline(wall_rings[shapely.length(wall_rings) >= 2.0 * width])
+    inside = shapely.buffer(region, -width * (1.0 - settings.infill_overlap))
+    roof = shapely.Polygon() if interface is None else shapely.intersection(inside, interface)
+    body = shapely.difference(inside, roof) if not roof.is_empty else inside
+    infill = empty_paths()
+    if not body.is_empty:
+        spacing = width / settings.support_density
+        infill = EggcrateField(settings).paths(body, ctx, spacing)
+    lines = empty_paths()
+    if not roof.is_empty:
+        angle = settings.infill_angle + (90.0 if ctx.index % 2 else 0.0)
+        lines = as_multiline(hatch(roof, INTERFACE_SPACING * width, angle))
+    return {"wall": wall, "infill": infill, "interface": lines}
+
+
+def hatch(region: shapely.Geometry, spacing: float, angle_deg: float) -> np.ndarray:
+    """Parallel lines ``spacing`` mm apart at ``angle_deg``, clipped to ``region``:
+    an array of LineStrings."""
+    xmin, ymin, xmax, ymax = region.bounds
+    cx, cy = 0.5 * (xmin + xmax), 0.5 * (ymin + ymax)
+    half = 0.5 * math.hypot(xmax - xmin, ymax - ymin) + spacing
+    offsets = np.arange(-half, half + spacing, spacing)
+    t = math.radians(angle_deg)
+    ux, uy = math.cos(t), math.sin(t)
+    nx, ny = -uy, ux
+    starts = np.column_stack((cx + offsets * nx - half * ux, cy + offsets * ny - half * uy))
+    ends = np.column_stack((cx + offsets * nx + half * ux, cy + offsets * ny + half * uy))
+    lines = shapely.linestrings(np.stack((starts, ends), axis=1))
+    return clip(lines, region)
+
+
+def _gap_layers(settings: SliceSettings, layer_height: float) -> int:
+    """Layers left empty between the support's top and the part it holds up."""
+    return math.ceil(settings.support_clearance / layer_height - 1e-9)
