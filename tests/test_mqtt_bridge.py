@@ -373,7 +373,9 @@ def test_events_raised_while_the_broker_is_away_are_published_after_reconnect(
     broker: Broker,
 ) -> None:
     hub = StatusHub()
-    bridge = MqttBridge(settings(broker), PRINTER, hub, RecordingController(), backoff=FAST)
+    # reconnecting 1-2 s after the loss leaves time for the listener to subscribe first
+    slow = Backoff(initial_s=2.0, maximum_s=2.0)
+    bridge = MqttBridge(settings(broker), PRINTER, hub, RecordingController(), backoff=slow)
 
     async def main() -> None:
         received: list[dict[str, Any]] = []
