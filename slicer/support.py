@@ -41,7 +41,11 @@ def support_regions(
     if settings.support_angle >= 89.999 or count < 2:
         return [empty] * count
     reach = shapely.buffer(solid[:-1], layer_height * slope)
-    overhang = np.concatenate(([empty], shapely.difference(solid[1:], reach)))
+    bare = shapely.difference(solid[1:], reach)
+    # widen each overhang by the self-supported reach, so the thin bands of a steady
+    # slope join into one area instead of slivers narrower than a line
+    bare = shapely.intersection(shapely.buffer(bare, layer_height * slope), solid[1:])
+    overhang = np.concatenate(([empty], bare))
     gap = _gap_layers(settings, layer_height)
     regions = np.empty(count, dtype=object)
     carried = empty
