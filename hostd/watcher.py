@@ -94,6 +94,7 @@ class Watcher:
                     due.append(path)
                 else:
                     wait = remaining if wait is None else min(wait, remaining)
+            due.sort(key=lambda item: (_mtime(self._pending[item]), item.name))  # oldest first
             for path in due:
                 del self._pending[path]
                 try:
@@ -111,6 +112,10 @@ def _poll_interval(wait: float | None) -> float | None:
     if wait is None:
         return None
     return max(0.01, min(wait, 0.25))
+
+
+def _mtime(seen: _Seen) -> int:
+    return seen.signature[1] if seen.signature is not None else 0
 
 
 def _signature(path: Path) -> tuple[int, int, int] | None:

@@ -17,6 +17,8 @@ ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).resolve().parent / "data"
 # commands the streamer adds on its own (handshake, temperature reports)
 HOUSEKEEPING = ("M110", "M105", "M115", "M155")
+# the `hostd` console script, run by this interpreter
+HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
 
 
 class DaemonProcess:
@@ -39,7 +41,7 @@ class DaemonProcess:
         log.write(f"--- run {self.runs}\n".encode())
         log.flush()
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hostd.cli", "run", "--config", str(self.config)],
+            [*HOSTD, "run", "--config", str(self.config)],
             cwd=self.folder, stdout=log, stderr=log, env={**os.environ, "PYTHONPATH": str(ROOT)},
         )
         log.close()

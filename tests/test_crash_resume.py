@@ -6,11 +6,10 @@ import asyncio
 import random
 import sqlite3
 import subprocess
-import sys
 import time
 from pathlib import Path
 
-from conftest import DATA, ROOT, commands_of, executed_job_lines, sim_config
+from conftest import DATA, HOSTD, ROOT, commands_of, executed_job_lines, sim_config
 
 from drivers.protocol import strip_comment
 from hostd.api import ControlClient
@@ -41,7 +40,7 @@ def reported_interrupted(socket: Path) -> list[tuple[str, str, int]]:
 
 def resume(config: Path, job: str) -> subprocess.CompletedProcess[str]:
     return subprocess.run(
-        [sys.executable, "-m", "hostd.cli", "resume", job, "--config", str(config)],
+        [*HOSTD, "resume", job, "--config", str(config)],
         capture_output=True, text=True, cwd=config.parent, timeout=30,
         env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"},
     )

@@ -1,0 +1,200 @@
+"""The daemon's commands over the control socket: cancel an object, retune, pause, cancel, queue."""
+
+from __future__ import annotations
+
+import asyncio
+import sqlite3
+import subprocess
+import time
+from pathlib import Path
+from typing import Any
+
+import pytest
+import trimesh
+from conftest import DATA, HOSTD, ROOT, commands_of, executed_job_lines, sim_config
+
+from drivers.protocol import strip_comment
+from hostd.api import ControlClient, ControlError, Snapshot
+from hostd.jobstore import JobStore
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+
+
+def two_bodies(path: Path) -> Path:
+    """Two 20 x 20 x 10 mm boxes side by side in one STL (two bodies)."""
+    left = trimesh.creation.box((20.0, 20.0, 10.0))
+    left.apply_translation((-20.0, 0.0, 5.0))
+    right = trimesh.creation.box((20.0, 20.0, 10.0))
+    right.apply_translation((20.0, 0.0, 5.0))
+    trimesh.util.concatenate([left, right]).export(path)
+    return path
+
+
+def small_box(path: Path) -> Path:
+    """A 10 x 10 x 3 mm box: a short job."""
+    trimesh.creation.box((10.0, 10.0, 3.0)).export(path)
+    return path
+
+
+def command(socket: Path, cmd: str, **args: Any) -> dict[str, Any]:
+    async def ask() -> dict[str, Any]:
+        async with ControlClient(str(socket)) as client:
+            return await client.request(cmd, **args)
+
+    return asyncio.run(ask())
+
+
+def status(socket: Path) -> Snapshot:
+    return Snapshot.from_dict(command(socket, "status")["status"])
+
+
+def job_state(state: Path, job: str) -> tuple[str, int]:
+    db = sqlite3.connect(state / "jobs.sqlite3")
+    try:
+        row = db.execute("SELECT state, layer FROM jobs WHERE seq = ?", (int(job),)).fetchone()
+    finally:
+        db.close()
+    return (row[0], row[1]) if row else ("", -1)
+
+
+def printing_layer(socket: Path, at_least: int):
+    """A waiter: the status once the job printing has completed ``at_least`` layers."""
+    def check():
+        snap = status(socket)
+        if snap.state == "printing" and snap.job is not None and snap.job.layer >= at_least:
+            return snap
+        return None
+    return check
+
+
+def commands(lines: list[str]) -> list[str]:
+    return [c for c in map(strip_comment, lines) if c]
+
+
+def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, tmp_path):
+    model = two_bodies(tmp_path / "pair.stl")
+    hostd = daemon(sim_config(time_scale=0.01, extra="[runner]\nlookahead = 2\n"))
+    socket = hostd.state / "hostd.sock"
+    hostd.drop(model, "pair.stl")
+    hostd.wait_for(printing_layer(socket, 1), 60, "layer 1 printed")
+
+    with pytest.raises(ControlError, match="does not exist"):
+        command(socket, "cancel_object", object=5)
+    with pytest.raises(ControlError, match="layer_height"):
+        command(socket, "set", settings={"layer_height": 0.3})
+    with pytest.raises(ControlError, match=r"infill\.density"):
+        command(socket, "set", settings={"infill.density": 3})
+    cancelled = command(socket, "cancel_object", object=1)
+    retuned = command(socket, "set", settings={"infill.density": 0.6})
+    first_cancelled, first_retuned = cancelled["from_layer"], retuned["from_layer"]
+    assert 2 <= first_cancelled <= first_retuned < 50
+    snap = hostd.wait_for(printing_layer(socket, first_retuned + 1), 60, "the retuned layers")
+    assert snap.job is not None and snap.job.layers == 50
+    assert 0 <= snap.job.layers_ready_ahead <= 2
+    hostd.kill9()
+
+    hostd.start()
+    assert job_state(hostd.state, "1")[0] == "interrupted"
+    hostd.wait_for(socket.exists, 10, "the control socket")
+    reply = command(socket, "resume_job", job="pair.stl")
+    assert reply["from_layer"] > first_retuned
+    hostd.wait_for(lambda: (hostd.jobs / "done" / "pair.summary.txt").exists(), 90, "done")
+    assert hostd.stop() == 0
+
+    store = JobStore(hostd.state / "jobs.sqlite3")
+    assert store.settings_changes("1") == [(first_retuned, {"infill.density": 0.6})]
+    assert store.cancelled_objects("1") == [(1, first_cancelled)]
+    store.close()
+
+    base = SliceSettings()
+    plan = SlicePlan.from_file(model, base)
+    dense = plan.with_settings(SliceSettings.from_mapping({"infill.density": 0.6}, base=base))
+    expected = commands(plan.start_gcode())
+    for index in range(plan.layer_count):
+        source = dense if index >= first_retuned else plan
+        left_out = frozenset({1}) if index >= first_cancelled else frozenset()
+        expected += commands(source.layer_gcode(index, left_out))
+    expected += commands(dense.end_gcode())
+    assert commands_of(hostd.jobs / "done" / "pair.gcode") == expected
+    # the changes really changed the G-code
+    late = first_retuned + 1
+    assert plan.layer_gcode(late) != dense.layer_gcode(late)
+    assert len(plan.layer_gcode(late, frozenset({1}))) < len(plan.layer_gcode(late))
+
+
+def test_pause_resume_cancel_and_queue_commands(daemon, tmp_path):
+    hostd = daemon(sim_config(time_scale=0.01))
+    socket = hostd.state / "hostd.sock"
+    hostd.wait_for(socket.exists, 10, "the control socket")
+    with pytest.raises(ControlError, match="no job is printing"):
+        command(socket, "pause")
+    hostd.drop(DATA / "dogbone_100x30x5.stl", "first.stl")
+    hostd.wait_for(printing_layer(socket, 0), 60, "printing")
+    box = small_box(tmp_path / "box.stl")
+    for name in ("a", "b", "c"):
+        hostd.drop(box, f"{name}.stl")
+    hostd.wait_for(lambda: len(status(socket).queue) == 3, 10, "three queued")
+    assert status(socket).queue == ("a.stl", "b.stl", "c.stl")
+    command(socket, "queue_move", job="c.stl", index=0)
+    assert status(socket).queue == ("c.stl", "a.stl", "b.stl")
+    command(socket, "queue_remove", job="a.stl")
+    command(socket, "queue_remove", job="b.stl")
+    assert status(socket).queue == ("c.stl",)
+    assert "removed from the queue" in (hostd.jobs / "failed" / "a.error.txt").read_text()
+
+    command(socket, "pause")
+    hostd.wait_for(lambda: status(socket).state == "paused", 5, "paused")
+    with pytest.raises(ControlError, match="already paused"):
+        command(socket, "pause")
+    time.sleep(0.5)  # the printer empties the lines already sent
+    acked = status(socket).job.lines_acked
+    time.sleep(0.5)
+    assert status(socket).job.lines_acked == acked  # nothing sent while paused
+    command(socket, "resume")
+    hostd.wait_for(lambda: status(socket).job.lines_acked > acked, 10, "printing again")
+    command(socket, "cancel")
+    hostd.wait_for(lambda: (hostd.jobs / "failed" / "first.error.txt").exists(), 10, "cancel")
+    assert "cancelled" in (hostd.jobs / "failed" / "first.error.txt").read_text()
+    assert job_state(hostd.state, "1")[0] == "cancelled"
+    hostd.wait_for(lambda: (hostd.jobs / "done" / "c.summary.txt").exists(), 120, "c printed")
+    assert hostd.stop() == 0
+    executed = executed_job_lines(hostd.state / "simulator-executed.log")
+    tail = commands_of(hostd.jobs / "done" / "c.gcode")
+    assert executed[-len(tail):] == tail
+    assert executed[-len(tail) - 4:-len(tail)] == ["M104 S0", "M140 S0", "M107", "M84"]
+
+
+def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
+    hostd = daemon(sim_config(time_scale=0.01))
+    socket = hostd.state / "hostd.sock"
+    hostd.drop(DATA / "dogbone_100x30x5.stl", "part.stl")
+    hostd.wait_for(printing_layer(socket, 1), 60, "two layers printed")
+    pid = hostd.proc.pid
+    hostd.proc.terminate()
+    assert hostd.proc.wait(20) == 0
+    hostd.proc = None
+    state, layer = job_state(hostd.state, "1")
+    assert state == "interrupted" and layer >= 1
+    assert not socket.exists()
+    assert subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)],
+                          capture_output=True, text=True).stdout.strip() == ""
+    hostd.start()
+    hostd.wait_for(socket.exists, 10, "the control socket")
+    snap = status(socket)
+    assert [(item.id, item.layer) for item in snap.interrupted] == [("1", layer)]
+    # the queue is held while the interrupted part is on the bed
+    hostd.drop(DATA / "cube20_xyz.stl", "next.stl")
+    hostd.wait_for(lambda: status(socket).queue == ("next.stl",), 10, "queued")
+    time.sleep(0.5)
+    assert status(socket).state == "idle"
+    result = subprocess.run(
+        [*HOSTD, "resume", "nope", "--config", str(hostd.config)],
+        capture_output=True, text=True, cwd=hostd.folder, env={"PYTHONPATH": str(ROOT)},
+    )
+    assert result.returncode == 2 and "no job 'nope'" in result.stderr
+    assert hostd.stop() == 0
+    result = subprocess.run(
+        [*HOSTD, "resume", "1", "--config", str(hostd.config)],
+        capture_output=True, text=True, cwd=hostd.folder, env={"PYTHONPATH": str(ROOT)},
+    )
+    assert result.returncode == 1 and "no daemon is running" in result.stdout
