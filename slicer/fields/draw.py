@@ -50,45 +50,75 @@ def draw_field(
     path = Path(path)
     domain = ctx.domain
     xmin, ymin, xmax, ymax = domain.bounds if not domain.is_empty else region.bounds
-    xmin, ymin, xmax, ymax = xmin - MARGIN_MM, ymin - MARGIN_MM, xmax + MARGIN_MM, ymax + MARGIN_MM
-    scale = MAX_SIDE_PX / max(xmax - xmin, ymax - ymin, 1e-6)
-    width_px = max(1, math.ceil((xmax - xmin) * scale))
-    height_px = max(1, math.ceil((ymax - ymin) * scale))
-    cols, rows = np.meshgrid(np.arange(width_px) + 0.5, np.arange(height_px) + 0.5)
-    xs = xmin + cols / scale
-    ys = ymax - rows / scale
-    shapely.prepare(domain)
-    inside = shapely.contains_xy(domain, xs.ravel(), ys.ravel()).reshape(xs.shape)
-    rgb = np.empty((*xs.shape, 3), dtype=np.uint8)
-    rgb[...] = OUTSIDE
-    low = high = 0.0
-    if inside.any():
-        values = np.asarray(field.sample(xs[inside], ys[inside], ctx), dtype=float)
-        finite = values[np.isfinite(values)]
-        if finite.size:
-            low, high = np.percentile(finite, [1.0, 99.0])
-            span = high - low if high > low else 1.0
-            rgb[inside] = colour_map((values - low) / span)
-    image = Image.fromarray(rgb, "RGB")
-    pen = ImageDraw.Draw(image)
-
-    def to_px(coords: np.ndarray) -> list[tuple[float, float]]:
-        return [((x - xmin) * scale, (ymax - y) * scale) for x, y in coords]
-
-    density = ctx.settings.infill_density
-    if density > 0 and not region.is_empty:
-        lines = field.paths(region, ctx, ctx.settings.line_width / density)
-        _draw_lines(pen, lines, to_px, PATH_COLOUR, 2)
+    frame = (xmin - MARGIN_MM, ymin - MARGIN_MM, xmax + MARGIN_MM, ymax + MARGIN_MM)
+    scale = MAX_SIDE_PX / max(frame[2] - frame[0], frame[3] - frame[1], 1e-6)
+    width_px = max(1, math.ceil((frame[2] - frame[0]) * scale))
+    height_px = max(1, math.ceil((frame[3] - frame[1]) * scale))
+    image = Image.new("RGB", (width_px, height_px), OUTSIDE)
+    low, high = paint_field(image, ctx, field, region, frame, scale)
     if walls is not None and not walls.is_empty:
-        _draw_lines(
-            pen, shapely.boundary(walls) if walls.area > 0 else walls, to_px, WALL_COLOUR, 2
-        )
+        lines = shapely.boundary(walls) if walls.area > 0 else walls
+        _draw_lines(ImageDraw.Draw(image), lines, _mapper(frame, scale), WALL_COLOUR, 2)
     canvas = Image.new("RGB", (width_px + 4 * BAR_PX + 40, height_px), (255, 255, 255))
     canvas.paste(image, (0, 0))
     _colour_bar(canvas, width_px + BAR_PX, height_px, low, high)
     path.parent.mkdir(parents=True, exist_ok=True)
     canvas.save(path, format="PNG")
     return path
+
+
+def paint_field(
+    image: Image.Image,
+    ctx: LayerContext,
+    field: InfillField,
+    region: shapely.Geometry,
+    frame: tuple[float, float, float, float],
+    scale: float,
+) -> tuple[float, float]:
+    """Paint ``field`` onto an existing RGB ``image`` whose pixels show ``frame``
+    (xmin, ymin, xmax, ymax) mm at ``scale`` px/mm, y up: the colour map inside
+    ``ctx.domain`` and the level sets clipped to ``region`` in black.
+
+    For callers that compose their own picture (the layer preview). Returns the
+    (low, high) field values mapped to the ends of the colour map.
+    """
+    xmin, _, _, ymax = frame
+    width_px, height_px = image.size
+    cols, rows = np.meshgrid(np.arange(width_px) + 0.5, np.arange(height_px) + 0.5)
+    xs = xmin + cols / scale
+    ys = ymax - rows / scale
+    domain = ctx.domain
+    shapely.prepare(domain)
+    inside = shapely.contains_xy(domain, xs.ravel(), ys.ravel()).reshape(xs.shape)
+    rgb = np.asarray(image.convert("RGB")).copy()
+    low = high = 0.0
+    if inside.any():
+        values = np.asarray(field.sample(xs[inside], ys[inside], ctx), dtype=float)
+        finite = values[np.isfinite(values)]
+        if finite.size:
+            low, high = (float(v) for v in np.percentile(finite, [1.0, 99.0]))
+            span = high - low if high > low else 1.0
+            rgb[inside] = colour_map((values - low) / span)
+    image.paste(Image.fromarray(rgb, "RGB"), (0, 0))
+    density = ctx.settings.infill_density
+    if density > 0 and not region.is_empty:
+        lines = field.paths(region, ctx, ctx.settings.line_width / density)
+        _draw_lines(ImageDraw.Draw(image), lines, _mapper(frame, scale), PATH_COLOUR, 2)
+    return low, high
+
+
+def _mapper(
+    frame: tuple[float, float, float, float], scale: float
+) -> Callable[[np.ndarray], list[tuple[float, float]]]:
+    """Coordinates (n, 2) mm to pixel positions in a picture of ``frame`` at ``scale``."""
+    xmin, _, _, ymax = frame
+
+    def to_px(coords: np.ndarray) -> list[tuple[float, float]]:
+        x = (coords[:, 0] - xmin) * scale
+        y = (ymax - coords[:, 1]) * scale
+        return list(zip(x.tolist(), y.tolist(), strict=True))
+
+    return to_px
 
 
 def _draw_lines(
