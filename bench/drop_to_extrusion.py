@@ -1,6 +1,7 @@
 """Daemon latency and footprint: drop-to-first-extrusion, idle CPU, peak RSS while printing.
 
-For each model a fresh `hostd run` (simulated printer, instant motion, heating skipped)
+For each model a fresh `hostd run` (simulated printer, instant motion, heating skipped,
+the slicing settings of the peer comparison)
 gets the model dropped into its job folder; the latency runs from the moment the file
 is settled (fully written, then ``settle_s`` of stability) to the first extruding move
 (a G0/G1 with X or Y and E > 0) in the simulated printer's executed-line log. Next to
@@ -33,7 +34,14 @@ if __package__ in (None, ""):
 from bench import proctree
 from bench.gcodeparse import is_extruding_line
 from bench.peers import curaengine
-from bench.slice_vs_peers import MODELS, OUT, hostd_executable, model_paths, stl_faces
+from bench.slice_vs_peers import (
+    MODELS,
+    OUR_SETTINGS,
+    OUT,
+    hostd_executable,
+    model_paths,
+    stl_faces,
+)
 
 _POLL_S = 0.005
 
@@ -45,7 +53,7 @@ class DaemonSetup:
     settle_s: float = 0.5
     time_scale: float = 0.0
     baud: int = 250000
-    bed: tuple[float, float, float] = (220.0, 220.0, 250.0)
+    bed: tuple[float, float, float] = (200.0, 200.0, 200.0)  # as in the peers' runs
 
     def toml(self, jobs: Path, state: Path) -> str:
         """The daemon configuration file's text."""
@@ -55,7 +63,7 @@ class DaemonSetup:
             f'[state]\nfolder = "{state}"\n\n'
             f'[printer]\nport = "sim"\nbed = [{bed}]\n\n'
             f"[simulator]\ntime_scale = {self.time_scale}\nbaud = {self.baud}\n\n"
-            "[slicing]\nskip_heating = true\n"
+            "[slicing]\n" + "".join(f"{kv.replace('=', ' = ', 1)}\n" for kv in OUR_SETTINGS)
         )
 
 
