@@ -15,11 +15,14 @@ from slicer.fields.grid import GridField
 class EggcrateField(GridField):
     """Bumps and dimples of period ``infill.scale`` mm along axes turned by ``infill.angle``.
 
-    Levels near 0 and 2 are rings around the dimples and bumps, levels near 1 the
-    diagonal lattice through the saddles; the level placement keeps them apart.
+    Levels near 0 and 2 are rings around the dimples and bumps, level 1 the
+    diagonal lattice through the saddles, always drawn so the infill is one
+    connected web (cut briefly where its lines cross, to keep them a line width
+    apart); the level placement keeps the rings apart.
     """
 
     name = "eggcrate"
+    anchor = 1.0  # the saddle level: a connected diagonal lattice through every cell
 
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64 in [0, 2]."""

@@ -106,6 +106,7 @@ class GridField:
     :meth:`values` (a field solved on the grid) and the class constants:
     ``gap`` (largest local spacing as a multiple of the mean), ``cell_fraction``
     (grid cell as a fraction of the line width), ``max_cells`` and
+    ``anchor`` (the level always drawn; the others are whole steps from it) and
     ``refinements``: after tracing, the measured length per area corrects the
     target spacing and the levels are placed again, at most this many times.
     """
@@ -115,6 +116,7 @@ class GridField:
     cell_fraction = 1.0 / 3.0
     max_cells = 250_000
     refinements = 3
+    anchor = 0.0
 
     def __init__(self, settings: SliceSettings) -> None:
         self.settings = settings
@@ -136,7 +138,7 @@ class GridField:
         if region.is_empty or not math.isfinite(spacing) or spacing <= 0:
             return empty_paths()
         grid = grid_over(region, width * self.cell_fraction, self.max_cells, 2.0 * width)
-        values = self.values(grid, ctx)
+        values = self.values(grid, ctx) - self.anchor
         region_mask = grid.mask(region)
         if not region_mask.any():
             return empty_paths()

@@ -112,7 +112,7 @@ def declutter(
     dropped = np.zeros(coords.shape[0], dtype=bool)
     dropped[loser] = True
     dropped[later] = True
-    keep = ~_widen(dropped, owner, arc, min_gap)
+    keep = ~_widen(dropped, owner, arc, 0.5 * min_gap)
     rebuilt = split_runs(coords, owner, keep)
     if tolerance:
         rebuilt = shapely.simplify(rebuilt, tolerance)
