@@ -74,7 +74,7 @@ def main() -> int:
     with resources.as_file(config) as config_path:
         log = (STATE / "hostd.log")
         STATE.mkdir(parents=True, exist_ok=True)
-        print("hostd demo: simulated printer at 20x real time, job folder ./jobs, state ./var")
+        print("hostd demo: simulated printer at 50x real time, job folder ./jobs, state ./var")
         print(f"daemon log: {log}   dashboard in another terminal: .venv/bin/hostd tui")
         with open(log, "ab") as log_file:
             daemon = subprocess.Popen(
