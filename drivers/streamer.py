@@ -22,6 +22,7 @@ LONG_COMMANDS = frozenset(
 # link states
 DISCONNECTED = "disconnected"
 CONNECTING = "connecting"
+RECONNECTING = "reconnecting"
 READY = "ready"
 PAUSED = "paused"
 CANCELLED = "cancelled"
@@ -185,6 +186,7 @@ class Streamer:
         self._last_rx = 0.0
         self._last_poll = 0.0
         self._probes_unanswered = 0
+        self._reconnected_at = 0.0
 
     # -- context manager ------------------------------------------------------------------
 
@@ -413,8 +415,11 @@ class Streamer:
             else:
                 self.capabilities[response.name] = response.value
         elif kind == "start":
-            if self.state == CONNECTING or not self._started.is_set():
+            if self.state == CONNECTING:
                 self._started.set()
+            elif self.state == RECONNECTING:
+                self.state = PAUSED if self._paused else READY
+                self._on_reset()
             else:
                 self._on_reset()
 
@@ -476,14 +481,19 @@ class Streamer:
                 self._renumber.sent = False
                 self._wake.set()
             return
-        candidates = sorted(set(self._window.numbers()) | {self._next_number})
+        low = min([*self._window.numbers(), self._last_acked_number + 1, self._next_number])
+        candidates = range(low, self._next_number + 1)
         number = resolve_resend(response.digits, candidates, error_line)
         if number is None:
-            number = self._repeated_implausible(response)
+            number = self._repeated_implausible(response, error_line)
             if number is None:
                 self.stats.implausible_resends += 1
                 return
         self._implausible = ("", 0)
+        if number <= self._last_acked_number:
+            # the printer asks again for a line it acknowledged: it lost its line number
+            self._on_reset()
+            return
         if number == self._rewind_to and self._stale > 0:
             self._stale -= 1
             self.stats.duplicate_resends += 1
@@ -496,15 +506,21 @@ class Streamer:
         self._replay_next = number
         self._wake.set()
 
-    def _repeated_implausible(self, response: Response) -> int | None:
-        """A request repeated three times for a line we still hold is obeyed after all."""
+    def _repeated_implausible(self, response: Response, error_line: int | None) -> int | None:
+        """A request repeated three times, or confirmed by the error's ``Last Line``, for a
+        line not yet acknowledged and still held, is obeyed after all; one for an
+        acknowledged line is returned too (the caller treats it as lost state)."""
         digits, count = self._implausible
         count = count + 1 if digits == response.digits else 1
         self._implausible = (response.digits, count)
         number = response.line
-        if count >= 3 and number is not None and number in self._history:
+        if number is None or number > self._next_number:
+            return None
+        confirmed = error_line is not None and error_line + 1 == number
+        if count >= 3 or confirmed:
             self._implausible = ("", 0)
-            return number
+            if number <= self._last_acked_number or number in self._history:
+                return number
         return None
 
     def _on_error(self, response: Response) -> None:
@@ -546,16 +562,14 @@ class Streamer:
                 continue
             self._transport = transport
             self.stats.reconnects += 1
-            self._last_rx = asyncio.get_running_loop().time()
-            self._started.clear()
+            self._reconnected_at = self._last_rx = asyncio.get_running_loop().time()
             self._window.clear()
             self._rewind_to = None
             self._stale = 0
-            self._replay_next = self._last_acked_number + 1
-            if self._replay_next >= self._next_number:
-                self._replay_next = None
-            self.state = PAUSED if self._paused else READY
-            self._wake.set()
+            self._replay_next = None
+            if self._renumber is not None:
+                self._renumber.sent = False
+            self.state = RECONNECTING  # until `start` (the board reset) or start_timeout_s
             return True
         self._fail(f"link lost: {reason}")
         return False
@@ -579,7 +593,7 @@ class Streamer:
             await self._writer_step()
 
     async def _writer_step(self) -> None:
-        while self.state not in (ERROR, HALTED, DISCONNECTED):
+        while self.state not in (ERROR, HALTED, DISCONNECTED, RECONNECTING):
             out = self._next_line()
             if out is None:
                 return
@@ -678,8 +692,21 @@ class Streamer:
             if self.state in (ERROR, HALTED, DISCONNECTED):
                 continue
             now = loop.time()
+            if self.state == RECONNECTING:
+                self._watch_reconnect(now)
+                continue
             self._watch_silence(now)
             self._watch_temperature(now)
+
+    def _watch_reconnect(self, now: float) -> None:
+        """No ``start`` after reopening: the printer kept its state; continue after the
+        last acknowledged line (it refuses, by line number, anything it already has)."""
+        if now - self._reconnected_at < self.config.start_timeout_s:
+            return
+        self.state = PAUSED if self._paused else READY
+        if self._renumber is None and self._last_acked_number + 1 < self._next_number:
+            self._replay_next = self._last_acked_number + 1
+        self._wake.set()
 
     def _watch_silence(self, now: float) -> None:
         renumber = self._renumber
