@@ -152,12 +152,14 @@ def start_broker(
 ) -> Broker:
     """Start a real broker in ``folder`` (mosquitto; amqtt when mosquitto is missing).
 
-    With ``users`` the broker refuses anonymous clients. amqtt is only a
+    With ``users`` the broker refuses anonymous clients. ``HOSTD_TEST_BROKER=amqtt``
+    in the environment picks amqtt even when mosquitto is there. amqtt is only a
     fallback for plain anonymous tests: a test needing passwords or TLS is
     skipped under it.
     """
     folder.mkdir(parents=True, exist_ok=True)
-    if mosquitto_binary() is not None:
+    wanted = os.environ.get("HOSTD_TEST_BROKER", "")  # "amqtt" tries the fallback on purpose
+    if wanted != "amqtt" and mosquitto_binary() is not None:
         kind = "mosquitto"
     elif amqtt_binary() is not None:
         if users or tls:

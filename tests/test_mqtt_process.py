@@ -94,7 +94,8 @@ def test_the_broker_publishes_offline_when_the_daemon_is_killed(broker: Broker) 
             child.kill()
             child.wait()
     assert child.returncode == -signal.SIGKILL
-    assert f"Received DISCONNECT from hostd-{PRINTER}" not in broker.log_file.read_text()
+    if broker.kind == "mosquitto":
+        assert f"Received DISCONNECT from hostd-{PRINTER}" not in broker.log_file.read_text()
 
 
 def test_a_clean_stop_publishes_offline_itself(broker: Broker) -> None:
@@ -110,4 +111,5 @@ def test_a_clean_stop_publishes_offline_itself(broker: Broker) -> None:
     assert child.returncode == 0 and out.strip() == "stopped"
     # mosquitto sends no last will after a clean DISCONNECT: this `offline` is the bridge's own
     asyncio.run(retained_online(broker, "offline"))
-    assert f"Received DISCONNECT from hostd-{PRINTER}" in broker.log_file.read_text()
+    if broker.kind == "mosquitto":
+        assert f"Received DISCONNECT from hostd-{PRINTER}" in broker.log_file.read_text()
