@@ -3,16 +3,20 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import json
 import os
 import socket
 import stat
 import sys
-from collections.abc import Awaitable, Callable
+import threading
+from collections.abc import Awaitable, Callable, Iterator
 from pathlib import Path
 from typing import Any
 
 import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
 
 from hostd.api import ControlClient, ControlError, JobStatus, Snapshot
 from hostd.control import ControlSocketError, serve_control
@@ -285,3 +289,76 @@ def test_hostd_status_without_a_daemon_fails_with_a_reason(tmp_path: Path) -> No
     bad.write_text("[state]\nfolder = 3\n")
     code, _, err = asyncio.run(run_cli("status", "--config", str(bad))())
     assert code == 2 and "state.folder" in err
+
+
+def test_many_clients_at_once_all_follow_the_hub(tmp_path: Path) -> None:
+    async def scenario(path: Path, hub: StatusHub, _: RecordingController) -> None:
+        async def client(number: int) -> str:
+            async with ControlClient(str(path)) as control:
+                await control.request("pause", id=number)
+                async for item in control.subscribe():
+                    status = item.get("status")
+                    if status is not None and status.job is not None and status.job.layer == 99:
+                        return status.state
+            return "closed"
+
+        clients = [asyncio.create_task(client(n)) for n in range(40)]
+        await asyncio.sleep(0.2)
+        for layer in range(100):
+            hub.update(state="printing", job=JobStatus(id="1", name="a.stl", layer=layer))
+            await asyncio.sleep(0.001)
+        assert await asyncio.gather(*clients) == ["printing"] * 40
+
+    controller = serve(tmp_path, scenario)
+    assert controller.calls == [("pause", {})] * 40
+
+
+@pytest.fixture(scope="module")
+def server_in_thread(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Path]:
+    """One control socket served from its own thread and event loop for the whole module."""
+    path = tmp_path_factory.mktemp("threaded") / "hostd.sock"
+    loop = asyncio.new_event_loop()
+    ready = threading.Event()
+    serving: list[asyncio.Task[None]] = []
+
+    async def main() -> None:
+        serving.append(asyncio.create_task(serve_control(path, StatusHub(),
+                                                         RecordingController())))
+        await asyncio.sleep(0)
+        ready.set()
+        with contextlib.suppress(asyncio.CancelledError):
+            await serving[0]
+
+    thread = threading.Thread(target=lambda: loop.run_until_complete(main()), daemon=True)
+    thread.start()
+    assert ready.wait(10)
+    yield path
+    loop.call_soon_threadsafe(serving[0].cancel)
+    thread.join(10)
+    loop.close()
+    assert not path.exists()
+
+
+@settings(
+    max_examples=150, deadline=None, suppress_health_check=[HealthCheck.function_scoped_fixture]
+)
+@given(line=st.binary(max_size=300).filter(lambda b: b"\n" not in b and b.strip()))
+def test_any_request_line_gets_a_reply_and_the_connection_survives(
+    server_in_thread: Path, line: bytes
+) -> None:
+    with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as sock:
+        sock.settimeout(10)
+        sock.connect(str(server_in_thread))
+        stream = sock.makefile("rwb")
+        stream.write(line + b'\n{"cmd": "status"}\n')
+        stream.flush()
+        reply = json.loads(stream.readline())
+        assert set(reply) >= {"reply", "ok", "id", "error"}
+        assert reply["ok"] is False or reply["reply"] in ("status", "subscribe", "pause",
+                                                           "resume", "resume_job", "set",
+                                                           "cancel_object", "queue_move",
+                                                           "queue_remove")
+        if reply["reply"] == "subscribe" and reply["ok"]:
+            assert "status" in json.loads(stream.readline())  # the stream's first snapshot
+        follow = json.loads(stream.readline())
+        assert follow["reply"] == "status" and follow["ok"] is True
