@@ -30,8 +30,9 @@ class SimulatorConfig:
     - ``p_corrupt_rx``: per received line, one bit of one byte flipped (host -> printer);
     - ``p_corrupt_tx``: per sent line, one bit of one byte flipped (printer -> host);
     - ``p_drop_ok``: per ``ok``, the line is not sent;
-    - ``p_resend``: per accepted numbered line, a spurious ``Resend: <that line>`` + ``ok``
-      although the line was fine and is executed once;
+    - ``p_resend``: per accepted numbered line, a spurious ``Resend: <that line>`` although
+      the line was fine; it is executed once and answered by its one ``ok`` as usual, and a
+      re-sent copy is rejected as a duplicate (line-number error);
     - ``p_busy``: per executed command, a burst of 1-5 ``echo:busy: processing`` lines,
       each after one keepalive interval of simulated time;
     - ``p_reset``: per executed command, a reset before it (queue, receive buffer,

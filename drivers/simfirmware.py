@@ -225,8 +225,9 @@ class Firmware:
             return
         self._queue.append(command)
         if numbered and not is_m110 and self.faults.fires("resend"):
+            # a request for a line that arrived intact; its own ok follows when it runs,
+            # so every received line is still answered by exactly one ok
             self.emit(f"Resend: {self.last_n}")
-            self.send_ok()
 
     def _line_error(self, message: str) -> None:
         """Marlin's ``gcode_line_error``: report, drain the receive buffer, ask for a resend."""
@@ -248,8 +249,8 @@ class Firmware:
         if self.faults.fires("disconnect"):
             self._wait_sent(2.0)
             self._vanish()
-            if self.config.link_path is None:
-                self._reset()  # the port never comes back; nothing more will be received
+            if self.config.reset_on_open:
+                self._reset(power_cycle=False)  # a USB-powered board loses power with its cable
             return
         command = self._queue[0]
         self._busy_next = self.clock.now() + self.keepalive_s
@@ -377,10 +378,14 @@ class Firmware:
         self.planner.clear()
         self.set_autoreport(0.0)
 
-    def _reset(self) -> None:
-        """A hardware reset: everything volatile lost, then the boot banner."""
-        self.stats["resets"] += 1
-        boot = self.config.boot_delay_s
+    def _reset(self, power_cycle: bool = True) -> None:
+        """A hardware reset: everything volatile lost, then (after booting) the banner.
+
+        Without ``power_cycle`` the board just stops (power lost): no boot, no banner.
+        """
+        if power_cycle:
+            self.stats["resets"] += 1
+        boot = self.config.boot_delay_s if power_cycle else 0.0
         with self._cond:
             self._reset_pending = False
             self._kill_pending = False
@@ -395,6 +400,8 @@ class Firmware:
         self._power_off()
         self.motion.reset()
         self.keepalive_s = self.config.keepalive_s
+        if not power_cycle:
+            return
         if boot > 0.0:
             self._interrupt.clear()
             self._interrupt.wait(boot)
