@@ -89,3 +89,72 @@ def test_a_bad_model_fails_with_an_mqtt_event_and_commands_are_answered(
     assert refused["reason"] == "no job is printing"  # the daemon's controller answered
     assert availability == "offline", output
     assert daemon.returncode == 0, output
+
+
+BAD_INPUTS = {
+    "empty.stl": b"",
+    "noise.stl": bytes(range(256)) * 7,
+    "words.stl": b"solid x\nthis is not a facet\nendsolid x\n",
+    "short.stl": b"\x00" * 80 + (1000).to_bytes(4, "little") + b"\x01" * 50,
+}
+
+
+def test_bad_models_fail_on_mqtt_and_the_next_job_prints_with_pause_and_resume(
+    tmp_path: Path, broker: Broker
+) -> None:
+    daemon = start_daemon(tmp_path, broker)
+    cube = (REPO / "tests" / "data" / "cube20_xyz.stl").read_bytes()
+
+    async def watch() -> tuple[dict[str, dict[str, Any]], list[str], list[str]]:
+        failed: dict[str, dict[str, Any]] = {}
+        events: list[str] = []
+        states: list[str] = []
+        cmd = f"hostd/{PRINTER}/cmd"
+        async with aiomqtt.Client(HOST, broker.port, username=USER, password=SECRET) as client:
+            await client.subscribe(f"hostd/{PRINTER}/#", qos=1)
+            async with asyncio.timeout(60):
+                async for message in client.messages:
+                    topic = str(message.topic)
+                    if topic.endswith("/online") and message.payload == b"online":
+                        for name, data in BAD_INPUTS.items():
+                            (tmp_path / "jobs" / name).write_bytes(data)
+                    elif topic.endswith("/status"):
+                        states.append(json.loads(message.payload)["state"])
+                    elif topic.endswith("/event"):
+                        event = json.loads(message.payload)
+                        kind = event["event"]
+                        events.append(kind)
+                        if kind == "failed":
+                            failed[event["name"]] = event
+                            if len(failed) == len(BAD_INPUTS):
+                                (tmp_path / "jobs" / "cube.stl").write_bytes(cube)
+                        elif kind == "layer" and "pause" not in events:
+                            events.append("pause")
+                            await client.publish(cmd, '{"cmd": "pause"}', qos=1)
+                        elif kind == "paused":
+                            await client.publish(cmd, '{"cmd": "resume"}', qos=1)
+                        elif kind == "error":
+                            raise AssertionError(f"command refused: {event}")
+                        elif kind == "done":
+                            break
+        return failed, events, states
+
+    try:
+        failed, events, states = asyncio.run(watch())
+    finally:
+        daemon.send_signal(signal.SIGTERM)
+        try:
+            daemon.communicate(timeout=30)
+        finally:
+            if daemon.poll() is None:
+                daemon.kill()
+                daemon.wait()
+    assert set(failed) == set(BAD_INPUTS)
+    reasons = {event["reason"] for event in failed.values()}
+    assert len(reasons) >= 3, f"each bad input has its own reason: {reasons}"
+    for name in BAD_INPUTS:
+        assert (tmp_path / "jobs" / "failed" / name).exists()
+    kinds = [kind for kind in events if kind in ("started", "paused", "resumed", "done")]
+    assert kinds == ["started", "paused", "resumed", "done"], events
+    assert "printing" in states and "paused" in states, states  # state changes go out at once
+    assert (tmp_path / "jobs" / "done" / "cube.gcode").exists()
