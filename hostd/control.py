@@ -115,8 +115,8 @@ class _Connection:
                 continue
             reply = await self._answer(line)
             if reply["reply"] == "subscribe" and reply["ok"] and not self._subscribed:
-                # reply, then the current snapshot, then every later one: no await in
-                # between, so no snapshot can slip past before the streams register
+                # reply, then the current snapshot, then every later one; the streams
+                # register with the hub before this connection is read again
                 self._subscribed = True
                 self._writer.write(_encode(reply))
                 self._writer.write(_encode({"status": self._hub.current.to_dict()}))
@@ -135,8 +135,10 @@ class _Connection:
         """The reply to one request line; never raises for bad input or refused commands."""
         try:
             request = json.loads(line)
-        except (UnicodeDecodeError, json.JSONDecodeError) as exc:
+        except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
             return _refusal(None, None, f"malformed JSON: {exc}")
+        except RecursionError:
+            return _refusal(None, None, "malformed JSON: nested too deeply")
         if not isinstance(request, dict):
             return _refusal(None, None, "a request must be a JSON object")
         cmd = request.get("cmd")

@@ -297,6 +297,8 @@ class MqttBridge:
             request = json.loads(payload)
         except (TypeError, ValueError) as exc:  # JSONDecodeError and UnicodeDecodeError
             return refusal(None, f"malformed JSON: {exc}")
+        except RecursionError:
+            return refusal(None, "malformed JSON: nested too deeply")
         if not isinstance(request, dict):
             return refusal(None, 'a command must be a JSON object such as {"cmd": "pause"}')
         cmd = request.get("cmd")

@@ -130,10 +130,12 @@ def test_commands_reach_the_controller_and_refusals_are_answered(tmp_path: Path)
                 b'{"cmd": "gcode", "line": "M112"}\n',
                 b'{"cmd": "cancel", "id": "c"}\n',
                 b'{"cmd": "set", "boom": 1}\n',
+                b"[" * 100_000 + b"\n",
                 b'{"cmd": "resume"}\n',
             ],
         )
-        pause, cancel_object, garbage, array, no_cmd, gcode, cancel, bug, resume = replies
+        pause, cancel_object, garbage, array, no_cmd, gcode, cancel, bug, deep, resume = replies
+        assert deep["ok"] is False and "malformed JSON" in deep["error"]
         assert pause == {"reply": "pause", "ok": True, "id": 1, "error": None, "done": "pause"}
         assert cancel_object["ok"] is True
         assert garbage["ok"] is False and "malformed JSON" in garbage["error"]

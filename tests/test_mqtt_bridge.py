@@ -248,6 +248,7 @@ def test_allowed_commands_reach_the_controller_and_bad_ones_are_answered(
     bad = [
         ("not json at all", None, "malformed JSON"),
         ('["pause"]', None, "JSON object"),
+        ("[" * 60_000, None, "malformed JSON"),
         ('{"cmd": "gcode", "line": "M112"}', "gcode", "unknown command"),
         ('{"cmd": "queue_remove", "job": "1"}', "queue_remove", "unknown command"),
         ('{"cmd": "cancel"}', "cancel", "no job is printing"),
