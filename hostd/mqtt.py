@@ -162,6 +162,7 @@ class MqttBridge:
         """Bridge until cancelled; returns at once when MQTT is not enabled."""
         if not self._settings.enabled:
             return
+        self._status = _StatusFeed(self._hub.current)
         async with asyncio.TaskGroup() as group:
             group.create_task(self._collect_status(), name="mqtt-collect-status")
             group.create_task(self._collect_events(), name="mqtt-collect-events")
