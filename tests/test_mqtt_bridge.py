@@ -319,7 +319,8 @@ def test_a_wrong_password_never_connects(secured_broker: Broker) -> None:
 
 def test_reconnects_after_a_broker_restart_while_updates_go_on(broker: Broker) -> None:
     hub = StatusHub(Snapshot(state="printing"))
-    bridge = MqttBridge(settings(broker), PRINTER, hub, RecordingController(), backoff=FAST)
+    bridge = MqttBridge(settings(broker, homeassistant=True), PRINTER, hub,
+                        RecordingController(), backoff=FAST)
     layers: list[int] = []
 
     async def printing() -> None:
@@ -352,6 +353,10 @@ def test_reconnects_after_a_broker_restart_while_updates_go_on(broker: Broker) -
                 await observer.wait_for(
                     lambda: (observer.last_json(topic("status")) or {}).get("job", {}).get(
                         "layer", -1) >= reached
+                )
+                # the restarted broker kept nothing: discovery is announced again
+                await observer.wait_for(
+                    lambda: [m for m in observer.messages if m.topic.startswith("homeassistant/")]
                 )
 
             await observe(broker, check)
