@@ -15,7 +15,7 @@ import numpy as np
 import shapely
 
 from slicer.layer import Path
-from slicer.motion import run_time, runs_time, segment_times
+from slicer.motion import packed_runs_time, run_time, segment_times
 from slicer.settings import SliceSettings
 
 # points of a path closer than this to the previous one are dropped, mm
@@ -63,62 +63,73 @@ def layer_code(
 
     ``z`` is the layer's top (nozzle height), ``height`` its thickness, both mm;
     ``outline`` the layer's solid region: a travel that leaves it retracts.
+    All extrusion moves of the layer are measured and formatted in one
+    vectorised pass; only the few lines between paths are built per path.
     """
     lines = [f";LAYER:{index}"]
     if not paths:
         return LayerCode(lines, 0.0, 0.0)
     e_per_mm = settings.line_width * height / settings.filament_area
-    first = index == 0
-    wall_f = settings.first_layer_speed if first else settings.wall_speed
-    fill_f = settings.first_layer_speed if first else settings.print_speed
+    first_layer = index == 0
+    wall_f = settings.first_layer_speed if first_layer else settings.wall_speed
+    fill_f = settings.first_layer_speed if first_layer else settings.print_speed
     travel_f = settings.travel_speed
     r = settings.retract_length
-    r_line = f"G1 E{-r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
-    p_line = f"G1 E{r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
-    accel = settings.acceleration
+    retract = f"G1 E{-r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
+    prime = f"G1 E{r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
 
-    coords = [_thin(p.coords) for p in paths]
-    starts = np.array([c[0] for c in coords])
-    ends = np.array([c[-1] for c in coords])
-    leaves = _travels_leave(ends[:-1], starts[1:], outline, settings.line_width)
+    pts, starts, ends = _pack([p.coords for p in paths])
+    n = len(paths)
+    speeds = np.array([wall_f if p.kind.startswith("WALL") else fill_f for p in paths])
+    # extrusion moves: every point but each path's first
+    move = np.ones(len(pts), dtype=bool)
+    move[starts] = False
+    seg = np.diff(pts, axis=0, prepend=pts[:1])
+    e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm
+    filament = float(e[move].sum())
+    flat = np.column_stack([pts[move], e[move]]).ravel().tolist()
+    g1 = (("G1 X%.3f Y%.3f E%.5f\n" * int(move.sum())) % tuple(flat)).splitlines()
+    # each path's moves in g1: [first_move, last_move)
+    last_move = np.cumsum(ends - starts - 1)
+    first_move = last_move - (ends - starts - 1)
+
+    travel_a = pts[ends[:-1] - 1]
+    travel_b = pts[starts[1:]]
+    leaves = _travels_leave(travel_a, travel_b, outline, settings.line_width)
+    accel = settings.acceleration
+    time_s = packed_runs_time(pts, starts, speeds, accel)
+    hop_len = np.hypot(*(travel_b - travel_a).T)
+    zero = np.zeros(len(hop_len))
+    time_s += float(segment_times(hop_len, travel_f, zero, zero, accel).sum())
+    retracts = 1 + int(leaves.sum()) if r > 0 else 0
+    time_s += 2 * retracts * r / settings.retract_speed
 
     if index == settings.fan_first_layer or (index == 0 and settings.fan_first_layer > 0):
         lines.append(fan_command(settings, index))
-    time_s = 0.0
-    if r_line:
-        lines.append(r_line)
-        time_s += 2 * r / settings.retract_speed
-    lines.append(f"G0 F{_fpm(travel_f)} X{starts[0, 0]:.3f} Y{starts[0, 1]:.3f} Z{z:.3f}")
-    if p_line:
-        lines.append(p_line)
-    filament = 0.0
+    if retract:
+        lines.append(retract)
+    x0, y0 = pts[0]
+    lines.append(f"G0 F{_fpm(travel_f)} X{x0:.3f} Y{y0:.3f} Z{z:.3f}")
+    if prime:
+        lines.append(prime)
     kind = None
-    chunks: list[str] = []
-    runs: list[np.ndarray] = []
-    speeds: list[float] = []
-    for k, (path, pts) in enumerate(zip(paths, coords, strict=True)):
+    travel_word = f"G0 F{_fpm(travel_f)} X%.3f Y%.3f"
+    for k in range(n):
         if k > 0:
-            a, b = ends[k - 1], starts[k]
-            if leaves[k - 1] and r_line:
-                chunks.append(r_line + "\n")
-                time_s += 2 * r / settings.retract_speed
-            chunks.append(f"G0 F{_fpm(travel_f)} X{b[0]:.3f} Y{b[1]:.3f}\n")
-            runs.append(np.stack([a, b]))
-            speeds.append(travel_f)
-            if leaves[k - 1] and p_line:
-                chunks.append(p_line + "\n")
-        if path.kind != kind:
-            kind = path.kind
-            chunks.append(f";TYPE:{kind}\n")
-        speed = wall_f if kind.startswith("WALL") else fill_f
-        seg = np.diff(pts, axis=0)
-        e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm
-        filament += float(e.sum())
-        runs.append(pts)
-        speeds.append(speed)
-        chunks.append(_moves(pts[1:], e, speed))
-    time_s += runs_time(runs, np.array(speeds), accel)
-    lines.extend("".join(chunks).splitlines())
+            hop = leaves[k - 1] and retract
+            if hop:
+                lines.append(retract)
+            lines.append(travel_word % (travel_b[k - 1, 0], travel_b[k - 1, 1]))
+            if hop:
+                lines.append(prime)
+        path_kind = paths[k].kind
+        if path_kind != kind:
+            kind = path_kind
+            lines.append(f";TYPE:{kind}")
+        a, b = int(first_move[k]), int(last_move[k])
+        if b > a:
+            lines.append(f"G1 F{_fpm(speeds[k])} {g1[a][3:]}")
+            lines.extend(g1[a + 1 : b])
     return LayerCode(lines, filament, time_s)
 
 
@@ -127,22 +138,24 @@ def _fpm(speed_mm_s: float) -> int:
     return round(speed_mm_s * 60.0)
 
 
-def _thin(pts: np.ndarray) -> np.ndarray:
-    """Drop points closer than ``_MIN_STEP`` to the previous kept one (keeps both ends)."""
-    if len(pts) <= 2:
-        return pts
-    step = np.hypot(*np.diff(pts, axis=0).T)
-    keep = np.concatenate(([True], step >= _MIN_STEP))
-    keep[-1] = True
-    return pts[keep]
+def _pack(paths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Concatenate paths, dropping points closer than ``_MIN_STEP`` to the previous one.
 
-
-def _moves(xy: np.ndarray, e: np.ndarray, speed: float) -> str:
-    """``G1`` lines for points (k, 2) with extrusion (k,); the first line sets the feedrate."""
-    k = len(xy)
-    flat = np.column_stack([xy, e]).ravel().tolist()
-    head = f"G1 F{_fpm(speed)} X%.3f Y%.3f E%.5f\n" % tuple(flat[:3])
-    return head + ("G1 X%.3f Y%.3f E%.5f\n" * (k - 1)) % tuple(flat[3:])
+    Returns points (m, 2) mm and each path's ``[start, end)`` indices (n,) into
+    them. Every path keeps its two ends.
+    """
+    sizes = np.array([len(p) for p in paths])
+    pts = np.concatenate(paths)
+    path_of = np.repeat(np.arange(len(paths)), sizes)
+    edge = np.zeros(len(pts), dtype=bool)
+    edge[np.cumsum(sizes) - sizes] = True
+    edge[np.cumsum(sizes) - 1] = True
+    step = np.hypot(*np.diff(pts, axis=0, prepend=pts[:1]).T)
+    keep = edge | (step >= _MIN_STEP)
+    pts, path_of = pts[keep], path_of[keep]
+    starts = np.searchsorted(path_of, np.arange(len(paths)), "left")
+    ends = np.searchsorted(path_of, np.arange(len(paths)), "right")
+    return pts, starts, ends
 
 
 def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: float) -> np.ndarray:

@@ -14,9 +14,9 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer import order
+from slicer import geom, order
 from slicer.fields.base import InfillField, LayerContext
-from slicer.fields.linear import line_family
+from slicer.fields.linear import LinearField, hatch, line_frame
 from slicer.settings import SliceSettings
 
 WALL_OUTER = "WALL-OUTER"
@@ -47,7 +47,8 @@ class LayerRegions:
     """The regions one layer is made of (bed coordinates, mm).
 
     ``islands`` (p,) Polygons, the layer's solid region per connected part;
-    ``skin`` where solid skin is needed (may be empty); ``support`` the
+    ``skin`` where solid skin is needed, inside the infill domain (None or
+    empty when nowhere); ``support`` the
     support region and ``interface`` its part just under the part (or None).
     """
 
@@ -106,13 +107,18 @@ def layer_paths(
     )
     fill = shapely.buffer(islands, -fill_distance(settings), quad_segs=_QUAD_SEGS)
     if regions.skin is not None and not regions.skin.is_empty:
-        skin = shapely.intersection(fill, regions.skin)
-        sparse = shapely.difference(fill, regions.skin)
+        skin = geom.intersection(fill, regions.skin)
+        sparse = geom.difference(fill, regions.skin)
     else:
         skin = np.full(len(islands), None, dtype=object)
         sparse = fill
-    skin_lines = _skin_lines(skin, ctx)
-    sparse_lines = _sparse_lines(sparse, ctx, field)
+    shortest = _MIN_PATH * w
+    skin_lines = [_hatched(r, settings.infill_angle, ctx.index, w, shortest) for r in skin]
+    if isinstance(field, LinearField):
+        spacing = sparse_spacing(settings)
+        sparse_lines = [_hatched(r, field.angle, ctx.index, spacing, shortest) for r in sparse]
+    else:
+        sparse_lines = _sparse_lines(sparse, ctx, field)
     grow = shapely.buffer(fill, w / 2.0, quad_segs=2)
 
     out: list[Path] = []
@@ -123,9 +129,14 @@ def layer_paths(
             out.append(Path(kind, ring))
             pos = ring[-1]
         for kind, lines in ((SKIN, skin_lines[k]), (FILL, sparse_lines[k])):
-            if not lines:
+            if isinstance(lines, _Hatch):
+                ordered, pos = order.order_chords(
+                    lines.chords, lines.g, lines.d, lines.spacing, pos
+                )
+            elif lines:
+                ordered, pos = order.order_open_paths(lines, pos)
+            else:
                 continue
-            ordered, pos = order.order_open_paths(lines, pos)
             for coords in order.join_paths(ordered, grow[k], 2.0 * w):
                 out.append(Path(kind, coords))
     if support_paths is not None and regions.support is not None and not regions.support.is_empty:
@@ -159,12 +170,11 @@ def _island_order(islands: np.ndarray, pos: np.ndarray) -> list[int]:
 def _wall_loops(levels: np.ndarray, wall_order: str) -> list[tuple[str, list[np.ndarray]]]:
     """Rings of each wall level as point arrays, in the wall order the settings ask for."""
     out = []
-    for k, geom in enumerate(levels):
-        if geom is None or geom.is_empty:
+    for k, level in enumerate(levels):
+        if level is None or level.is_empty:
             continue
-        geom = shapely.orient_polygons(geom)
         rings = []
-        for poly in shapely.get_parts(geom):
+        for poly in shapely.get_parts(shapely.orient_polygons(level)):
             rings.append(order.ring_points(shapely.get_coordinates(poly.exterior)))
             rings.extend(order.ring_points(shapely.get_coordinates(r)) for r in poly.interiors)
         rings = [r for r in rings if len(r) >= 3]
@@ -182,10 +192,19 @@ def _order_loops(
     out = []
     here = np.asarray(pos, dtype=np.float64)
     for kind, rings in levels:
-        left = list(range(len(rings)))
-        while left:
-            dists = [float(np.min(np.linalg.norm(rings[j] - here, axis=1))) for j in left]
-            j = left.pop(int(np.argmin(dists)))
+        pts_all = np.concatenate(rings)
+        sizes = np.array([len(r) for r in rings])
+        starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
+        done = np.zeros(len(rings), dtype=bool)
+        for _ in range(len(rings)):
+            if len(rings) == 1:
+                j = 0
+            else:
+                diff = pts_all - here
+                dist = np.minimum.reduceat(np.einsum("ij,ij->i", diff, diff), starts)
+                dist[done] = np.inf
+                j = int(np.argmin(dist))
+            done[j] = True
             pts = rings[j]
             start = order.rear_seam(pts) if kind == WALL_OUTER else order.nearest_vertex(pts, here)
             ring = order.start_ring_at(pts, start)
@@ -194,17 +213,33 @@ def _order_loops(
     return out
 
 
-def _skin_lines(skin: np.ndarray, ctx: LayerContext) -> list[list[np.ndarray]]:
-    """Solid linear fill (spacing = line width), alternating direction per layer, per island."""
-    w = ctx.settings.line_width
-    out: list[list[np.ndarray]] = []
-    for region in skin:
-        if region is None or region.is_empty:
-            out.append([])
-            continue
-        lines = line_family(region, ctx.settings.infill_angle, ctx.index % 2 == 1, w)
-        out.append(_as_coords(lines, w))
-    return out
+@dataclass(frozen=True)
+class _Hatch:
+    """Straight parallel chords of one region: (n, 2, 2) mm, on lines ``x . g = k * spacing``."""
+
+    chords: np.ndarray
+    g: np.ndarray
+    d: np.ndarray
+    spacing: float
+
+
+def _hatched(region, angle: float, index: int, spacing: float, min_length: float) -> _Hatch | list:
+    """Level sets of the linear field (Eq. 13, mirrored on odd layers) inside ``region``.
+
+    Chords shorter than ``min_length`` mm are dropped. Empty list when none.
+    """
+    if region is None or region.is_empty or spacing <= 0:
+        return []
+    mirror = index % 2 == 1
+    chords = hatch(region, angle, mirror, spacing)
+    if len(chords) == 0:
+        return []
+    length = np.linalg.norm(chords[:, 1] - chords[:, 0], axis=1)
+    chords = chords[length >= min_length]
+    if len(chords) == 0:
+        return []
+    g, d = line_frame(angle, mirror)
+    return _Hatch(chords, g, d, spacing)
 
 
 def _sparse_lines(

@@ -53,10 +53,11 @@ class PlacedMesh:
 
 
 def read_stl(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (v, 3) float64 and faces (f, 3) int64 of an ASCII or binary STL.
+    """Vertices (v, 3) float64 mm and faces (f, 3) int64 of an ASCII or binary STL.
 
-    Raises ModelError for a missing, empty or non-STL file, or coordinates that
-    are not finite.
+    Parsed by trimesh; identical corners are merged exactly (bitwise equal
+    coordinates, as STL writers repeat them). Raises ModelError for a missing,
+    empty or non-STL file, or coordinates that are not finite.
     """
     try:
         data = open(path, "rb").read()  # noqa: SIM115 (one read, then closed)
@@ -71,15 +72,39 @@ def read_stl(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
         loaded = trimesh.exchange.stl.load_stl(io.BytesIO(data))
     except Exception as exc:  # trimesh raises many types for malformed input
         raise ModelError(f"not a readable {kind} STL file: {exc}") from exc
-    del data
-    vertices = np.asarray(loaded.get("vertices", np.empty((0, 3))), dtype=np.float64)
-    faces = np.asarray(loaded.get("faces", np.empty((0, 3))), dtype=np.int64)
-    if len(faces) == 0:
+    corners = np.asarray(loaded.get("vertices", np.empty((0, 3))))
+    del loaded
+    if len(corners) < 3:
         raise ModelError("the STL file has no triangles")
-    if not np.isfinite(vertices).all():
-        bad = int((~np.isfinite(vertices)).any(axis=1).sum())
+    corners = corners[: len(corners) // 3 * 3]
+    if not np.isfinite(corners).all():
+        bad = int((~np.isfinite(corners)).any(axis=1).sum())
         raise ModelError(f"non-finite coordinates (NaN or infinity) in {bad} vertices")
-    return vertices, faces
+    del data
+    return merge_corners(corners)
+
+
+def merge_corners(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Merge bitwise-equal triangle corners: (3n, 3) float -> vertices (v, 3), faces (n, 3).
+
+    Exact: two corners merge only when their coordinates are equal (``-0`` and
+    ``0`` alike). Sorting two 64-bit keys keeps memory to a few arrays of 3n.
+    """
+    c32 = np.ascontiguousarray(corners, dtype=np.float32) + np.float32(0.0)
+    bits = c32.view(np.uint32).astype(np.uint64)
+    key_xy = (bits[:, 0] << np.uint64(32)) | bits[:, 1]
+    key_z = bits[:, 2]
+    del bits
+    order = np.lexsort((key_z, key_xy))
+    kx, kz = key_xy[order], key_z[order]
+    new = np.ones(len(order), dtype=bool)
+    new[1:] = (kx[1:] != kx[:-1]) | (kz[1:] != kz[:-1])
+    del kx, kz, key_xy, key_z
+    index = np.cumsum(new) - 1
+    inverse = np.empty(len(order), dtype=np.int64)
+    inverse[order] = index
+    vertices = c32[order[new]].astype(np.float64)
+    return vertices, inverse.reshape(-1, 3)
 
 
 def _stl_kind(data: bytes) -> str | None:
@@ -95,62 +120,108 @@ def _stl_kind(data: bytes) -> str | None:
 
 
 def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, float]) -> PlacedMesh:
-    """Merge, repair, validate and place a raw triangle list on the bed.
+    """Repair, validate and place a merged mesh on the bed.
 
-    Repairs (each reported): merged duplicate vertices, removed degenerate and
-    duplicate faces and dangling fins, fixed winding and inverted normals,
-    filled small holes. Refuses (ModelError): open after repair beyond a small
-    fraction of edges, zero volume, bigger than the bed.
+    ``vertices`` (v, 3) float64 mm, ``faces`` (f, 3) int64. Repairs (each
+    reported): removed degenerate and duplicate faces and dangling fins, fixed
+    winding and inverted normals, filled small holes. Refuses (ModelError):
+    open after repair beyond a small fraction of edges, zero volume, bigger
+    than the bed.
     """
     warnings: list[str] = []
-    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=True, validate=False)
-    del vertices, faces
-    removed = _remove_bad_faces(mesh)
-    if len(mesh.faces) == 0:
+    faces, removed = _remove_bad_faces(faces, len(vertices))
+    if len(faces) == 0:
         raise ModelError("no solid triangles left: every triangle is degenerate")
     if removed:
         warnings.append(f"repaired: removed {removed} degenerate, duplicate or dangling faces")
-    if not mesh.is_winding_consistent:
-        trimesh.repair.fix_winding(mesh)
-        warnings.append("repaired: fixed inconsistent face winding")
-    open_edges, total_edges = _edge_counts(mesh)
-    _refuse_open(open_edges, total_edges)
-    if open_edges:
-        before = open_edges
-        trimesh.repair.fill_holes(mesh)
-        open_edges, total_edges = _edge_counts(mesh)
-        if open_edges < before:
-            warnings.append(f"repaired: filled small holes ({before - open_edges} open edges)")
-    _refuse_open(open_edges, total_edges)
+    stats = _edge_stats(faces, len(vertices))
+    _refuse_open(stats.open, stats.total)
+    if stats.open or not stats.consistent:
+        vertices, faces, stats, notes = _trimesh_repairs(vertices, faces, stats)
+        warnings.extend(notes)
+        _refuse_open(stats.open, stats.total)
     with np.errstate(all="ignore"):
-        volume = float(mesh.volume)
+        volume = signed_volume(vertices, faces)
     if volume < 0:
-        mesh.invert()
+        faces = faces[:, ::-1].copy()
         volume = -volume
         warnings.append("repaired: normals pointed inwards, flipped")
-    extents = mesh.extents
-    if extents[2] <= 1e-6 or volume <= 1e-9 * max(1.0, float(np.prod(np.maximum(extents, 1e-3)))):
+    lo = vertices.min(axis=0)
+    hi = vertices.max(axis=0)
+    extents = hi - lo
+    if extents[2] <= 1e-6 or not volume > 1e-9 * max(
+        1.0, float(np.prod(np.maximum(extents, 1e-3)))
+    ):
         raise ModelError("zero volume: the model is flat or has no inside")
-    if open_edges:
+    if stats.open:
         warnings.append(
-            f"mesh is not closed: {open_edges} open edges; gaps are closed layer by layer"
+            f"mesh is not closed: {stats.open} open edges; gaps are closed layer by layer"
         )
     if (extents[0] > bed[0]) or (extents[1] > bed[1]) or (extents[2] > bed[2]):
         raise ModelError(
             "bigger than the bed: model {:.1f} x {:.1f} x {:.1f} mm, "
             "bed {:g} x {:g} x {:g} mm".format(*extents, *bed)
         )
-    verts = np.array(mesh.vertices, dtype=np.float64)
-    lo = verts.min(axis=0)
-    hi = verts.max(axis=0)
     shift = np.array(
         [bed[0] / 2.0 - (lo[0] + hi[0]) / 2.0, bed[1] / 2.0 - (lo[1] + hi[1]) / 2.0, -lo[2]]
     )
-    verts += shift
-    faces = np.array(mesh.faces, dtype=np.int64)
-    del mesh
-    face_body, bodies = _bodies(faces, len(verts))
-    return PlacedMesh(verts, faces, face_body, bodies, open_edges, tuple(warnings))
+    vertices = vertices + shift
+    face_body, bodies = _bodies(faces, len(vertices))
+    return PlacedMesh(vertices, faces, face_body, bodies, stats.open, tuple(warnings))
+
+
+def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
+    """Volume enclosed by the faces, mm^3 (negative when the normals point inwards)."""
+    total = 0.0
+    for a in range(0, len(faces), 1 << 20):
+        f = faces[a : a + (1 << 20)]
+        v0, v1, v2 = vertices[f[:, 0]], vertices[f[:, 1]], vertices[f[:, 2]]
+        total += float(np.einsum("ij,ij->", v0, np.cross(v1, v2)))
+    return total / 6.0
+
+
+@dataclass(frozen=True)
+class _EdgeStats:
+    """Edge counts: used by one face only (open), distinct edges, winding consistent."""
+
+    open: int
+    total: int
+    consistent: bool
+
+
+def _edge_stats(faces: np.ndarray, nv: int) -> _EdgeStats:
+    """Open edges, distinct edges and winding consistency from integer edge keys.
+
+    Winding is consistent when no directed edge is used twice (each shared
+    edge is walked once in each direction).
+    """
+    a = faces.ravel()
+    b = faces[:, [1, 2, 0]].ravel()
+    directed = np.sort(a.astype(np.int64) * nv + b)
+    undirected = np.sort(np.minimum(a, b).astype(np.int64) * nv + np.maximum(a, b))
+    repeated = bool((directed[1:] == directed[:-1]).any())
+    starts = np.flatnonzero(np.concatenate(([True], undirected[1:] != undirected[:-1])))
+    counts = np.diff(np.append(starts, len(undirected)))
+    return _EdgeStats(int((counts == 1).sum()), len(counts), not repeated)
+
+
+def _trimesh_repairs(
+    vertices: np.ndarray, faces: np.ndarray, stats: _EdgeStats
+) -> tuple[np.ndarray, np.ndarray, _EdgeStats, list[str]]:
+    """The rarer repairs, with trimesh: fix winding, fill small holes."""
+    notes = []
+    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
+    if not stats.consistent:
+        trimesh.repair.fix_winding(mesh)
+        notes.append("repaired: fixed inconsistent face winding")
+    if stats.open:
+        trimesh.repair.fill_holes(mesh)
+    vertices = np.asarray(mesh.vertices, dtype=np.float64)
+    faces = np.asarray(mesh.faces, dtype=np.int64)
+    after = _edge_stats(faces, len(vertices))
+    if after.open < stats.open:
+        notes.append(f"repaired: filled small holes ({stats.open - after.open} open edges)")
+    return vertices, faces, after, notes
 
 
 def _refuse_open(open_edges: int, total_edges: int) -> None:
@@ -162,36 +233,41 @@ def _refuse_open(open_edges: int, total_edges: int) -> None:
         )
 
 
-def _remove_bad_faces(mesh: trimesh.Trimesh) -> int:
-    """Drop faces with repeated vertices, duplicate faces and dangling fins; return how many."""
-    faces = mesh.faces
+def _remove_bad_faces(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int]:
+    """Drop faces with repeated vertices, duplicate faces and dangling fins.
+
+    A fin is a face with two open edges hanging on an edge shared by three or
+    more faces (a stray triangle). Returns the kept faces and how many went.
+    """
     keep = (
         (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
     )
-    srt = np.sort(faces, axis=1)
-    _, first = np.unique(srt, axis=0, return_index=True)
-    unique = np.zeros(len(faces), dtype=bool)
-    unique[first] = True
-    keep &= unique
-    # a fin: a face with two open edges hanging on an edge shared by 3+ faces
-    edges = np.sort(faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    _, inverse, counts = np.unique(edges, axis=0, return_inverse=True, return_counts=True)
-    per_face = counts[inverse.reshape(-1)].reshape(-1, 3)
+    srt = np.sort(faces, axis=1).astype(np.int64)
+    if nv < 2_000_000:
+        key = (srt[:, 0] * nv + srt[:, 1]) * nv + srt[:, 2]
+        order = np.argsort(key, kind="stable")
+        ks = key[order]
+        dup = np.zeros(len(faces), dtype=bool)
+        dup[order[1:]] = ks[1:] == ks[:-1]
+    else:
+        order = np.lexsort((srt[:, 2], srt[:, 1], srt[:, 0]))
+        s2 = srt[order]
+        dup = np.zeros(len(faces), dtype=bool)
+        dup[order[1:]] = (s2[1:] == s2[:-1]).all(axis=1)
+    keep &= ~dup
+    del srt
+    a = faces.ravel()
+    b = faces[:, [1, 2, 0]].ravel()
+    ekey = np.minimum(a, b).astype(np.int64) * nv + np.maximum(a, b)
+    ekey[~np.repeat(keep, 3)] = -1
+    _, inverse, counts = np.unique(ekey, return_inverse=True, return_counts=True)
+    per_face = counts[inverse].reshape(-1, 3)
     fin = ((per_face == 1).sum(axis=1) >= 2) & (per_face >= 3).any(axis=1)
     keep &= ~fin
     removed = int((~keep).sum())
     if removed:
-        mesh.update_faces(keep)
-        mesh.remove_unreferenced_vertices()
-    return removed
-
-
-def _edge_counts(mesh: trimesh.Trimesh) -> tuple[int, int]:
-    """(edges used by exactly one face, distinct edges)."""
-    edges = np.sort(mesh.faces[:, [0, 1, 1, 2, 2, 0]].reshape(-1, 2), axis=1)
-    key = edges[:, 0].astype(np.int64) * len(mesh.vertices) + edges[:, 1]
-    _, counts = np.unique(key, return_counts=True)
-    return int((counts == 1).sum()), len(counts)
+        faces = faces[keep]
+    return faces, removed
 
 
 def _bodies(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
@@ -202,7 +278,7 @@ def _bodies(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
     count, label = connected_components(graph, directed=False)
     face_label = label[faces[:, 0]]
     # renumber in order of first appearance so numbering follows the file
-    _, first = np.unique(face_label, return_index=True)
-    rank = np.empty(count, dtype=np.int64)
-    rank[np.argsort(first)] = np.arange(count)
-    return rank[face_label].astype(np.int64), int(count)
+    used, first = np.unique(face_label, return_index=True)
+    rank = np.full(count, -1, dtype=np.int64)
+    rank[used[np.argsort(first)]] = np.arange(len(used))
+    return rank[face_label], len(used)

@@ -21,9 +21,20 @@ def runs_time(runs: list[np.ndarray], speeds: np.ndarray, accel: float) -> float
     """
     if not runs:
         return 0.0
-    pts = np.concatenate(runs)
     sizes = np.array([len(r) for r in runs])
-    run_of_pt = np.repeat(np.arange(len(runs)), sizes)
+    return packed_runs_time(np.concatenate(runs), np.cumsum(sizes) - sizes, speeds, accel)
+
+
+def packed_runs_time(
+    pts: np.ndarray, starts: np.ndarray, speeds: np.ndarray, accel: float
+) -> float:
+    """:func:`runs_time` of runs packed in one array: ``pts`` (m, 2) mm, run ``k`` begins
+    at ``starts[k]`` (ascending) and ends where the next begins; ``speeds`` (r,) mm/s."""
+    if len(pts) == 0:
+        return 0.0
+    mark = np.zeros(len(pts), dtype=np.int64)
+    mark[starts[1:]] = 1
+    run_of_pt = np.cumsum(mark)
     seg = np.diff(pts, axis=0)
     same = run_of_pt[1:] == run_of_pt[:-1]
     length = np.hypot(seg[:, 0], seg[:, 1])

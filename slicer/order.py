@@ -115,3 +115,100 @@ def join_paths(
             current = [paths[i]]
     out.append(np.concatenate(current) if len(current) > 1 else current[0])
     return out
+
+
+def chord_levels(
+    chords: np.ndarray, g: np.ndarray, d: np.ndarray, spacing: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Level index and along-line interval of straight chords: (k (n,) int64, v0, v1 (n,) mm).
+
+    ``chords`` (n, 2, 2) mm lie on lines ``H = x . g = k * spacing``; ``d`` is
+    the direction along them; each interval has ``v0 <= v1``.
+    """
+    mid = chords.mean(axis=1)
+    k = np.rint(mid @ g / spacing).astype(np.int64)
+    va = chords[:, 0] @ d
+    vb = chords[:, 1] @ d
+    return k, np.minimum(va, vb), np.maximum(va, vb)
+
+
+def order_chords(
+    chords: np.ndarray, g: np.ndarray, d: np.ndarray, spacing: float, pos: np.ndarray
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """Order parallel chords as zigzag stacks, stacks nearest first.
+
+    A stack is a run of chords on consecutive levels whose along-line intervals
+    overlap one to one (the usual boustrophedon cells between holes); inside a
+    stack each chord is entered at the end nearest to where the previous one
+    ended, so neighbouring ends are joinable. Stacks are visited greedily by
+    nearest end. Links between levels are found for all chords at once with
+    ``searchsorted``; only the walk along the (few) stacks is a Python loop.
+    Returns the chords as (2, 2) arrays in print order and the final position.
+    """
+    n = len(chords)
+    if n == 0:
+        return [], pos
+    k, v0, v1 = chord_levels(chords, g, d, spacing)
+    order = np.lexsort((v0, k))
+    chords, k, v0, v1 = chords[order], k[order], v0[order], v1[order]
+    # position of each chord's level block, for lookups on the next level
+    kmin = int(k.min())
+    levels = k - kmin
+    nlev = int(levels.max()) + 2
+    start = np.searchsorted(levels, np.arange(nlev + 1))
+    # candidates on the next level: chords b with v1_b > v0_a and v0_b < v1_a
+    nb_lo = start[np.minimum(levels + 1, nlev)]
+    nb_hi = start[np.minimum(levels + 2, nlev)]
+    span = float(max(v1.max() - v0.min(), 1.0)) * 4.0
+    key0 = levels * span + (v0 - v0.min())
+    key1 = levels * span + (v1 - v0.min())
+    first = np.maximum(np.searchsorted(key1, (levels + 1) * span + (v0 - v0.min()), "right"), nb_lo)
+    last = np.minimum(np.searchsorted(key0, (levels + 1) * span + (v1 - v0.min()), "left"), nb_hi)
+    count_up = np.maximum(last - first, 0)
+    succ = np.where(count_up == 1, first, -1)
+    # the successor must have this chord as its only overlapping chord below
+    preds = np.bincount(succ[succ >= 0], minlength=n)
+    has_pred = np.zeros(n, dtype=bool)
+    ok = succ >= 0
+    ok[ok] = preds[succ[ok]] == 1
+    succ = np.where(ok, succ, -1)
+    has_pred[succ[succ >= 0]] = True
+    del key0, key1
+    heads = np.flatnonzero(~has_pred)
+    stacks: list[list[int]] = []
+    for h in heads.tolist():
+        run = [h]
+        s = succ[h]
+        while s >= 0:
+            run.append(int(s))
+            s = succ[s]
+        stacks.append(run)
+    # visit stacks greedily by the nearest of their four end points
+    ends = np.array(
+        [[chords[r[0], 0], chords[r[0], 1], chords[r[-1], 0], chords[r[-1], 1]] for r in stacks]
+    )  # (s, 4, 2)
+    done = np.zeros(len(stacks), dtype=bool)
+    here = np.asarray(pos, dtype=np.float64)
+    out: list[np.ndarray] = []
+    # chords are stored with v increasing along d; in a zigzag they alternate
+    for _ in range(len(stacks)):
+        dist = np.einsum("ijk,ijk->ij", ends - here, ends - here)
+        dist[done] = np.inf
+        s, corner = np.unravel_index(int(np.argmin(dist)), dist.shape)
+        done[s] = True
+        run = stacks[s] if corner < 2 else stacks[s][::-1]
+        block = _forward(chords[run], d)
+        flip = np.zeros(len(run), dtype=bool)
+        flip[(1 if corner % 2 == 0 else 0) :: 2] = True
+        block[flip] = block[flip][:, ::-1]
+        out.extend(block)
+        here = block[-1, 1]
+    return out, here
+
+
+def _forward(chords: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """Chords (n, 2, 2) each turned to run along ``d`` (a copy)."""
+    out = chords.copy()
+    back = (chords[:, 1] - chords[:, 0]) @ d < 0
+    out[back] = out[back][:, ::-1]
+    return out

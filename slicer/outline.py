@@ -14,6 +14,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 
+from slicer import geom
 from slicer.section import Chains
 
 # shortest ring worth keeping, mm^2 of area
@@ -28,7 +29,7 @@ class OutlineTolerances:
     ``max_gap``: widest gap of an open mesh closed per layer.
     """
 
-    simplify: float = 0.005
+    simplify: float = 0.02
     max_gap: float = 10.0
 
 
@@ -238,7 +239,7 @@ def _repair_layer(
     """
     fixed = shapely.make_valid(polys)
     bodies = np.unique(body)
-    regions = [_polygonal(shapely.union_all(fixed[body == b])) for b in bodies]
+    regions = [geom.polygonal(shapely.union_all(fixed[body == b])) for b in bodies]
     label = {int(b): int(b) for b in bodies}
     for i in range(len(bodies)):
         for j in range(i + 1, len(bodies)):
@@ -249,7 +250,7 @@ def _repair_layer(
     out_b = []
     for b in sorted(set(label.values())):
         members = [r for k, r in zip(bodies, regions, strict=True) if label[int(k)] == b]
-        region = _polygonal(shapely.union_all(members))
+        region = geom.polygonal(shapely.union_all(members))
         parts = shapely.get_parts(region)
         parts = parts[shapely.area(parts) > _MIN_RING_AREA]
         out_p.append(parts)
@@ -257,13 +258,3 @@ def _repair_layer(
     if not out_p:
         return np.empty(0, dtype=object), np.empty(0, dtype=np.int64)
     return np.concatenate(out_p), np.concatenate(out_b)
-
-
-def _polygonal(geom: shapely.Geometry) -> shapely.Geometry:
-    """The polygonal part of a geometry (make_valid can return lines and points too)."""
-    if geom.geom_type in ("Polygon", "MultiPolygon"):
-        return geom
-    parts = [g for g in shapely.get_parts(geom) if g.geom_type in ("Polygon", "MultiPolygon")]
-    if not parts:
-        return shapely.Polygon()
-    return shapely.union_all(parts)

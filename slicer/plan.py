@@ -18,11 +18,12 @@ import shapely
 from slicer import gcode
 from slicer.errors import ModelError
 from slicer.fields.base import LayerContext, get_field
-from slicer.layer import LayerRegions, Path, layer_paths
+from slicer.layer import LayerRegions, Path, fill_distance, layer_paths
 from slicer.mesh import PlacedMesh, prepare, read_stl
 from slicer.outline import GapReport, OutlineTolerances, build_layers
 from slicer.section import cut_block, face_layer_ranges
 from slicer.settings import SettingsError, SliceSettings
+from slicer.skins import skin_regions
 
 # the whole-model pass cuts at most this many (face, layer) crossings at once
 _BLOCK_CROSSINGS = 1_500_000
@@ -53,7 +54,8 @@ class _Geometry:
     """What the whole-model pass produces, shared by plans with different settings."""
 
     tops: np.ndarray
-    layers: tuple[tuple[np.ndarray, np.ndarray], ...]  # per layer: polygons, body numbers
+    outlines: np.ndarray  # (n,) MultiPolygon per layer
+    bodies: tuple[np.ndarray, ...]  # per layer: body number of each polygon of the outline
     bounds: tuple[float, float, float, float]
     body_count: int
     bed: tuple[float, float, float]
@@ -63,10 +65,22 @@ class _Geometry:
 class SlicePlan:
     """A model cut into layer outlines, ready to slice any layer on demand (thread-safe)."""
 
-    def __init__(self, geometry: _Geometry, settings: SliceSettings) -> None:
+    def __init__(
+        self, geometry: _Geometry, settings: SliceSettings, skins: np.ndarray | None = None
+    ) -> None:
         self._geo = geometry
         self.settings = settings
         self._field = get_field(settings)
+        self._skins = (
+            skins
+            if skins is not None
+            else skin_regions(
+                geometry.outlines,
+                fill_distance(settings),
+                settings.top_layers,
+                settings.bottom_layers,
+            )
+        )
         self._support: list[shapely.Geometry] | None = None
         self._interface: list[shapely.Geometry] | None = None
         if settings.support_enabled:
@@ -95,7 +109,12 @@ class SlicePlan:
         for key in ("layer_height", "first_layer_height"):
             if getattr(settings, key) != getattr(self.settings, key):
                 raise SettingsError(key, "cannot change once a model is cut into layers")
-        return SlicePlan(self._geo, settings)
+        same_skins = (
+            settings.top_layers,
+            settings.bottom_layers,
+            fill_distance(settings),
+        ) == (self.settings.top_layers, self.settings.bottom_layers, fill_distance(self.settings))
+        return SlicePlan(self._geo, settings, self._skins if same_skins else None)
 
     # ---- facts ----------------------------------------------------------
     @property
@@ -133,8 +152,11 @@ class SlicePlan:
         return self._geo.bed
 
     def outline(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> shapely.Geometry:
-        """Layer ``i``'s solid region as a (Multi)Polygon, mm."""
-        return _multi(self._islands(self._check(i), excluded_bodies))
+        """Layer ``i``'s solid region as a MultiPolygon, mm."""
+        i = self._check(i)
+        if excluded_bodies and np.isin(self._geo.bodies[i], list(excluded_bodies)).any():
+            return _multi(self._islands(i, excluded_bodies))
+        return self._geo.outlines[i]
 
     # ---- per layer ------------------------------------------------------
     def layer_toolpaths(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> list[Path]:
@@ -144,15 +166,15 @@ class SlicePlan:
         ctx = LayerContext(
             index=i,
             z=float(self._geo.tops[i]),
-            domain=_multi(islands),
+            domain=self.outline(i, excluded_bodies),
             bounds=self._geo.bounds,
             settings=self.settings,
         )
         regions = LayerRegions(
             islands=islands,
-            skin=self._skin_region(i, excluded_bodies) if len(islands) else None,
-            support=self._support[i] if self._support is not None else None,
-            interface=self._interface[i] if self._interface is not None else None,
+            skin=self._skins[i],
+            support=_private(self._support[i]) if self._support is not None else None,
+            interface=_private(self._interface[i]) if self._interface is not None else None,
         )
         support_fn = None
         if self._support is not None:
@@ -199,46 +221,10 @@ class SlicePlan:
     def _islands(self, i: int, excluded: frozenset[int]) -> np.ndarray:
         if not 0 <= i < self.layer_count:
             return _EMPTY
-        polys, body = self._geo.layers[i]
+        polys = shapely.get_parts(self._geo.outlines[i])
         if excluded and len(polys):
-            polys = polys[~np.isin(body, list(excluded))]
+            polys = polys[~np.isin(self._geo.bodies[i], list(excluded))]
         return polys
-
-    def _skin_region(self, i: int, excluded: frozenset[int]) -> shapely.Geometry:
-        """Where layer ``i`` needs solid skin: within top/bottom layers of open air.
-
-        Bottom skin is the part of the layer not covered by every one of the
-        ``bottom_layers`` layers below (the bed counts as air); top skin
-        likewise with the ``top_layers`` layers above.
-        """
-        here = self.outline(i, excluded)
-        need = []
-        for count, step in ((self.settings.bottom_layers, -1), (self.settings.top_layers, 1)):
-            if count <= 0:
-                continue
-            cover = None
-            same = True  # every neighbour so far has exactly this layer's outline
-            for k in range(1, count + 1):
-                j = i + step * k
-                other = self.outline(j, excluded) if 0 <= j < self.layer_count else None
-                if other is None or other.is_empty:
-                    cover = None
-                    break
-                if same and shapely.equals_exact(other, here, 0.0):
-                    cover = here
-                    continue
-                same = False
-                cover = other if cover is None else shapely.intersection(cover, other)
-                if cover.is_empty:
-                    break
-            if cover is here:
-                continue
-            need.append(
-                here if cover is None or cover.is_empty else shapely.difference(here, cover)
-            )
-        if not need:
-            return shapely.Polygon()
-        return need[0] if len(need) == 1 else shapely.union(need[0], need[1])
 
     def _plan_support(self) -> None:
         from slicer.support import support_interfaces, support_regions
@@ -248,19 +234,23 @@ class SlicePlan:
         interfaces = support_interfaces(
             outlines, regions, self.settings, self.settings.layer_height
         )
-        for g in (*regions, *interfaces):
-            if g is not None:
-                shapely.prepare(g)
         self._support = list(regions)
         self._interface = list(interfaces)
 
 
+def _private(g: shapely.Geometry | None) -> shapely.Geometry | None:
+    """A copy of a shared geometry that one thread may prepare (GEOS prepared
+    geometries build their indexes lazily and must not be shared across threads)."""
+    if g is None:
+        return None
+    return shapely.from_wkb(shapely.to_wkb(g))
+
+
 def _multi(polys: np.ndarray) -> shapely.Geometry:
+    """A MultiPolygon of the given polygons (empty when none)."""
     if len(polys) == 0:
         return shapely.MultiPolygon()
-    if len(polys) == 1:
-        return polys[0]
-    return shapely.MultiPolygon(list(polys))
+    return shapely.multipolygons(polys)
 
 
 def _cut_model(
@@ -297,6 +287,7 @@ def _cut_model(
     for i in range(n):
         polys, body = layers.get(i, (_EMPTY, _NO_BODY))
         out_layers.append((polys, body_map[body] if len(body) else body))
+    del layers
     nonempty = [i for i in range(n) if len(out_layers[i][0])]
     if not nonempty:
         raise ModelError("no layer has a closed outline: the mesh does not enclose a solid")
@@ -317,13 +308,13 @@ def _cut_model(
     empty = len(tops) - len(nonempty)
     if empty:
         warnings.append(f"{empty} layers have no area and print nothing")
-    for polys, _ in out_layers:
-        if len(polys):
-            shapely.prepare(polys)
+    outlines = np.empty(len(out_layers), dtype=object)
+    outlines[:] = [_multi(polys) for polys, _ in out_layers]
     body_count = int(max((b.max() + 1 for _, b in out_layers if len(b)), default=0))
     return _Geometry(
         tops=tops,
-        layers=tuple(out_layers),
+        outlines=outlines,
+        bodies=tuple(b for _, b in out_layers),
         bounds=mesh.bounds,
         body_count=body_count,
         bed=bed,

@@ -1,4 +1,9 @@
-"""The paper's linear field (Eq. 13): straight parallel lines, mirrored every other layer."""
+"""The paper's linear field (Eq. 13): straight parallel lines, mirrored every other layer.
+
+Its level sets are straight lines, so they are clipped to the region exactly by
+a vectorised scanline pass over the region's edges (even-odd pairing of the
+crossings on each line) instead of a polygon overlay.
+"""
 
 from __future__ import annotations
 
@@ -11,36 +16,72 @@ from slicer.fields.base import LayerContext, register
 from slicer.settings import SliceSettings
 
 
+def line_frame(angle_deg: float, mirror: bool) -> tuple[np.ndarray, np.ndarray]:
+    """Unit gradient ``g`` of ``H = x sin t + y cos t * s`` and the direction ``d`` along its lines.
+
+    ``s`` is -1 when ``mirror``. Returns two (2,) float64 vectors.
+    """
+    t = math.radians(angle_deg)
+    sgn = -1.0 if mirror else 1.0
+    g = np.array([math.sin(t), math.cos(t) * sgn])
+    return g, np.array([-g[1], g[0]])
+
+
+def hatch(region: shapely.Geometry, angle_deg: float, mirror: bool, spacing: float) -> np.ndarray:
+    """Chords of the level sets ``H = k * spacing`` inside ``region``: (n, 2, 2) float64 mm.
+
+    ``region`` is a valid (Multi)Polygon. Levels are anchored at H = 0 (the bed
+    origin), so lines line up from layer to layer whatever the region. Each
+    edge of every ring is crossed with the levels in ``[min H, max H)`` of its
+    ends (half-open, so a vertex on a level is counted once); crossings sorted
+    along each level pair up into chords (even-odd: holes are left out).
+    Chords come ordered by level, then along the level.
+    """
+    if region is None or region.is_empty or spacing <= 0:
+        return np.empty((0, 2, 2))
+    g, d = line_frame(angle_deg, mirror)
+    rings = shapely.get_rings(shapely.get_parts(region))
+    coords, ring = shapely.get_coordinates(rings, return_index=True)
+    same = ring[1:] == ring[:-1]
+    p, q = coords[:-1][same], coords[1:][same]
+    up, uq = p @ g, q @ g
+    vp, vq = p @ d, q @ d
+    lo = np.minimum(up, uq)
+    hi = np.maximum(up, uq)
+    k0 = np.ceil(lo / spacing).astype(np.int64)
+    k1 = np.ceil(hi / spacing).astype(np.int64)  # exclusive: levels c < hi
+    count = np.maximum(k1 - k0, 0)
+    total = int(count.sum())
+    if total == 0:
+        return np.empty((0, 2, 2))
+    edge = np.repeat(np.arange(len(count)), count)
+    start = np.cumsum(count) - count
+    k = k0[edge] + (np.arange(total) - start[edge])
+    c = k * spacing
+    t = (c - up[edge]) / (uq[edge] - up[edge])
+    v = vp[edge] + t * (vq[edge] - vp[edge])
+    order = np.lexsort((v, k))
+    k, v, c = k[order], v[order], c[order]
+    # pair crossings per level: (0, 1), (2, 3), ...
+    first = np.concatenate(([True], k[1:] != k[:-1]))
+    rank = np.arange(total) - np.maximum.accumulate(np.where(first, np.arange(total), 0))
+    a = np.flatnonzero(rank % 2 == 0)
+    a = a[a + 1 < total]
+    a = a[k[a + 1] == k[a]]
+    cc, v0, v1 = c[a], v[a], v[a + 1]
+    p0 = cc[:, None] * g + v0[:, None] * d
+    p1 = cc[:, None] * g + v1[:, None] * d
+    return np.stack([p0, p1], axis=1)
+
+
 def line_family(
     region: shapely.Geometry, angle_deg: float, mirror: bool, spacing: float
 ) -> shapely.Geometry:
-    """Level sets of ``H = x sin t + y cos t * s`` at ``c_k = k * spacing``, clipped to ``region``.
-
-    ``t`` is ``angle_deg`` in radians; ``s`` is -1 when ``mirror``, else 1. The
-    levels are anchored at H = 0 (the bed origin), so lines line up from layer to
-    layer whatever the region. Returns a MultiLineString (possibly empty): the
-    clipped lines, one part per chord, in one vectorised shapely call.
-    """
-    if region.is_empty or spacing <= 0:
+    """The chords of :func:`hatch` as a MultiLineString (possibly empty)."""
+    chords = hatch(region, angle_deg, mirror, spacing)
+    if len(chords) == 0:
         return shapely.MultiLineString()
-    t = math.radians(angle_deg)
-    sgn = -1.0 if mirror else 1.0
-    # unit gradient of H and the direction along its level sets
-    gx, gy = math.sin(t), math.cos(t) * sgn
-    dx, dy = -gy, gx
-    xmin, ymin, xmax, ymax = region.bounds
-    corners = np.array([[xmin, ymin], [xmin, ymax], [xmax, ymin], [xmax, ymax]])
-    h = corners @ np.array([gx, gy])
-    s = corners @ np.array([dx, dy])
-    k = np.arange(math.floor(h.min() / spacing), math.ceil(h.max() / spacing) + 1)
-    if len(k) == 0:
-        return shapely.MultiLineString()
-    c = k * spacing
-    s0, s1 = s.min() - 1.0, s.max() + 1.0
-    p0 = np.stack([c * gx + s0 * dx, c * gy + s0 * dy], axis=1)
-    p1 = np.stack([c * gx + s1 * dx, c * gy + s1 * dy], axis=1)
-    lines = shapely.multilinestrings(shapely.linestrings(np.stack([p0, p1], axis=1)))
-    return shapely.intersection(lines, region)
+    return shapely.multilinestrings(shapely.linestrings(chords))
 
 
 @register("linear")
@@ -55,11 +96,10 @@ class LinearField:
     def paths(
         self, region: shapely.Geometry, ctx: LayerContext, spacing: float
     ) -> shapely.Geometry:
-        """Straight lines at ``spacing`` mm clipped to ``region`` (see :func:`line_family`)."""
+        """Straight lines at ``spacing`` mm clipped to ``region`` (see :func:`hatch`)."""
         return line_family(region, self.angle, ctx.index % 2 == 1, spacing)
 
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """H at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64 mm."""
-        t = math.radians(self.angle)
-        sgn = -1.0 if ctx.index % 2 == 1 else 1.0
-        return np.asarray(x) * math.sin(t) + np.asarray(y) * math.cos(t) * sgn
+        g, _ = line_frame(self.angle, ctx.index % 2 == 1)
+        return np.asarray(x) * g[0] + np.asarray(y) * g[1]

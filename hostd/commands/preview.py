@@ -1,0 +1,24 @@
+"""`hostd preview MODEL --layer N -o OUT.png`: a picture of one layer's toolpaths."""
+
+from __future__ import annotations
+
+from hostd.cli import UsageError
+from hostd.commands.slice import load_plan, load_settings
+from slicer.preview import render_layer
+
+
+def run(args) -> int:
+    """Draw layer ``args.layer`` of ``args.model`` to ``args.output``."""
+    settings, bed = load_settings(args.config, args.set)
+    plan = load_plan(args.model, settings, bed)
+    layer = args.layer
+    if layer < 0:
+        layer += plan.layer_count
+    if not 0 <= layer < plan.layer_count:
+        raise UsageError(f"--layer {args.layer}: the model has layers 0..{plan.layer_count - 1}")
+    try:
+        render_layer(plan, layer, args.output, field=args.field)
+    except OSError as exc:
+        raise UsageError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
+    print(f"{args.output}: layer {layer} of {plan.layer_count} (z = {plan.layer_z(layer):.2f} mm)")
+    return 0

@@ -1,0 +1,57 @@
+"""Robust wrappers of shapely overlays: retry on a fixed precision grid when GEOS gives up."""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+import shapely
+from shapely.errors import GEOSException
+
+# grid that overlays fall back to when exact floating point fails, mm
+GRID = 1e-6
+
+
+def overlay(op: Callable, a, b):
+    """``op(a, b)`` (a shapely set operation, arrays broadcast); element by element on a
+    precision grid where GEOS raises a topology error."""
+    try:
+        return op(a, b)
+    except GEOSException:
+        pass
+    if isinstance(a, np.ndarray) or isinstance(b, np.ndarray):
+        a_arr, b_arr = np.broadcast_arrays(np.asarray(a, dtype=object), np.asarray(b, dtype=object))
+        out = np.empty(a_arr.shape, dtype=object)
+        for idx in np.ndindex(a_arr.shape):
+            out[idx] = overlay(op, a_arr[idx], b_arr[idx])
+        return out
+    fa = shapely.make_valid(shapely.set_precision(a, GRID))
+    fb = shapely.make_valid(shapely.set_precision(b, GRID))
+    return op(fa, fb, grid_size=GRID)
+
+
+def intersection(a, b):
+    """Robust ``shapely.intersection``."""
+    return overlay(shapely.intersection, a, b)
+
+
+def difference(a, b):
+    """Robust ``shapely.difference``."""
+    return overlay(shapely.difference, a, b)
+
+
+def union(a, b):
+    """Robust ``shapely.union``."""
+    return overlay(shapely.union, a, b)
+
+
+def polygonal(geom: shapely.Geometry) -> shapely.Geometry:
+    """The polygonal part of a geometry (overlays can return lines and points too)."""
+    if geom is None:
+        return shapely.MultiPolygon()
+    if geom.geom_type in ("Polygon", "MultiPolygon"):
+        return geom
+    parts = [g for g in shapely.get_parts(geom) if g.geom_type in ("Polygon", "MultiPolygon")]
+    if not parts:
+        return shapely.MultiPolygon()
+    return shapely.union_all(parts)
