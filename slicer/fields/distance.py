@@ -6,6 +6,8 @@ import numpy as np
 import shapely
 from scipy.spatial import cKDTree
 
+from slicer.fields.paths import prepared
+
 
 def boundary_points(geom: shapely.Geometry, step: float) -> np.ndarray:
     """Points along every ring of ``geom``, at most ``step`` mm apart: (n, 2) float64 mm."""
@@ -28,6 +30,5 @@ def signed_distance(
         return np.full(x.shape, -np.inf)
     points = boundary_points(geom, step)
     dist, _ = cKDTree(points).query(np.column_stack((x.ravel(), y.ravel())))
-    shapely.prepare(geom)
-    inside = shapely.contains_xy(geom, x.ravel(), y.ravel())
+    inside = shapely.contains_xy(prepared(geom), x.ravel(), y.ravel())
     return np.where(inside, dist, -dist).reshape(x.shape)

@@ -11,6 +11,7 @@ import shapely
 from PIL import Image, ImageDraw
 
 from slicer.fields.base import InfillField, LayerContext
+from slicer.fields.paths import prepared
 
 MAX_SIDE_PX = 900
 MARGIN_MM = 2.0
@@ -88,8 +89,7 @@ def paint_field(
     xs = xmin + cols / scale
     ys = ymax - rows / scale
     domain = ctx.domain
-    shapely.prepare(domain)
-    inside = shapely.contains_xy(domain, xs.ravel(), ys.ravel()).reshape(xs.shape)
+    inside = shapely.contains_xy(prepared(domain), xs.ravel(), ys.ravel()).reshape(xs.shape)
     rgb = np.asarray(image.convert("RGB")).copy()
     low = high = 0.0
     if inside.any():

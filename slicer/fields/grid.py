@@ -12,7 +12,7 @@ from skimage.measure import find_contours
 
 from slicer.fields.base import LayerContext
 from slicer.fields.levels import LevelPlan, plan_levels
-from slicer.fields.paths import empty_paths, finish
+from slicer.fields.paths import empty_paths, finish, prepared
 from slicer.settings import SliceSettings
 
 
@@ -48,9 +48,8 @@ class Grid:
 
     def mask(self, geom: shapely.Geometry) -> np.ndarray:
         """Nodes inside ``geom``: (ny, nx) bool."""
-        shapely.prepare(geom)
         xx, yy = self.mesh()
-        return shapely.contains_xy(geom, xx.ravel(), yy.ravel()).reshape(xx.shape)
+        return shapely.contains_xy(prepared(geom), xx.ravel(), yy.ravel()).reshape(xx.shape)
 
 
 def grid_over(geom: shapely.Geometry, cell: float, max_cells: int, margin: float) -> Grid:
@@ -137,6 +136,7 @@ class GridField:
         width = ctx.settings.line_width
         if region.is_empty or not math.isfinite(spacing) or spacing <= 0:
             return empty_paths()
+        region = prepared(region)
         grid = grid_over(region, width * self.cell_fraction, self.max_cells, 2.0 * width)
         values = self.values(grid, ctx) - self.anchor
         region_mask = grid.mask(region)

@@ -9,6 +9,19 @@ from scipy.spatial import cKDTree
 LINESTRING = 1
 
 
+def prepared(geom: shapely.Geometry) -> shapely.Geometry:
+    """``geom`` ready for fast repeated predicates, without touching the caller's object.
+
+    A geometry the caller already prepared is used as is; otherwise a private copy
+    is prepared, so threads slicing layers never prepare a shared object at once.
+    """
+    if shapely.is_prepared(geom):
+        return geom
+    copy = shapely.from_wkb(shapely.to_wkb(geom))
+    shapely.prepare(copy)
+    return copy
+
+
 def empty_paths() -> shapely.Geometry:
     """An empty MultiLineString, the result of a field with nothing to fill."""
     return shapely.MultiLineString()
@@ -36,7 +49,7 @@ def clip(lines: np.ndarray, region: shapely.Geometry) -> np.ndarray:
     lines = np.asarray(lines, dtype=object)
     if lines.size == 0 or region.is_empty:
         return np.empty(0, dtype=object)
-    shapely.prepare(region)
+    region = prepared(region)
     hits = shapely.intersects(region, lines)
     return linestring_parts(_merged(shapely.intersection(lines[hits], region)))
 
@@ -134,8 +147,8 @@ def finish(
     lines = np.asarray(lines, dtype=object)
     if lines.size == 0:
         return empty_paths()
+    region = prepared(region)
     if priority is not None:
-        shapely.prepare(region)
         pieces = _merged(shapely.intersection(lines, region))
         parts, source = shapely.get_parts(pieces, return_index=True)
         keep = (shapely.get_type_id(parts) == LINESTRING) & (shapely.length(parts) > 0.0)
@@ -143,9 +156,7 @@ def finish(
     else:
         clipped = clip(lines, region)
     tidy = declutter(clipped, line_width, priority)
-    tidy = clip(
-        shapely.simplify(tidy, line_width / 40.0), region
-    )  # chords may cut corners
+    tidy = clip(shapely.simplify(tidy, line_width / 40.0), region)  # chords may cut corners
     tidy = tidy[shapely.length(tidy) >= 2.0 * line_width] if tidy.size else tidy
     return as_multiline(tidy)
 
