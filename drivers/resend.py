@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
+from drivers.responses import Response, parse_response
+
 
 def edit_distance(a: str, b: str) -> int:
     """Levenshtein distance between two short strings."""
@@ -52,3 +54,29 @@ def resolve_resend(
     if len(scored) > 1 and scored[1][0] == best_distance:
         return None
     return best
+
+
+def recover(response: Response) -> Response:
+    """A line garbled by noise, read as what it most likely was.
+
+    Only ``other`` lines are touched: ``ok``, ``Error:``, ``Resend:`` and ``start`` with one
+    character changed are recognised (a lost ``ok`` stalls the window, a lost ``Error:``
+    makes its ``ok`` count for a line). Anything less certain stays ``other``.
+    """
+    if response.kind != "other":
+        return response
+    raw = response.raw
+    if len(raw) == 2 and edit_distance(raw.lower(), "ok") == 1:
+        return parse_response("ok")
+    if len(raw) > 3 and raw[2] == " " and edit_distance(raw[:2].lower(), "ok") == 1 \
+            and raw[3:4] in ("N", "T", "P", "B"):
+        return parse_response("ok" + raw[2:])
+    for word in ("Error:", "Resend:"):
+        head = raw[: len(word)]
+        if len(raw) > len(word) and edit_distance(head.lower(), word.lower()) == 1:
+            fixed = parse_response(word + raw[len(word):])
+            if fixed.kind != "other":
+                return fixed
+    if len(raw) == 5 and edit_distance(raw.lower(), "start") == 1:
+        return parse_response("start")
+    return response

@@ -4,13 +4,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import re
 from collections import deque
 from collections.abc import Awaitable, Callable, Iterable
 from dataclasses import dataclass, field
 from types import TracebackType
 
 from drivers.protocol import Response, frame, parse_response
-from drivers.resend import resolve_resend
+from drivers.resend import recover, resolve_resend
 from drivers.transport import Transport, TransportError
 from drivers.window import InFlight, SendWindow
 
@@ -18,6 +19,9 @@ LONG_COMMANDS = frozenset(
     {"M109", "M190", "M191", "G28", "G29", "G30", "G32", "G34", "M400", "G4", "M600", "M303",
      "M226", "M0", "M1"}
 )
+
+# an unknown-command echo of one of our framed lines whose leading "N" was garbled
+_MANGLED_LINE = re.compile(r"\d+ .*\*\d+\"?\s*$")
 
 # link states
 DISCONNECTED = "disconnected"
@@ -56,6 +60,8 @@ class StreamerConfig:
       at this interval; 0 turns both off.
     - ``renumber_at``: line number beyond which ``M110 N0`` restarts numbering (drained first).
     - ``park_gcode`` / ``unpark_gcode``: sent by ``pause()`` / ``resume()``.
+    - ``ok_after_resend``: the firmware answers ``Error`` + ``Resend`` with an ``ok`` (Marlin
+      2.1); set False for builds that send none. A wrong guess costs time, not lines.
     - ``reconnect_attempts`` / ``reconnect_delay_s``: after the port is lost.
     """
 
@@ -72,6 +78,7 @@ class StreamerConfig:
     renumber_at: int = 100_000
     park_gcode: tuple[str, ...] = ()
     unpark_gcode: tuple[str, ...] = ()
+    ok_after_resend: bool = True
     reconnect_attempts: int = 0
     reconnect_delay_s: float = 1.0
 
@@ -98,6 +105,7 @@ class StreamStats:
     lines_resent: int = 0
     duplicate_resends: int = 0
     implausible_resends: int = 0
+    unconfirmed_resends: int = 0
     errors: int = 0
     probes: int = 0
     renumbers: int = 0
@@ -172,7 +180,9 @@ class Streamer:
         self._pending: deque[tuple[str, asyncio.Future[int]]] = deque()
         self._renumber: _Renumber | None = None
         self._expect_resend_ok = False
-        self._last_error_line: int | None = None
+        self._last_error: Response | None = None  # a line error just before this line
+        self._unconfirmed: tuple[int, int] = (-1, 0)
+        self._emitted_through = 0
         self._rewind_to: int | None = None
         self._stale = 0
         self._implausible: tuple[str, int] = ("", 0)
@@ -391,12 +401,14 @@ class Streamer:
                 continue
             self._last_rx = loop.time()
             self._probes_unanswered = 0
-            self._handle(parse_response(text))
+            self._handle(recover(parse_response(text)))
 
     def _handle(self, response: Response) -> None:
         kind = response.kind
         after_resend = self._expect_resend_ok
         self._expect_resend_ok = False
+        error_before = self._last_error
+        self._last_error = None
         if kind == "ok":
             if response.has_temperatures:
                 self._emit_temperature(response)
@@ -404,11 +416,16 @@ class Streamer:
                 return  # the ok Marlin 2.1 sends after every Resend
             self._on_ok(response)
         elif kind == "resend":
-            self._on_resend(response)
+            self._on_resend(response, error_before)
         elif kind == "error":
             self._on_error(response)
         elif kind == "temperature":
             self._emit_temperature(response)
+        elif kind == "echo":
+            if _MANGLED_LINE.search(response.text) and response.text.lower().startswith("unknown"):
+                # a framed line whose leading N was garbled runs as an unknown command;
+                # its ok belongs to no line of ours
+                self._expect_resend_ok = True
         elif kind == "capability":
             if response.name == "FIRMWARE_NAME":
                 self.firmware = response.value
@@ -446,7 +463,10 @@ class Streamer:
         if renumber is not None and renumber.sent and entry.number == renumber.line \
                 and entry.command.startswith("M110"):
             self._finish_renumber()
-        if not entry.internal:
+        repeated = entry.number is not None and entry.number <= self._emitted_through
+        if entry.number is not None and not repeated:
+            self._emitted_through = entry.number
+        if not entry.internal and not repeated:  # not again when replayed after a refusal
             self.acked += 1
             if self.on_ack is not None:
                 self.on_ack(entry.number if entry.number is not None else -1, entry.command)
@@ -468,12 +488,14 @@ class Streamer:
             self._history.clear()
             self._next_number = value + 1
             self._replay_next = None
+            self._emitted_through = value
         self._last_acked_number = value
 
-    def _on_resend(self, response: Response) -> None:
-        self._expect_resend_ok = True
-        error_line = self._last_error_line
-        self._last_error_line = None
+    def _on_resend(self, response: Response, error_before: Response | None) -> None:
+        """``Resend: N``: replay from N, if the request is sane (see module notes)."""
+        # Marlin follows Error + Resend with an ok (2.1; some 2.0 builds do not)
+        self._expect_resend_ok = error_before is not None and self.config.ok_after_resend
+        error_line = error_before.line if error_before is not None else None
         self.stats.resends += 1
         if self._renumber is not None:
             if self._renumber.sent:
@@ -490,10 +512,17 @@ class Streamer:
                 self.stats.implausible_resends += 1
                 return
         self._implausible = ("", 0)
-        if number <= self._last_acked_number:
-            # the printer asks again for a line it acknowledged: it lost its line number
-            self._on_reset()
+        if error_before is None and not self._confirm_unannounced(number):
             return
+        if number <= self._last_acked_number:
+            if self._last_acked_number - number > self._window.max_lines + 4 \
+                    or number not in self._history:
+                # far behind what it acknowledged: the printer lost its line number
+                self._on_reset()
+                return
+            # an ok counted for a line the printer refused (a mangled line it answered
+            # as an unknown command): take the acknowledgement back and replay
+            self._last_acked_number = number - 1
         if number == self._rewind_to and self._stale > 0:
             self._stale -= 1
             self.stats.duplicate_resends += 1
@@ -505,6 +534,19 @@ class Streamer:
         self._stale = max(0, len(dropped) - 1)
         self._replay_next = number
         self._wake.set()
+
+    def _confirm_unannounced(self, number: int) -> bool:
+        """Marlin announces every resend with an ``Error:`` line. A request without one (the
+        error line lost to noise, or a spurious request) is obeyed only when repeated: if
+        the printer really lacks the line, it refuses the next line with an error."""
+        previous, count = self._unconfirmed
+        count = count + 1 if previous == number else 1
+        self._unconfirmed = (number, count)
+        if count >= 2:
+            self._unconfirmed = (-1, 0)
+            return True
+        self.stats.unconfirmed_resends += 1
+        return False
 
     def _repeated_implausible(self, response: Response, error_line: int | None) -> int | None:
         """A request repeated three times, or confirmed by the error's ``Last Line``, for a
@@ -526,7 +568,7 @@ class Streamer:
     def _on_error(self, response: Response) -> None:
         self.stats.errors += 1
         if response.error_kind in ("checksum", "line_number", "no_checksum", "no_line_number"):
-            self._last_error_line = response.line
+            self._last_error = response
             return
         if response.error_kind in ("halted", "stopped"):
             self.state = HALTED
