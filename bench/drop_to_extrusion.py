@@ -189,7 +189,8 @@ def first_extrusion(daemon: Daemon, name: str, timeout: float) -> tuple[float | 
             if reason is not None:
                 return None, f"refused: {reason}"
             if not daemon.alive():
-                return None, f"daemon exited: {daemon.log_tail()}"
+                code = daemon.proc.returncode if daemon.proc else None
+                return None, f"daemon exited with status {code}; last log line: {daemon.log_tail()}"
             time.sleep(_POLL_S)
     finally:
         if handle is not None:
@@ -323,7 +324,8 @@ def main(argv: list[str] | None = None) -> int:
                 notes.append(note)
         row.settled_to_extrusion_s = statistics.median(settled) if settled else None
         row.dropped_to_extrusion_s = statistics.median(dropped) if dropped else None
-        row.note = notes[0] if notes else ""
+        if notes:
+            row.note = f"{len(notes)} of {args.repeat} drops failed, first: {notes[0]}"
         if not args.no_cura and model.stem != "bad_triangle_soup":
             row.cura_slice_s = cura_time(model, args.repeat, args.timeout)
         print(f"  {row.model:18s} {row.settled_to_extrusion_s} {row.cura_slice_s} {row.note}",
