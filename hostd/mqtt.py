@@ -156,7 +156,8 @@ class MqttBridge:
         self._tls = tls_context(settings)
         self._status = _StatusFeed(hub.current)
         self._events = _EventFeed()
-        self.connected = asyncio.Event()  # set while a session is up (for callers and tests)
+        # set while a session is up: connected, announced and subscribed
+        self.connected = asyncio.Event()
 
     async def run(self) -> None:
         """Bridge until cancelled; returns at once when MQTT is not enabled."""
@@ -195,7 +196,6 @@ class MqttBridge:
         while True:
             try:
                 async with self._client() as client:
-                    attempt = 0
                     log.info("MQTT connected to %s:%s", self._settings.host, self._settings.port)
                     try:
                         await self._session(client)
@@ -208,6 +208,8 @@ class MqttBridge:
             except* Exception:  # a bridge bug must not stop the printer: log and reconnect
                 log.exception("MQTT bridge failed; reconnecting")
             finally:
+                if self.connected.is_set():  # a full session: start the backoff over
+                    attempt = 0
                 self.connected.clear()
             delay = self._backoff.delay(attempt, self._rng)
             attempt += 1
@@ -220,14 +222,18 @@ class MqttBridge:
                 await client.publish(self.topics.online, "offline", qos=1, retain=True)
 
     async def _session(self, client: aiomqtt.Client) -> None:
-        """One connection: announce, subscribe, then publish and listen until it drops."""
+        """One connection: subscribe, announce, then publish and listen until it drops.
+
+        Commands are subscribed before ``online`` is published, so a client that
+        sees ``online`` can send a command at once.
+        """
+        await client.subscribe(self.topics.cmd, qos=1)
         await client.publish(self.topics.online, "online", qos=1, retain=True)
         if self._settings.homeassistant:
             for topic, payload in discovery_messages(
                 self._printer_id, self.topics.status, self.topics.online
             ):
                 await client.publish(topic, payload, qos=1, retain=True)
-        await client.subscribe(self.topics.cmd, qos=1)
         self.connected.set()
         async with asyncio.TaskGroup() as group:
             group.create_task(self._publish_status(client), name="mqtt-publish-status")
