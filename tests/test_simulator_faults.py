@@ -36,7 +36,7 @@ def _run(tmp_path, **faults) -> tuple[SimulatedPrinter, Host]:
     sim.start()
     link = Host(config.link_path)
     link.wait_start()
-    stream(link, COMMANDS, ok_timeout=0.1)
+    stream(link, COMMANDS, ok_timeout=0.25)
     link.close()
     sim.stop()
     return sim, link

@@ -1,0 +1,49 @@
+"""`hostd simulate` prints a device path that pyserial opens and talks Marlin on."""
+
+from __future__ import annotations
+
+import os
+import signal
+import subprocess
+import sys
+import time
+
+import pytest
+import serial
+
+from drivers.protocol import frame
+
+
+@pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT])
+def test_hostd_simulate_serves_a_port_until_signalled(tmp_path, stop_signal):
+    log = tmp_path / "executed.log"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hostd.cli", "simulate", "--time-scale", "0", "--baud", "0",
+         "--log", str(log), "--advanced-ok"],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        path = proc.stdout.readline().strip()
+        assert path.startswith("/dev/"), path
+        with serial.Serial(path, 250000, timeout=3) as port:
+            assert port.readline() == b"start\n"
+            port.readline()
+            port.readline()
+            port.write(frame(1, "M105"))
+            reply = port.readline().decode()
+            assert reply.startswith("ok T:"), reply
+            port.write(frame(2, "G1 X10 F600"))
+            assert port.readline() == b"ok N2 P15 B4\n"
+        deadline = time.monotonic() + 3
+        while log.read_text().splitlines() != ["M105", "G1 X10 F600"]:
+            assert time.monotonic() < deadline, log.read_text()
+            time.sleep(0.02)
+        proc.send_signal(stop_signal)
+        assert proc.wait(timeout=5) == 0
+        assert not os.path.exists(path)
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
