@@ -49,6 +49,25 @@ class SimulatedPrinter:
     ``start()`` returns the device path a host opens; ``executed`` lists every executed
     command (without line number and checksum) in order, and ``log_path`` gets the same,
     one line each, flushed per line. Usable as a context manager.
+
+    How it behaves, in brief (details in ``drivers.simfirmware``):
+
+    - Opening the port resets the printer (``reset_on_open``): after ``boot_delay_s`` it
+      prints ``start``; bytes sent before that are lost. A reopen is noticed when the port
+      stayed closed for about 10 ms or more.
+    - Bytes arrive at ``baud / 10`` bytes/s into a receive buffer of ``rx_buffer`` bytes;
+      bytes past it are lost. The firmware moves lines from it into a queue of ``bufsize``
+      commands only between commands, so while it is busy the buffer fills and overflows.
+    - ``ok`` is sent when a command has been executed; a move counts as executed once it
+      is in the planner (``planner_blocks``), so its ``ok`` waits while the planner is full.
+    - Simulated time: moves take length / feedrate, dwells and homing their time, heaters
+      follow a first-order model; all multiplied by ``time_scale`` for wall time. With
+      ``time_scale = 0`` the printer's clock only advances when it would wait, so
+      ``M109`` still reports one temperature line per simulated second, instantly.
+    - ``M155 S<s>`` auto-reports every ``s`` *wall* seconds whatever the time scale, so a
+      host always sees them at the rate it asked for.
+    - ``echo:busy: processing`` every keepalive interval (2 s, ``M113``) of simulated time
+      while one command runs.
     """
 
     def __init__(self, config: SimulatorConfig | None = None) -> None:

@@ -242,12 +242,13 @@ class PtyWire:
             if fd == self._wake_r:
                 self._drain_wake()
                 continue
+            if ev & (select.POLLHUP | select.POLLERR):
+                self._hang_up()  # the host closed the port; what it wrote last is lost
+                return
             if ev & select.POLLIN and can_read:
                 self._read(rx)
             if ev & select.POLLOUT and can_write:
                 self._write(tx)
-            if ev & (select.POLLHUP | select.POLLERR) and not ev & select.POLLIN:
-                self._hang_up()
 
     def _read(self, rx: _Pacer) -> None:
         try:
