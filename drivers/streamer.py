@@ -60,6 +60,8 @@ class StreamerConfig:
       at this interval; 0 turns both off.
     - ``renumber_at``: line number beyond which ``M110 N0`` restarts numbering (drained first).
     - ``park_gcode`` / ``unpark_gcode``: sent by ``pause()`` / ``resume()``.
+    - ``resync_quiet_s``: after a reset, silence awaited before ``M110`` restores the line
+      number, so that refusals of lines sent before the reset are not taken for its own.
     - ``ok_after_resend``: the firmware answers ``Error`` + ``Resend`` with an ``ok`` (Marlin
       2.1); set False for builds that send none. A wrong guess costs time, not lines.
     - ``reconnect_attempts`` / ``reconnect_delay_s``: after the port is lost.
@@ -79,6 +81,7 @@ class StreamerConfig:
     park_gcode: tuple[str, ...] = ()
     unpark_gcode: tuple[str, ...] = ()
     ok_after_resend: bool = True
+    resync_quiet_s: float = 0.2
     reconnect_attempts: int = 0
     reconnect_delay_s: float = 1.0
 
@@ -123,6 +126,7 @@ class _Renumber:
     waiter: asyncio.Future[int] | None = None
     sent: bool = False
     sent_at: float = 0.0
+    quiet: bool = False
 
 
 @dataclass
@@ -588,7 +592,7 @@ class Streamer:
             self._renumber.sent = False
         else:
             value = self._last_acked_number
-            self._renumber = _Renumber(value, value, keep_history=True)
+            self._renumber = _Renumber(value, value, keep_history=True, quiet=True)
         self._replay_next = None
         self._wake.set()
 
@@ -681,6 +685,9 @@ class Streamer:
             return self._next_control_line()
         if renumber.sent or len(self._window):
             return None
+        if renumber.quiet and \
+                asyncio.get_running_loop().time() - self._last_rx < self.config.resync_quiet_s:
+            return None  # let replies to lines sent before the reset arrive first
         command = f"M110 N{renumber.value}"
         data = frame(renumber.line, command)
         renumber.sent = True
@@ -752,6 +759,8 @@ class Streamer:
 
     def _watch_silence(self, now: float) -> None:
         renumber = self._renumber
+        if renumber is not None and not renumber.sent:
+            self._wake.set()  # a resynchronisation waits for a quiet line
         if renumber is not None and renumber.sent:
             if now - max(self._last_rx, renumber.sent_at) >= self.config.probe_after_s:
                 self._window.clear()  # M110 is idempotent: write it again
