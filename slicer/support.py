@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import functools
 import math
 from collections.abc import Sequence
 
@@ -117,7 +118,7 @@ def support_paths(
     infill = empty_paths()
     if not body.is_empty:
         spacing = width / settings.support_density
-        infill = EggcrateField(settings).paths(body, ctx, spacing)
+        infill = _support_field(settings).paths(body, ctx, spacing)
     lines = empty_paths()
     if not roof.is_empty:
         angle = settings.infill_angle + (90.0 if ctx.index % 2 else 0.0)
@@ -139,6 +140,13 @@ def hatch(region: shapely.Geometry, spacing: float, angle_deg: float) -> np.ndar
     ends = np.column_stack((cx + offsets * nx + half * ux, cy + offsets * ny + half * uy))
     lines = shapely.linestrings(np.stack((starts, ends), axis=1))
     return clip(lines, region)
+
+
+@functools.lru_cache(maxsize=8)
+def _support_field(settings: SliceSettings) -> EggcrateField:
+    """The support's eggcrate field, one per (frozen) settings, so the level step it fits
+    once is reused by every layer."""
+    return EggcrateField(settings)
 
 
 def _gap_layers(settings: SliceSettings, layer_height: float) -> int:

@@ -5,9 +5,10 @@ from __future__ import annotations
 import math
 
 import numpy as np
+import shapely
 
 from slicer.fields.base import LayerContext, register
-from slicer.fields.coords import rotated
+from slicer.fields.coords import centre, rotated
 from slicer.fields.grid import GridField
 
 
@@ -23,6 +24,14 @@ class EggcrateField(GridField):
 
     name = "eggcrate"
     anchor = 1.0  # the saddle level: a connected diagonal lattice through every cell
+    shared_levels = True  # H ignores the layer's shape: one level step for every layer
+    periods = 3  # the reference square's side, in periods
+
+    def reference(self, ctx: LayerContext) -> shapely.Geometry:
+        """A square of a few whole periods at the model's centre (the pattern repeats)."""
+        cx, cy = centre(ctx.bounds)
+        half = 0.5 * self.periods * self.settings.infill_scale
+        return shapely.box(cx - half, cy - half, cx + half, cy + half)
 
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64 in [0, 2]."""

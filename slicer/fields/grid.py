@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
 import numpy as np
@@ -52,20 +53,38 @@ class Grid:
         return shapely.contains_xy(prepared(geom), xx.ravel(), yy.ravel()).reshape(xx.shape)
 
 
-def grid_over(geom: shapely.Geometry, cell: float, max_cells: int, margin: float) -> Grid:
+def grid_over(
+    geom: shapely.Geometry, cell: float, max_cells: int, margin: float, snap: bool = False
+) -> Grid:
     """A grid covering ``geom``'s bounds plus ``margin`` mm, cells of ``cell`` mm or
-    coarser so that it has at most ``max_cells`` nodes."""
+    coarser so that it has at most ``max_cells`` nodes. With ``snap`` the nodes sit
+    on multiples of the cell, so layers sharing a cell size sample the same points."""
     xmin, ymin, xmax, ymax = geom.bounds
     width = xmax - xmin + 2.0 * margin
     height = ymax - ymin + 2.0 * margin
     cell = max(cell, math.sqrt(width * height / max_cells))
+    x0, y0 = xmin - margin, ymin - margin
+    if snap:
+        x0, y0 = math.floor(x0 / cell) * cell, math.floor(y0 / cell) * cell
+        width, height = xmax + margin - x0, ymax + margin - y0
     return Grid(
-        x0=xmin - margin,
-        y0=ymin - margin,
+        x0=x0,
+        y0=y0,
         cell=cell,
         nx=math.ceil(width / cell) + 1,
         ny=math.ceil(height / cell) + 1,
     )
+
+
+@dataclass(frozen=True)
+class _Sampled:
+    """A field sampled on a grid over a region, with what level placement needs."""
+
+    grid: Grid
+    values: np.ndarray
+    region_mask: np.ndarray
+    contour_mask: np.ndarray
+    grad: np.ndarray
 
 
 def trace_levels(
@@ -104,10 +123,13 @@ class GridField:
     Subclasses set ``name`` and implement :meth:`sample`; they may override
     :meth:`values` (a field solved on the grid) and the class constants:
     ``gap`` (largest local spacing as a multiple of the mean), ``cell_fraction``
-    (grid cell as a fraction of the line width), ``max_cells`` and
-    ``anchor`` (the level always drawn; the others are whole steps from it) and
-    ``refinements``: after tracing, the measured length per area corrects the
-    target spacing and the levels are placed again, at most this many times.
+    (grid cell as a fraction of the line width), ``max_cells``, ``anchor`` (the
+    level always drawn; the others are whole steps from it), ``refinements``
+    (after tracing, the measured length per area corrects the target spacing and
+    the levels are placed again, at most this many times) and ``shared_levels``:
+    a field that does not depend on the layer's region fits its level step once
+    on :meth:`reference` and uses it on every layer, on a grid snapped to a
+    common lattice, so its paths stack from layer to layer.
     """
 
     name = "grid"
@@ -116,9 +138,12 @@ class GridField:
     max_cells = 250_000
     refinements = 3
     anchor = 0.0
+    shared_levels = False
 
     def __init__(self, settings: SliceSettings) -> None:
         self.settings = settings
+        self._steps: dict[tuple, tuple[float, float]] = {}
+        self._lock = threading.Lock()
 
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64."""
@@ -129,6 +154,10 @@ class GridField:
         xx, yy = grid.mesh()
         return np.asarray(self.sample(xx.ravel(), yy.ravel(), ctx), dtype=float).reshape(xx.shape)
 
+    def reference(self, ctx: LayerContext) -> shapely.Geometry:
+        """Where shared levels are fitted: the model's bounding box."""
+        return shapely.box(*ctx.bounds)
+
     def paths(
         self, region: shapely.Geometry, ctx: LayerContext, spacing: float
     ) -> shapely.Geometry:
@@ -137,31 +166,96 @@ class GridField:
         if region.is_empty or not math.isfinite(spacing) or spacing <= 0:
             return empty_paths()
         region = prepared(region)
-        grid = grid_over(region, width * self.cell_fraction, self.max_cells, 2.0 * width)
+        if not self.shared_levels:
+            sampled = self._sample(region, ctx, width * self.cell_fraction, snap=False)
+            return self._fit(sampled, region, spacing, width)[0] if sampled else empty_paths()
+        target, step = self._shared_step(ctx, spacing, width)
+        if not math.isfinite(step):
+            return empty_paths()
+        sampled = self._sample(region, ctx, self._shared_cell(ctx, width), snap=True)
+        if sampled is None:
+            return empty_paths()
+        return self._trace(sampled, region, width, target, step)[0]
+
+    def _shared_cell(self, ctx: LayerContext, width: float) -> float:
+        xmin, ymin, xmax, ymax = ctx.bounds
+        area = (xmax - xmin + 4.0 * width) * (ymax - ymin + 4.0 * width)
+        return max(width * self.cell_fraction, math.sqrt(area / self.max_cells))
+
+    def _shared_step(self, ctx: LayerContext, spacing: float, width: float) -> tuple[float, float]:
+        """(target spacing, level step) fitted once on :meth:`reference`, then reused."""
+        key = (ctx.bounds, spacing, width)
+        with self._lock:
+            known = self._steps.get(key)
+        if known is not None:
+            return known
+        reference = prepared(self.reference(ctx))
+        sampled = self._sample(reference, ctx, self._shared_cell(ctx, width), snap=True)
+        fitted = (spacing, math.inf)
+        if sampled is not None:
+            _, target, step = self._fit(sampled, reference, spacing, width)
+            fitted = (target, step)
+        with self._lock:
+            self._steps[key] = fitted
+        return fitted
+
+    def _sample(
+        self, region: shapely.Geometry, ctx: LayerContext, cell: float, snap: bool
+    ) -> _Sampled | None:
+        width = ctx.settings.line_width
+        grid = grid_over(region, cell, self.max_cells, 2.0 * width, snap=snap)
         values = self.values(grid, ctx) - self.anchor
         region_mask = grid.mask(region)
         if not region_mask.any():
-            return empty_paths()
+            return None
         grow = max(2, math.ceil(width / grid.cell))
         contour_mask = ndimage.binary_dilation(region_mask, iterations=grow)
         contour_mask &= np.isfinite(values)
         grad_y, grad_x = np.gradient(np.where(np.isfinite(values), values, 0.0), grid.cell)
-        grad = np.hypot(grad_x, grad_y)
+        return _Sampled(grid, values, region_mask, contour_mask, np.hypot(grad_x, grad_y))
+
+    def _trace(
+        self,
+        sampled: _Sampled,
+        region: shapely.Geometry,
+        width: float,
+        target: float,
+        step: float | None = None,
+    ) -> tuple[shapely.Geometry, float]:
+        """Paths for one choice of target spacing (and optionally a fixed step),
+        with the level step used (inf when the field is flat)."""
+        plan = plan_levels(
+            sampled.grad,
+            sampled.contour_mask,
+            sampled.region_mask & sampled.contour_mask,
+            target,
+            width,
+            sampled.grid.cell,
+            self.gap,
+            step=step,
+        )
+        if plan is None:
+            return empty_paths(), math.inf
+        lines, ranks = trace_levels(sampled.grid, sampled.values, plan, sampled.contour_mask)
+        return finish(lines, region, width, ranks.astype(float)), plan.step
+
+    def _fit(
+        self, sampled: _Sampled, region: shapely.Geometry, spacing: float, width: float
+    ) -> tuple[shapely.Geometry, float, float]:
+        """Paths whose length per area best matches ``1 / spacing``, with the target
+        spacing and level step that gave them."""
         area = float(region.area)
-        best, best_error, target = empty_paths(), math.inf, spacing
+        best, best_error, best_target, best_step = empty_paths(), math.inf, spacing, math.inf
+        target = spacing
         for _ in range(self.refinements + 1):
-            plan = plan_levels(
-                grad, contour_mask, region_mask & contour_mask, target, width, grid.cell, self.gap
-            )
-            if plan is None:
+            paths, step = self._trace(sampled, region, width, target)
+            if not math.isfinite(step):
                 break
-            lines, ranks = trace_levels(grid, values, plan, contour_mask)
-            paths = finish(lines, region, width, ranks.astype(float))
             achieved = paths.length / area
             error = abs(achieved * spacing - 1.0)
             if error < best_error:
-                best, best_error = paths, error
+                best, best_error, best_target, best_step = paths, error, target, step
             if error < 0.02 or achieved <= 0:
                 break
             target = min(max(target * achieved * spacing, 0.5 * spacing, width), 2.0 * spacing)
-        return best
+        return best, best_target, best_step

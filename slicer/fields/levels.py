@@ -61,6 +61,7 @@ def plan_levels(
     gap: float = 2.0,
     densify: int = 2,
     sparsify: int = 5,
+    step: float | None = None,
 ) -> LevelPlan | None:
     """Choose the level step and the per-cell ranks for one layer.
 
@@ -70,7 +71,9 @@ def plan_levels(
     ``spacing`` target mean spacing, ``min_gap`` least spacing (the line width),
     ``cell`` grid cell, all mm; ``gap`` the largest spacing as a multiple of
     ``spacing``; ``densify``/``sparsify`` how many octaves levels may be added or
-    skipped locally. Returns None when the field is flat (no level set to draw).
+    skipped locally; ``step`` a level step fixed beforehand (for levels shared by
+    every layer) instead of one fitted to this grid. Returns None when the field
+    is flat (no level set to draw).
     """
     grad = np.where(np.isfinite(grad), grad, 0.0)
     inside = grad[region_mask]
@@ -92,6 +95,10 @@ def plan_levels(
         r_max = np.floor(low - log_step)
         r = np.maximum(r_min, np.minimum(densify, r_max))
         return np.clip(r, 0, top)
+
+    if step is not None:
+        min_rank = ranks_for(float(np.log2(step)), high_need, low_need).astype(np.int8)
+        return LevelPlan(step=float(step), min_rank=min_rank, top=top)
 
     sub = (slice(None, None, 2), slice(None, None, 2)) if grad.size > 60_000 else np.s_[:, :]
     sub_mask = region_mask[sub]
