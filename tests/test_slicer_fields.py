@@ -283,3 +283,27 @@ def test_draw_field_writes_a_colour_map_with_level_sets(tmp_path: Path) -> None:
     assert len({tuple(p) for p in body}) > 20  # a colour ramp, not a flat fill
     assert np.any(np.all(image == 0, axis=2))  # black level sets drawn
     assert np.any(np.all(image == (220, 40, 40), axis=2))  # red walls drawn
+
+
+def test_eggcrate_paths_stack_from_layer_to_layer_whatever_the_outline() -> None:
+    settings = settings_for("eggcrate", 0.2)
+    field = get_field(settings)
+    bounds = (0.0, 0.0, 40.0, 40.0)
+    big, small = (
+        shapely.box(*bounds),
+        shapely.box(5, 5, 35, 35).difference(shapely.Point(30, 30).buffer(3)),
+    )
+    spacing = settings.line_width / 0.2
+
+    def paths(domain: shapely.Geometry, index: int) -> shapely.Geometry:
+        ctx = LayerContext(
+            index=index, z=0.2 * index, domain=domain, bounds=bounds, settings=settings
+        )
+        return field.paths(contracted(domain, settings), ctx, spacing)
+
+    core = shapely.box(10, 10, 25, 25)  # away from both outlines
+    lower, upper = paths(big, 3).intersection(core), paths(small, 4).intersection(core)
+    assert lower.length > 50.0
+    assert upper.length == pytest.approx(lower.length, rel=0.02)
+    # the same curves (cuts where lines cross may end a grid node apart)
+    assert upper.difference(lower.buffer(0.02)).length < 0.01 * lower.length
