@@ -3,7 +3,8 @@
 Each run of moves (one toolpath, or one travel) starts and ends at rest.
 Inside a run, the speed through a corner follows Marlin's junction-deviation
 rule, so long polylines that approximate curves are not charged a stop per
-vertex, while sharp corners are.
+vertex, while sharp corners are; like Marlin's planner, entry and exit speeds
+are limited to what the acceleration can reach over the neighbouring moves.
 """
 
 from __future__ import annotations
@@ -46,41 +47,34 @@ def packed_runs_time(
     speed = np.asarray(speeds, dtype=np.float64)[run]
     unit = seg / length[:, None]
     n = len(length)
-    v_in = np.zeros(n)
-    v_out = np.zeros(n)
+    # speed limit at each junction j (before segment j; j = n is the end): the
+    # junction-deviation corner speed inside a run, zero where runs begin and end
+    limit = np.zeros(n + 1)
     joined = run[1:] == run[:-1]
     cos_theta = -np.einsum("ij,ij->i", unit[:-1], unit[1:])
     sin_half = np.sqrt(np.clip(0.5 * (1.0 - cos_theta), 0.0, 1.0))
     v2 = accel * JUNCTION_DEVIATION * sin_half / np.maximum(1.0 - sin_half, 1e-12)
-    corner = np.where(joined, np.sqrt(np.minimum(v2, speed[1:] * speed[1:])), 0.0)
-    v_out[:-1] = corner
-    v_in[1:] = corner
-    return float(segment_times(length, speed, v_in, v_out, accel).sum())
+    v2 = np.minimum(v2, np.minimum(speed[1:], speed[:-1]) ** 2)
+    limit[1:-1] = np.where(joined, v2, 0.0)
+    # planner passes as prefix minima: v_j^2 = min_k (limit_k + 2 a (S_j - S_k))
+    two_a = 2.0 * accel
+    s_fwd = np.concatenate(([0.0], np.cumsum(length)))
+    fwd = two_a * s_fwd + np.minimum.accumulate(limit - two_a * s_fwd)
+    s_bwd = s_fwd[-1] - s_fwd
+    bwd = two_a * s_bwd + np.minimum.accumulate((limit - two_a * s_bwd)[::-1])[::-1]
+    v = np.sqrt(np.maximum(np.minimum(fwd, bwd), 0.0))
+    return float(segment_times(length, speed, v[:-1], v[1:], accel).sum())
 
 
 def run_time(points: np.ndarray, speed: float, accel: float) -> float:
     """Seconds to follow the polyline ``points`` (k, 2) mm at ``speed`` mm/s from rest to rest.
 
-    ``accel`` mm/s^2. Corner speeds from the junction-deviation rule; each
-    segment then takes the time of a trapezoid (or triangle) between its entry
-    and exit speeds.
+    ``accel`` mm/s^2. Corner speeds follow the junction-deviation rule; entry
+    and exit speeds are made reachable by forward and backward planner passes
+    (as prefix minima, vectorised); each segment then takes the time of its
+    trapezoid or triangle.
     """
-    seg = np.diff(points, axis=0)
-    length = np.hypot(seg[:, 0], seg[:, 1])
-    keep = length > 1e-9
-    if not keep.any():
-        return 0.0
-    seg, length = seg[keep], length[keep]
-    n = len(length)
-    corner = np.zeros(n + 1)
-    if n > 1:
-        unit = seg / length[:, None]
-        cos_theta = -np.einsum("ij,ij->i", unit[:-1], unit[1:])
-        sin_half = np.sqrt(np.clip(0.5 * (1.0 - cos_theta), 0.0, 1.0))
-        with np.errstate(divide="ignore"):
-            v2 = accel * JUNCTION_DEVIATION * sin_half / np.maximum(1.0 - sin_half, 1e-12)
-        corner[1:-1] = np.sqrt(np.minimum(v2, speed * speed))
-    return float(segment_times(length, speed, corner[:-1], corner[1:], accel).sum())
+    return packed_runs_time(points, np.zeros(1, dtype=np.int64), np.array([speed]), accel)
 
 
 def segment_times(

@@ -1,6 +1,6 @@
 """Layer outlines: cut chains become shapely polygons with holes, per layer and per body.
 
-Closed loops are nested by even-odd containment, vectorised across all layers
+Closed loops are nested by orientation and containment, vectorised across all layers
 of a block at once (one STRtree over boxes shifted apart by layer, one
 vectorised ``contains``). Open chains (open meshes) are joined end to start
 when the gap is small and closed; layers whose polygons overlap (overlapping
@@ -26,11 +26,14 @@ class OutlineTolerances:
     """Tolerances of the outline stage, mm.
 
     ``simplify``: largest deviation allowed when thinning cut loops;
-    ``max_gap``: widest gap of an open mesh closed per layer.
+    ``stitch_gap``: open chains whose ends are this close are joined first;
+    ``max_gap``: an open chain left over is closed on itself across at most
+    this gap (wider ones are dropped).
     """
 
     simplify: float = 0.02
-    max_gap: float = 10.0
+    stitch_gap: float = 2.0
+    max_gap: float = 60.0
 
 
 @dataclass
@@ -50,14 +53,18 @@ class GapReport:
 
 
 def close_open_chains(
-    coords: list[np.ndarray], max_gap: float
+    coords: list[np.ndarray], stitch_gap: float, max_gap: float
 ) -> tuple[list[np.ndarray], int, int]:
-    """Join oriented open chains end to start where the gap is at most ``max_gap``.
+    """Close the open chains of one layer into loops, as CuraEngine does.
 
-    ``coords``: open chains, each (k, 2) float64 mm, ordered with the solid on
-    the left. Repeatedly joins the globally closest end/start pair (a chain's
-    own start closes it into a loop). Returns the loops made (each (k, 2)),
-    the number of gaps bridged and the number of chains left open (dropped).
+    ``coords``: open chains, each (k, 2) float64 mm, oriented with the solid
+    on the left (so joining an end to a start keeps the orientation). First
+    the globally closest end/start pairs within ``stitch_gap`` are joined (a
+    chain's own start closes it); then every chain left is closed on itself
+    when its ends are at most ``max_gap`` apart: an outer boundary closes
+    counter-clockwise (solid), a pocket seen through the opening clockwise (a
+    hole). Returns the loops, the number of gaps bridged and the number of
+    chains dropped.
     """
     chains = [c for c in coords if len(c) >= 2]
     loops: list[np.ndarray] = []
@@ -67,7 +74,7 @@ def close_open_chains(
         starts = np.array([c[0] for c in chains])
         dist = np.linalg.norm(ends[:, None, :] - starts[None, :, :], axis=2)
         i, j = np.unravel_index(int(np.argmin(dist)), dist.shape)
-        if dist[i, j] > max_gap:
+        if dist[i, j] > stitch_gap:
             break
         gaps += 1
         if i == j:
@@ -77,7 +84,14 @@ def close_open_chains(
         for k in sorted((i, j), reverse=True):
             chains.pop(k)
         chains.append(joined)
-    return loops, gaps, len(chains)
+    dropped = 0
+    for c in chains:
+        if len(c) >= 3 and np.linalg.norm(c[-1] - c[0]) <= max_gap:
+            loops.append(c)
+            gaps += 1
+        else:
+            dropped += 1
+    return loops, gaps, dropped
 
 
 def build_layers(
@@ -115,10 +129,10 @@ def build_layers(
     if len(rings) == 0:
         return {}
     body = face_body[face]
-    exterior, parent = _even_odd(polys, layer, area)
+    exterior, parent = _nesting(polys, shapely.is_ccw(rings), layer, area)
     owner = np.where(exterior, np.arange(len(rings)), parent)
     valid = owner >= 0
-    order = np.lexsort((~exterior[valid], np.nonzero(valid)[0], owner[valid]))
+    order = np.lexsort((np.nonzero(valid)[0], ~exterior[valid], owner[valid]))
     members = np.nonzero(valid)[0][order]
     groups, index = np.unique(owner[members], return_inverse=True)
     built = shapely.polygons(rings[members], indices=index)
@@ -153,7 +167,7 @@ def _close_gaps(
     for lay in np.unique(chains.layer[open_idx]):
         members = open_idx[chains.layer[open_idx] == lay]
         pieces = [chains.coords[chains.offsets[k] : chains.offsets[k + 1]] for k in members]
-        loops, gaps, dropped = close_open_chains(pieces, tol.max_gap)
+        loops, gaps, dropped = close_open_chains(pieces, tol.stitch_gap, tol.max_gap)
         report.closed += gaps
         report.dropped += dropped
         report.gap_layers.add(int(lay))
@@ -171,13 +185,18 @@ def _close_gaps(
     )
 
 
-def _even_odd(
-    polys: np.ndarray, layer: np.ndarray, area: np.ndarray
+def _nesting(
+    polys: np.ndarray, ccw: np.ndarray, layer: np.ndarray, area: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """Nesting of loops within each layer: (exterior flags, parent loop of each hole).
 
-    A loop inside an odd number of other loops of its layer is a hole, owned by
-    the smallest loop containing it. ``polys`` (r,) loop polygons without holes.
+    Loops are oriented by the face normals (solid on the left), so a
+    counter-clockwise loop bounds solid and a clockwise one a hole, owned by
+    the smallest counter-clockwise loop containing it: the nonzero fill rule,
+    under which overlapping shells add up instead of cancelling as they would
+    by even-odd parity. A clockwise loop that no loop contains cannot be a
+    hole; it is taken as solid (a shell with inverted normals). ``polys`` (r,)
+    loop polygons without holes; ``ccw`` (r,) bool orientation of each loop.
     """
     n = len(polys)
     bounds = shapely.bounds(polys)
@@ -189,14 +208,18 @@ def _even_odd(
     mask = (inner != outer) & (area[outer] > area[inner])
     inner, outer = inner[mask], outer[mask]
     parent = np.full(n, -1, dtype=np.int64)
+    # candidate owners: counter-clockwise loops around clockwise ones
+    mask = ccw[outer] & ~ccw[inner]
+    inner, outer = inner[mask], outer[mask]
     if len(inner) == 0:
         return np.ones(n, dtype=bool), parent
-    probe = shapely.point_on_surface(polys)
-    inside = shapely.contains(polys[outer], probe[inner])
+    probe = shapely.point_on_surface(polys[inner])
+    inside = shapely.contains(polys[outer], probe)
     inner, outer = inner[inside], outer[inside]
-    depth = np.bincount(inner, minlength=n)
-    exterior = depth % 2 == 0
-    # the direct container is the one with the smallest area
+    exterior = ccw.copy()
+    exterior[~ccw] = True
+    exterior[inner] = False
+    # the direct owner is the smallest one
     order = np.lexsort((area[outer], inner))
     inner_s, outer_s = inner[order], outer[order]
     first = np.ones(len(inner_s), dtype=bool)

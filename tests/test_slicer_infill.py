@@ -1,0 +1,114 @@
+"""Infill and skins: density that means what it says, spacing, closed top and bottom, clipping."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import shapely
+
+from slicer.layer import FILL, SKIN, fill_distance
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+from tests.slicer_helpers import box_stl, extrusions
+
+
+@pytest.fixture(scope="module")
+def cube_path(tmp_path_factory):
+    return box_stl(tmp_path_factory.mktemp("cube") / "cube.stl", (20, 20, 20))
+
+
+def _plan(path, **values) -> SlicePlan:
+    return SlicePlan.from_file(path, SliceSettings.from_mapping(values))
+
+
+def _extruded_area(paths: list[np.ndarray], w: float) -> float:
+    """Extruded cross-section area seen from above: path length x line width, mm^2."""
+    return sum(float(np.linalg.norm(np.diff(p, axis=0), axis=1).sum()) for p in paths) * w
+
+
+@pytest.mark.parametrize("density", [0.1, 0.2, 0.35, 0.6])
+def test_linear_volume_fraction_matches_density(cube_path, density) -> None:
+    plan = _plan(cube_path, **{"infill.density": density})
+    s = plan.settings
+    ratios = []
+    for i in range(20, 60, 3):  # middle layers: sparse infill only
+        lines = plan.layer_gcode(i)
+        assert not extrusions(lines, SKIN)
+        domain = plan.outline(i).buffer(-fill_distance(s)).area
+        ratios.append(_extruded_area(extrusions(lines, FILL), s.line_width) / domain)
+    assert np.mean(ratios) == pytest.approx(density, rel=0.03)
+
+
+def test_linear_spacing_is_line_width_over_density(cube_path) -> None:
+    plan = _plan(cube_path, **{"infill.density": 0.25})
+    s = plan.settings
+    for i in (30, 31):
+        paths = extrusions(plan.layer_gcode(i), FILL)
+        # distance of every straight piece from the origin along the field gradient
+        t = np.radians(s.infill_angle)
+        g = np.array([np.sin(t), np.cos(t) * (-1 if i % 2 else 1)])
+        levels = []
+        for p in paths:
+            seg = np.diff(p, axis=0)
+            along = np.abs(seg @ np.array([-g[1], g[0]]))
+            long = along > 1.0  # the chords, not the short joints along the wall
+            levels.extend((p[:-1][long] @ g).tolist())
+        levels = np.unique(np.round(levels, 3))
+        gaps = np.diff(levels)
+        assert np.allclose(gaps, s.line_width / 0.25, atol=0.002)
+
+
+def test_skins_close_top_and_bottom(cube_path) -> None:
+    plan = _plan(cube_path)
+    s = plan.settings
+    w = s.line_width
+    n = plan.layer_count
+    for i in [0, s.bottom_layers - 1, n - s.top_layers, n - 1]:
+        lines = plan.layer_gcode(i)
+        assert not extrusions(lines, FILL), i
+        skin = shapely.union_all(
+            [shapely.LineString(p).buffer(w / 2) for p in extrusions(lines, SKIN)]
+        )
+        domain = plan.outline(i).buffer(-fill_distance(s))
+        assert skin.intersection(domain).area >= 0.97 * domain.area, i
+    for i in (s.bottom_layers, n // 2, n - s.top_layers - 1):
+        assert not extrusions(plan.layer_gcode(i), SKIN), i
+
+
+def test_skin_under_an_overhang_ledge(tmp_path) -> None:
+    import trimesh
+
+    base = trimesh.creation.box(extents=(30, 30, 4))
+    top = trimesh.creation.box(extents=(10, 10, 6))
+    top.apply_translation((0, 0, 5))
+    mesh = trimesh.util.concatenate([base, top])
+    path = tmp_path / "step.stl"
+    path.write_bytes(trimesh.exchange.stl.export_stl(mesh))
+    plan = SlicePlan.from_file(path, SliceSettings())
+    # the base's last layers are skin where the tower does not cover them, sparse under it
+    i = 18  # z = 3.8, under the top of the base
+    lines = plan.layer_gcode(i)
+    skin = extrusions(lines, SKIN)
+    fill = extrusions(lines, FILL)
+    assert skin and fill
+    cx, cy = plan.bed[0] / 2, plan.bed[1] / 2
+    tower = shapely.box(cx - 5, cy - 5, cx + 5, cy + 5)
+    for p in fill:
+        assert shapely.LineString(p).within(tower.buffer(0.5))
+
+
+@pytest.mark.parametrize("model_density", [0.15, 1.0])
+def test_infill_stays_inside_the_walls(model_density) -> None:
+    from tests.slicer_helpers import DATA
+
+    plan = SlicePlan.from_file(
+        DATA / "featuretype_mm.stl", SliceSettings.from_mapping({"infill.density": model_density})
+    )
+    s = plan.settings
+    for i in range(0, plan.layer_count, 17):
+        lines = plan.layer_gcode(i)
+        # the infill domain w' grown by the joints' allowance
+        domain = plan.outline(i).buffer(-fill_distance(s) + s.line_width / 2 + 1e-3)
+        for kind in (FILL, SKIN):
+            for p in extrusions(lines, kind):
+                assert shapely.LineString(p).within(domain), (i, kind)

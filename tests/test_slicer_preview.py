@@ -1,0 +1,60 @@
+"""`hostd preview`: a PNG with walls, infill and skin in their own colours."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+
+import numpy as np
+from PIL import Image
+
+from slicer.preview import COLOURS
+from tests.slicer_helpers import DATA
+
+HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+
+
+def _has_colour(pixels: np.ndarray, colour) -> bool:
+    return bool((np.abs(pixels.astype(int) - np.array(colour)).sum(axis=2) < 10).any())
+
+
+def test_preview_draws_each_kind(tmp_path) -> None:
+    out = tmp_path / "p.png"
+    run = subprocess.run(
+        [*HOSTD, "preview", str(DATA / "cube20_xyz.stl"), "--layer", "50", "-o", str(out)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    pixels = np.asarray(Image.open(out).convert("RGB"))
+    for kind in ("WALL-OUTER", "WALL-INNER", "FILL"):
+        assert _has_colour(pixels[:, 150:], COLOURS[kind]), kind  # right of the legend
+    top = tmp_path / "top.png"
+    subprocess.run(
+        [*HOSTD, "preview", str(DATA / "cube20_xyz.stl"), "--layer", "99", "-o", str(top)],
+        check=True,
+        capture_output=True,
+    )
+    pixels = np.asarray(Image.open(top).convert("RGB"))
+    assert _has_colour(pixels[:, 150:], COLOURS["SKIN"])
+    assert not _has_colour(pixels[:, 150:], COLOURS["FILL"])
+
+
+def test_preview_refuses_a_layer_out_of_range(tmp_path) -> None:
+    run = subprocess.run(
+        [
+            *HOSTD,
+            "preview",
+            str(DATA / "cube20_xyz.stl"),
+            "--layer",
+            "500",
+            "-o",
+            str(tmp_path / "x.png"),
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 2
+    assert "layers 0..99" in run.stderr
