@@ -207,7 +207,7 @@ class JobRunner:
         return JobStatus(
             id=self.job.id,
             name=self.job.name,
-            layer=max(self.completed, 0),
+            layer=max(0, min(self.completed + 1, self.layers - 1)),  # the layer in progress
             layers=self.layers,
             progress=round(min(progress, 1.0), 4),
             lines_acked=self.lines_acked,

@@ -58,7 +58,7 @@ def job_state(state: Path, job: str) -> tuple[str, int]:
 
 
 def printing_layer(socket: Path, at_least: int):
-    """A waiter: the status once the job printing has completed ``at_least`` layers."""
+    """A waiter: the status once layer ``at_least`` (from 0) is printing, the ones below done."""
     def check():
         snap = status(socket)
         if snap.state == "printing" and snap.job is not None and snap.job.layer >= at_least:
@@ -76,7 +76,7 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     hostd = daemon(sim_config(time_scale=0.01, extra="[runner]\nlookahead = 2\n"))
     socket = hostd.state / "hostd.sock"
     hostd.drop(model, "pair.stl")
-    hostd.wait_for(printing_layer(socket, 1), 60, "layer 1 printed")
+    hostd.wait_for(printing_layer(socket, 1), 60, "layer 1 printing")
 
     with pytest.raises(ControlError, match="does not exist"):
         command(socket, "cancel_object", object=5)
@@ -168,7 +168,7 @@ def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
     hostd = daemon(sim_config(time_scale=0.01))
     socket = hostd.state / "hostd.sock"
     hostd.drop(DATA / "dogbone_100x30x5.stl", "part.stl")
-    hostd.wait_for(printing_layer(socket, 1), 60, "two layers printed")
+    hostd.wait_for(printing_layer(socket, 2), 60, "two layers printed")
     pid = hostd.proc.pid
     hostd.proc.terminate()
     assert hostd.proc.wait(20) == 0
