@@ -74,7 +74,7 @@ class Firmware:
         self._rx = bytearray()
         self._partial = bytearray()
         self._eline = bytearray()
-        self._queue: deque[str] = deque()
+        self._queue: deque[tuple[str, int | None]] = deque()  # command, its line number
         self._interrupt = threading.Event()
         self._stopping = False
         self._reset_pending = False
@@ -198,6 +198,7 @@ class Firmware:
             return
         numbered = text.startswith("N")
         is_m110 = "M110" in text
+        number = 0
         if numbered:
             number = strtol(text[1:])
             if number != self.last_n + 1 and not is_m110:
@@ -223,7 +224,7 @@ class Firmware:
                 self.last_n = strtol(command[param + 1 :])
         if not command:
             return
-        self._queue.append(command)
+        self._queue.append((command, number if numbered else None))
         if numbered and not is_m110 and self.faults.fires("resend"):
             # a request for a line that arrived intact; its own ok follows when it runs,
             # so every received line is still answered by exactly one ok
@@ -252,16 +253,15 @@ class Firmware:
             if self.config.reset_on_open:
                 self._reset(power_cycle=False)  # a USB-powered board loses power with its cable
             return
-        command = self._queue[0]
+        command, number = self._queue[0]
         self._busy_next = self.clock.now() + self.keepalive_s
         if self.faults.fires("busy"):
             for _ in range(self.faults.randint("busy", 1, 5)):
                 self.emit(BUSY)
                 self.wait_sim(self.keepalive_s, keepalive=False)
-        send_ok = simcommands.execute(self, command)
+        if simcommands.execute(self, command):
+            self.send_ok(line=number)  # the command still holds its queue slot, as in Marlin
         self._queue.popleft()
-        if send_ok:
-            self.send_ok()
 
     # --- services for the command handlers ------------------------------------------
 
@@ -272,8 +272,13 @@ class Firmware:
             data = self.faults.flip_bit("corrupt_tx", data)
         self._send(data)
 
-    def send_ok(self, suffix: str = "") -> None:
-        """Send ``ok`` (advanced ``ok N.. P.. B..`` when configured); may be dropped."""
+    def send_ok(self, suffix: str = "", line: int | None = None) -> None:
+        """Send ``ok``, or with ADVANCED_OK ``ok N<line> P<planner free> B<queue free>``.
+
+        ``N`` is the executed command's own line number and is left out for unnumbered
+        commands and for the ``ok`` after a resend request. ``suffix`` replaces the
+        advanced fields (M105's temperatures). The drop-ok fault may swallow the line.
+        """
         if self.faults.fires("drop_ok"):
             return
         if suffix:
@@ -281,7 +286,8 @@ class Firmware:
         elif self.config.advanced_ok:
             free_q = self.config.bufsize - len(self._queue)
             free_p = self.planner.free(self.clock.now())
-            self.emit(f"ok N{self.last_n} P{free_p} B{free_q}")
+            number = "" if line is None else f" N{line}"
+            self.emit(f"ok{number} P{free_p} B{free_q}")
         else:
             self.emit("ok")
 

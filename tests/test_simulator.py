@@ -143,8 +143,10 @@ def test_advanced_ok_reports_line_planner_and_queue():
         link.wait_start()
         lines = link.command(1, "M115")
         assert "Cap:ADVANCED_OK:1" in lines and "Cap:EMERGENCY_PARSER:0" in lines
-        assert lines[-1] == "ok N1 P16 B4"
-        assert link.command(2, "G1 X10 F600") == ["ok N2 P15 B4"]
+        assert lines[-1] == "ok N1 P16 B3"  # the running command holds its slot
+        assert link.command(2, "G1 X10 F600") == ["ok N2 P15 B3"]
+        link.write(b"M400\n")
+        assert link.readline() == "ok P16 B3"  # unnumbered: no N; the planner ran empty
         link.close()
 
 

@@ -32,7 +32,7 @@ def test_hostd_simulate_serves_a_port_until_signalled(tmp_path, stop_signal):
             reply = port.readline().decode()
             assert reply.startswith("ok T:"), reply
             port.write(frame(2, "G1 X10 F600"))
-            assert port.readline() == b"ok N2 P15 B4\n"
+            assert port.readline() == b"ok N2 P15 B3\n"
         deadline = time.monotonic() + 3
         while log.read_text().splitlines() != ["M105", "G1 X10 F600"]:
             assert time.monotonic() < deadline, log.read_text()
