@@ -128,3 +128,19 @@ def test_unparsable_and_missing_files(tmp_path: Path) -> None:
         load_config(write(tmp_path, "[jobs\n"), cwd=tmp_path)
     with pytest.raises(ConfigError, match="cannot read"):
         load_config(tmp_path / "absent.toml", cwd=tmp_path)
+
+
+def test_hostd_run_refuses_a_bad_file_with_exit_2_and_the_key(tmp_path: Path) -> None:
+    import subprocess
+    import sys
+
+    path = write(tmp_path, "[printer]\nbaud = 'fast'\n")
+    result = subprocess.run(
+        [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+         "run", "--config", str(path)],
+        capture_output=True, text=True, cwd=tmp_path, timeout=30,
+    )
+    assert result.returncode == 2
+    assert result.stderr.strip().splitlines() == [
+        "hostd run: bad configuration: printer.baud: expected a whole number, got 'fast'"
+    ]

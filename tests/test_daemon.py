@@ -198,3 +198,30 @@ def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
         capture_output=True, text=True, cwd=hostd.folder, env={"PYTHONPATH": str(ROOT)},
     )
     assert result.returncode == 1 and "no daemon is running" in result.stdout
+
+
+def test_an_absent_printer_leaves_the_daemon_serving_offline(tmp_path):
+    config = tmp_path / "hostd.toml"
+    config.write_text('[jobs]\nsettle_s = 0.2\n[printer]\nport = "/dev/hostd-no-such-port"\n')
+    proc = subprocess.Popen([*HOSTD, "run", "--config", str(config)], cwd=tmp_path,
+                            stderr=subprocess.PIPE, text=True, env={"PYTHONPATH": str(ROOT)})
+    try:
+        socket = tmp_path / "var" / "hostd.sock"
+        deadline = time.monotonic() + 20
+        while not socket.exists() and time.monotonic() < deadline:
+            time.sleep(0.05)
+        (tmp_path / "jobs" / "wait.stl").write_bytes((DATA / "cube20_xyz.stl").read_bytes())
+        while time.monotonic() < deadline:
+            snap = status(socket)
+            if snap.queue == ("wait.stl",) and snap.state == "offline":
+                break
+            time.sleep(0.05)
+        assert snap.state == "offline" and not snap.printer.connected
+        assert "hostd-no-such-port" in (snap.error or "")
+        assert snap.queue == ("wait.stl",)  # taken and kept until a printer answers
+        proc.send_signal(2)
+        assert proc.wait(20) == 0
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+        proc.wait()
