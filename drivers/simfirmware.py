@@ -254,6 +254,10 @@ class Firmware:
                 self._reset(power_cycle=False)  # a USB-powered board loses power with its cable
             return
         command, number = self._queue[0]
+        if self._quickstop:  # M410 from the emergency parser while between commands
+            self._quickstop = False
+            self.planner.clear()
+        self._cancel_wait = False  # M108 only ends a wait already under way, as in Marlin
         self._busy_next = self.clock.now() + self.keepalive_s
         if self.faults.fires("busy"):
             for _ in range(self.faults.randint("busy", 1, 5)):

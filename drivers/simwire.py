@@ -188,11 +188,11 @@ class PtyWire:
             if self._vanish_requested:
                 with self._lock:
                     self._vanish_requested = False
-                self._close_master()
-                if self._link_path:
+                if self._link_path:  # first the name goes, then the device
                     with contextlib.suppress(OSError):
                         os.unlink(self._link_path)
                     reopen_at = time.monotonic() + self._reconnect_delay_s
+                self._close_master()
                 continue
             if self._master < 0:
                 timeout = None if reopen_at is None else max(0.0, reopen_at - time.monotonic())

@@ -80,6 +80,12 @@ def build_parser() -> argparse.ArgumentParser:
                    help="wire speed to emulate (0 = unlimited)")
     p.add_argument("--log", metavar="FILE", help="append every executed line to FILE")
     p.add_argument("--advanced-ok", action="store_true", help="answer ok N.. P.. B..")
+    p.add_argument("--fault", metavar="KIND=P", action="append", default=[],
+                   help="inject a fault with probability P (repeatable): corrupt_rx, corrupt_tx,"
+                        " drop_ok, resend, busy, reset, disconnect")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the faults")
+    p.add_argument("--link", metavar="PATH",
+                   help="keep a symlink at PATH to the current pseudo-terminal")
     return parser
 
 

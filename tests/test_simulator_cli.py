@@ -6,6 +6,7 @@ import signal
 import subprocess
 import sys
 import time
+from pathlib import Path
 
 import pytest
 import serial
@@ -45,3 +46,40 @@ def test_hostd_simulate_serves_a_port_until_signalled(tmp_path, stop_signal):
             proc.wait()
         proc.stdout.close()
         proc.stderr.close()
+
+
+def test_hostd_simulate_faults_and_link(tmp_path):
+    link = tmp_path / "printer"
+    proc = subprocess.Popen(
+        [sys.executable, "-m", "hostd.cli", "simulate", "--time-scale", "0", "--baud", "0",
+         "--fault", "drop_ok=1", "--seed", "3", "--link", str(link)],
+        stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
+    )
+    try:
+        path = proc.stdout.readline().strip()
+        assert link.resolve() == Path(path)
+        with serial.Serial(str(link), 250000, timeout=0.5) as port:
+            assert port.readline() == b"start\n"
+            port.readline()
+            port.readline()
+            port.write(frame(1, "G1 X1"))
+            assert port.readline() == b""  # every ok dropped
+        proc.send_signal(signal.SIGTERM)
+        assert proc.wait(timeout=5) == 0
+        assert not link.exists()
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+        proc.stdout.close()
+        proc.stderr.close()
+
+
+def test_hostd_simulate_rejects_an_unknown_fault():
+    hostd = Path(sys.executable).parent / "hostd"  # the console script, as users run it
+    result = subprocess.run(
+        [str(hostd), "simulate", "--fault", "gremlins=0.1"],
+        capture_output=True, text=True, timeout=20,
+    )
+    assert result.returncode == 2
+    assert "gremlins" in result.stderr and result.stdout == ""

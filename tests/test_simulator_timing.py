@@ -155,6 +155,39 @@ def test_wire_speed_limits_replies():
     assert elapsed >= 0.9 * (size - 64) / (baud / 10)  # minus one burst
 
 
+def test_wire_speed_limits_what_the_printer_reads():
+    baud = 19200
+    sim = SimulatedPrinter(SimulatorConfig(time_scale=0.0, baud=baud))
+    link = _open(sim)
+    lines = [f"G1 X{n % 10}.123 Y{n % 7}.456 E{n}.78901 F1200 ; padding".encode() + b"\n"
+             for n in range(12)]
+    try:
+        started = time.monotonic()
+        for line in lines:  # one at a time: the firmware is never short of buffer
+            link.write(line)
+            assert link.readline(5.0) == "ok"
+        elapsed = time.monotonic() - started
+    finally:
+        link.close()
+        sim.stop()
+    size = sum(len(line) for line in lines)
+    assert elapsed >= 0.9 * (size - 64) / (baud / 10)
+    assert len(sim.executed) == len(lines)
+
+
+def test_quick_stop_empties_the_planner():
+    sim = SimulatedPrinter(SimulatorConfig(time_scale=0.0, baud=0, advanced_ok=True))
+    link = _open(sim)
+    try:
+        assert link.command(1, "G1 X100 F600") == ["ok N1 P15 B3"]
+        assert link.command(2, "G1 X0") == ["ok N2 P14 B3"]
+        link.command(3, "M410")  # acted on by the emergency parser
+        assert link.command(4, "G1 X50") == ["ok N4 P15 B3"]
+    finally:
+        link.close()
+        sim.stop()
+
+
 def test_receive_buffer_overflow_loses_bytes():
     sim = SimulatedPrinter(SimulatorConfig(time_scale=1.0, baud=0, rx_buffer=128))
     link = _open(sim)

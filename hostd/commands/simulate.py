@@ -8,17 +8,41 @@ import sys
 import threading
 from types import FrameType
 
+from drivers.simconfig import FAULT_KINDS
 from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from hostd.cli import UsageError
+
+
+def parse_faults(specs: list[str]) -> dict[str, float]:
+    """``["drop_ok=0.01", ...]`` -> ``{"p_drop_ok": 0.01}``; raises UsageError when malformed."""
+    faults: dict[str, float] = {}
+    for spec in specs:
+        kind, sep, value = spec.partition("=")
+        if not sep or kind not in FAULT_KINDS:
+            raise UsageError(f"--fault {spec!r}: expected KIND=P with KIND one of "
+                             + ", ".join(FAULT_KINDS))
+        try:
+            p = float(value)
+        except ValueError as exc:
+            raise UsageError(f"--fault {spec!r}: P must be a number in 0..1") from exc
+        faults[f"p_{kind}"] = p
+    return faults
 
 
 def run(args: argparse.Namespace) -> int:
     """Print the device path on the first line of stdout, then serve until SIGINT/SIGTERM."""
-    config = SimulatorConfig(
-        time_scale=args.time_scale,
-        baud=args.baud,
-        log_path=args.log,
-        advanced_ok=args.advanced_ok,
-    )
+    try:
+        config = SimulatorConfig(
+            time_scale=args.time_scale,
+            baud=args.baud,
+            log_path=args.log,
+            advanced_ok=args.advanced_ok,
+            seed=getattr(args, "seed", 0),
+            link_path=getattr(args, "link", None),
+            **parse_faults(getattr(args, "fault", [])),
+        )
+    except ValueError as exc:
+        raise UsageError(str(exc)) from exc
     stop = threading.Event()
 
     def _on_signal(signum: int, frame: FrameType | None) -> None:
