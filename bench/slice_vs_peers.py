@@ -203,6 +203,12 @@ def _ratio(a: Measured | None, b: Measured | None) -> str:
     return f"{a.wall_s / b.wall_s:.2f}"
 
 
+def _filament_ratio(ours: Measured | None, peer: Measured | None) -> str:
+    if ours is None or peer is None or not ours.filament_mm or not peer.filament_mm:
+        return "-"
+    return f"{ours.filament_mm / peer.filament_mm:.3f}"
+
+
 def _cell(m: Measured | None) -> str:
     if m is None:
         return "-"
@@ -214,16 +220,14 @@ def _cell(m: Measured | None) -> str:
 def table(rows: list[Row]) -> str:
     """The measured rows as a Markdown table."""
     head = ("| model | faces | hostd | PrusaSlicer | CuraEngine | ours/Prusa | ours/Cura "
-            "| layers ours/P/C | filament ours/P | wall IoU ours-P (common) | IoU Cura-P "
+            "| layers ours/P/C | filament ours/P, ours/C | wall IoU ours-P (common) | IoU Cura-P "
             "| note |")
     lines = [head, "|" + "---|" * 12]
     for row in rows:
         r = row.results
         ours, pr, cu = r.get("hostd"), r.get("prusaslicer"), r.get("curaengine")
         layers = "/".join(_fmt(m.layers if m else None, "d") for m in (ours, pr, cu))
-        fil = "-"
-        if ours and pr and ours.filament_mm and pr.filament_mm:
-            fil = f"{ours.filament_mm / pr.filament_mm:.3f}"
+        fil = "/".join(_filament_ratio(ours, peer) for peer in (pr, cu))
         iou = "-"
         if row.iou_vs_prusa is not None:
             iou = f"{row.iou_vs_prusa:.3f} ({_fmt(row.iou_vs_prusa_common, '.3f')})"
