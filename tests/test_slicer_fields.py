@@ -307,3 +307,15 @@ def test_eggcrate_paths_stack_from_layer_to_layer_whatever_the_outline() -> None
     assert upper.length == pytest.approx(lower.length, rel=0.02)
     # the same curves (cuts where lines cross may end a grid node apart)
     assert upper.difference(lower.buffer(0.02)).length < 0.01 * lower.length
+
+
+def test_scattered_stress_samples_interpolate_linearly_inside_their_hull(tmp_path: Path) -> None:
+    rng = np.random.default_rng(3)
+    corners = np.array([[x, y, z] for x in (0, 10) for y in (0, 8) for z in (0, 4)], float)
+    points = np.vstack((corners, rng.uniform((0, 0, 0), (10, 8, 4), size=(200, 3))))
+    values = 2.0 * points[:, 0] - points[:, 1] + 3.0 * points[:, 2]
+    path = tmp_path / "scattered.csv"
+    np.savetxt(path, np.column_stack((points, values)), delimiter=",")
+    data = load_stress(path)
+    x, y = np.array([2.5, 7.1, 9.0]), np.array([1.0, 6.6, 4.0])
+    assert np.allclose(data.at(x, y, 1.5), 2.0 * x - y + 4.5, atol=1e-6)

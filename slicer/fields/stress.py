@@ -5,6 +5,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
+from scipy.interpolate import RegularGridInterpolator
 
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre
@@ -12,6 +13,8 @@ from slicer.fields.grid import GridField
 from slicer.fields.stress_data import KEY, load_stress
 from slicer.settings import SettingsError, SliceSettings
 
+SLAB_CELL = 2.0  # line widths between the nodes the samples are first interpolated to
+SLAB_NODES = 40_000  # at most this many such nodes per layer
 FLOOR = 0.05  # least modulation, as a fraction of the peak, so unloaded areas keep sparse lines
 
 
@@ -39,14 +42,31 @@ class StressField(GridField):
         self.peak = float(np.max(np.abs(self.data.values))) or 1.0
 
     def stress(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
-        """Interpolated field from the file at points (n,) mm on this layer -> (n,) float64."""
+        """Interpolated field from the file at points (n,) mm on this layer -> (n,) float64.
+
+        The samples are interpolated once per call onto a slab of nodes every
+        ``SLAB_CELL`` line widths over the model's footprint at mid-layer height,
+        and the points read from that slab bilinearly: the scattered 3D
+        interpolation then costs thousands of look-ups, not one per grid node.
+        """
+        x = np.asarray(x, dtype=float)
+        y = np.asarray(y, dtype=float)
         corner = self.data.lower_corner
         mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0)
-        return self.data.at(
-            np.asarray(x, dtype=float) - ctx.bounds[0] + corner[0],
-            np.asarray(y, dtype=float) - ctx.bounds[1] + corner[1],
-            mid_z + corner[2],
+        xmin, ymin, xmax, ymax = ctx.bounds
+        cell = SLAB_CELL * self.settings.line_width
+        cell = max(cell, math.sqrt((xmax - xmin + cell) * (ymax - ymin + cell) / SLAB_NODES))
+        xs = np.arange(xmin - cell, xmax + 2.0 * cell, cell)
+        ys = np.arange(ymin - cell, ymax + 2.0 * cell, cell)
+        gx, gy = np.meshgrid(xs, ys)
+        slab = self.data.at(
+            gx.ravel() - xmin + corner[0], gy.ravel() - ymin + corner[1], mid_z + corner[2]
+        ).reshape(gx.shape)
+        read = RegularGridInterpolator((ys, xs), slab)
+        points = np.column_stack(
+            (np.clip(y.ravel(), ys[0], ys[-1]), np.clip(x.ravel(), xs[0], xs[-1]))
         )
+        return read(points).reshape(x.shape)
 
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64."""

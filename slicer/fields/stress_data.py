@@ -5,7 +5,11 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
-from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+from scipy.interpolate import (
+    LinearNDInterpolator,
+    NearestNDInterpolator,
+    RegularGridInterpolator,
+)
 
 from slicer.settings import SettingsError
 
@@ -15,7 +19,9 @@ SCALAR_NAMES = ("von_mises", "vonmises", "von mises", "sigma_vm", "stress", "val
 
 class StressData:
     """Samples of a scalar field at scattered points, with linear interpolation between them
-    and the nearest sample outside their hull.
+    and the nearest sample outside their hull. Samples on a full regular lattice (a
+    voxel export) are read with (tri)linear interpolation on the lattice instead,
+    clamped at its faces.
 
     ``points`` (n, 3) float64 mm in the model's own frame; ``values`` (n,) float64.
     Points all at one height are treated as a 2D field that holds for every layer.
@@ -32,11 +38,14 @@ class StressData:
         self.values = values
         self.flat = float(np.ptp(points[:, 2])) <= 1e-9
         coords = points[:, :2] if self.flat else points
+        self._lattice = _lattice(coords, values)
         self._nearest = NearestNDInterpolator(coords, values)
-        try:
-            self._linear: LinearNDInterpolator | None = LinearNDInterpolator(coords, values)
-        except Exception:
-            self._linear = None
+        self._linear: LinearNDInterpolator | None = None
+        if self._lattice is None:
+            try:
+                self._linear = LinearNDInterpolator(coords, values)
+            except Exception:
+                self._linear = None
 
     @property
     def lower_corner(self) -> np.ndarray:
@@ -53,11 +62,31 @@ class StressData:
             if self.flat
             else np.column_stack((x, y, np.full(x.shape, float(z))))
         )
+        if self._lattice is not None:
+            axes = self._lattice.grid
+            clamped = np.column_stack(
+                [np.clip(query[:, k], axis[0], axis[-1]) for k, axis in enumerate(axes)]
+            )
+            return self._lattice(clamped)
         values = self._linear(query) if self._linear is not None else np.full(x.shape, np.nan)
         missing = ~np.isfinite(values)
         if missing.any():
             values[missing] = self._nearest(query[missing])
         return values
+
+
+def _lattice(coords: np.ndarray, values: np.ndarray) -> RegularGridInterpolator | None:
+    """A lattice interpolator when ``coords`` (n, d) fill every node of a regular grid."""
+    axes = [np.unique(coords[:, k]) for k in range(coords.shape[1])]
+    shape = tuple(len(axis) for axis in axes)
+    if any(n < 2 for n in shape) or int(np.prod(shape)) != coords.shape[0]:
+        return None
+    index = tuple(np.searchsorted(axis, coords[:, k]) for k, axis in enumerate(axes))
+    grid = np.full(shape, np.nan)
+    grid[index] = values
+    if np.isnan(grid).any():  # repeated points leave holes: not a lattice
+        return None
+    return RegularGridInterpolator(tuple(axes), grid)
 
 
 def load_stress(path: str | Path) -> StressData:
