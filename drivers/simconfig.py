@@ -22,8 +22,9 @@ class SimulatorConfig:
 
     Times are in seconds. ``time_scale`` multiplies every *simulated* duration (moves,
     dwells, homing, heating, keepalive interval) to give wall time: 1.0 is real time,
-    0.0 is instant. ``baud`` limits the wire in both directions to ``baud / 10`` bytes/s
-    (8N1 framing); 0 means unlimited.
+    0.0 is instant. ``no_timeouts_s`` > 0 makes the idle printer print ``wait`` every that
+    many wall seconds (Marlin's NO_TIMEOUTS). ``baud`` limits the wire in both directions
+    to ``baud / 10`` bytes/s (8N1 framing); 0 means unlimited.
 
     Fault probabilities (0..1), drawn from one seeded generator per fault kind:
 
@@ -57,6 +58,7 @@ class SimulatorConfig:
     reset_on_open: bool = True
     boot_delay_s: float = 0.05
     keepalive_s: float = 2.0
+    no_timeouts_s: float = 0.0
     ambient_c: float = 20.0
     log_path: str | None = None
     link_path: str | None = None
@@ -79,6 +81,7 @@ class SimulatorConfig:
         _check(self.max_cmd_size >= 8, "max_cmd_size", "must be >= 8 bytes")
         _check(self.boot_delay_s >= 0.0, "boot_delay_s", "must be >= 0")
         _check(self.keepalive_s > 0.0, "keepalive_s", "must be > 0")
+        _check(self.no_timeouts_s >= 0.0, "no_timeouts_s", "must be >= 0 (0 = never 'wait')")
         _check(self.reconnect_delay_s >= 0.0, "reconnect_delay_s", "must be >= 0")
         for kind in FAULT_KINDS:
             p = getattr(self, f"p_{kind}")

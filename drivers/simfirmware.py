@@ -148,13 +148,15 @@ class Firmware:
 
     def run(self) -> None:
         """The main loop: until ``stop``."""
+        idle_wait = self.config.no_timeouts_s or None
         while True:
             with self._cond:
                 while not (
                     self._stopping or self._reset_pending or self._kill_pending
                     or (not self._halted and (self._rx or self._queue))
                 ):
-                    self._cond.wait()
+                    if not self._cond.wait(idle_wait) and not self._halted:
+                        self.emit("wait")  # NO_TIMEOUTS: idle, nothing received
                 if self._stopping:
                     return
             try:

@@ -213,3 +213,11 @@ def test_reopening_the_port_resets_the_printer(host, sim):
     assert sim.last_line == 0
     host.read_until(lambda line: line.startswith("echo: Free"))
     assert host.command(1, "G1 X2") == ["ok"]
+
+
+def test_idle_printer_says_wait_with_no_timeouts():
+    with SimulatedPrinter(SimulatorConfig(time_scale=0.0, baud=0, no_timeouts_s=0.1)) as sim:
+        link = Host(sim.start())
+        link.wait_start()
+        assert link.read_until(lambda line: line == "wait", timeout=2.0)[-1] == "wait"
+        link.close()
