@@ -18,6 +18,7 @@ from __future__ import annotations
 import argparse
 import json
 import os
+import re
 import shutil
 import signal
 import statistics
@@ -44,6 +45,7 @@ from bench.slice_vs_peers import (
 )
 
 _POLL_S = 0.005
+_PLAN_LOG = re.compile(r"whole-model pass ([0-9.]+) s")
 
 
 @dataclass(frozen=True)
@@ -156,6 +158,7 @@ class Latency:
     faces: int
     settled_to_extrusion_s: float | None = None  # median
     dropped_to_extrusion_s: float | None = None  # median, settle time included
+    plan_s: float | None = None  # the daemon's whole-model pass (from its log), median
     cura_slice_s: float | None = None  # CuraEngine whole-model slicing, median
     note: str = ""
 
@@ -199,16 +202,27 @@ def first_extrusion(daemon: Daemon, name: str, timeout: float) -> tuple[float | 
     return None, f"no extruding move within {timeout:.0f} s ({where})"
 
 
-def measure_latency(model: Path, setup: DaemonSetup, timeout: float) -> tuple[float | None,
-                                                                              float | None, str]:
-    """One drop into a fresh daemon: (settled->extrusion, dropped->extrusion, note)."""
+@dataclass(frozen=True)
+class Drop:
+    """One drop: latencies in s (None if no extrusion came) and the daemon's own figure."""
+
+    settled_s: float | None
+    dropped_s: float | None
+    plan_s: float | None  # the whole-model pass, as the daemon logs it
+    note: str
+
+
+def measure_latency(model: Path, setup: DaemonSetup, timeout: float) -> Drop:
+    """One drop of ``model`` into a fresh daemon."""
     with Daemon(setup) as daemon:
         daemon.wait_ready()
         written = daemon.drop(model)
         seen, note = first_extrusion(daemon, model.name, timeout)
+        found = _PLAN_LOG.search(daemon.log.read_text(errors="replace"))
+    plan_s = float(found.group(1)) if found else None
     if seen is None:
-        return None, None, note
-    return seen - written - setup.settle_s, seen - written, note
+        return Drop(None, None, plan_s, note)
+    return Drop(seen - written - setup.settle_s, seen - written, plan_s, note)
 
 
 def cura_time(model: Path, repeat: int, timeout: float) -> float | None:
@@ -274,18 +288,23 @@ def print_memory(model: Path, setup: DaemonSetup, timeout: float) -> PrintMemory
     return result
 
 
+def _median(values: list[float | None]) -> float | None:
+    present = [v for v in values if v is not None]
+    return statistics.median(present) if present else None
+
+
 def latency_table(rows: list[Latency]) -> str:
     """Markdown table of the latencies."""
     lines = ["| model | faces | settled -> first extrusion | dropped -> first extrusion "
-             "| CuraEngine whole slicing | CuraEngine / ours | note |",
-             "|---|---|---|---|---|---|---|"]
+             "| of which whole-model pass | CuraEngine whole slicing | CuraEngine / ours | note |",
+             "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         def s(v: float | None) -> str:
             return "-" if v is None else f"{v:.3f} s"
         lead = "-" if r.lead is None else f"{r.lead:.1f}x"
         lines.append(f"| {r.model} | {r.faces:,} | {s(r.settled_to_extrusion_s)} "
-                     f"| {s(r.dropped_to_extrusion_s)} | {s(r.cura_slice_s)} | {lead} "
-                     f"| {r.note} |")
+                     f"| {s(r.dropped_to_extrusion_s)} | {s(r.plan_s)} "
+                     f"| {s(r.cura_slice_s)} | {lead} | {r.note} |")
     return "\n".join(lines)
 
 
@@ -314,16 +333,13 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[Latency] = []
     for model in model_paths(args.models_dir, args.models):
         row = Latency(model=model.stem, faces=stl_faces(model))
-        settled, dropped, notes = [], [], []
-        for _ in range(args.repeat):
-            a, b, note = measure_latency(model, setup, args.timeout)
-            if a is not None and b is not None:
-                settled.append(a)
-                dropped.append(b)
-            elif note:
-                notes.append(note)
-        row.settled_to_extrusion_s = statistics.median(settled) if settled else None
-        row.dropped_to_extrusion_s = statistics.median(dropped) if dropped else None
+        drops = [measure_latency(model, setup, args.timeout) for _ in range(args.repeat)]
+        good = [d for d in drops if d.settled_s is not None and d.dropped_s is not None]
+        notes = [d.note for d in drops if d.note]
+        plans = [d.plan_s for d in drops if d.plan_s is not None]
+        row.settled_to_extrusion_s = _median([d.settled_s for d in good])
+        row.dropped_to_extrusion_s = _median([d.dropped_s for d in good])
+        row.plan_s = _median(plans)
         if notes:
             row.note = f"{len(notes)} of {args.repeat} drops failed, first: {notes[0]}"
         if not args.no_cura and model.stem != "bad_triangle_soup":
