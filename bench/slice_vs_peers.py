@@ -78,6 +78,7 @@ class Row:
     results: dict[str, Measured]
     iou_vs_prusa: float | None = None  # ours against PrusaSlicer, all layers
     iou_vs_prusa_common: float | None = None  # layers where both have an outer wall
+    iou_vs_cura: float | None = None  # ours against CuraEngine, all layers
     iou_cura_vs_prusa: float | None = None  # the two peers against each other (reference)
 
 
@@ -171,6 +172,8 @@ def measure_model(
         if "curaengine" in moves:
             agreement = gcodeparse.wall_agreement(moves["curaengine"], moves["prusaslicer"])
             row.iou_cura_vs_prusa = agreement.mean_iou
+    if compare and "hostd" in moves and "curaengine" in moves:
+        row.iou_vs_cura = gcodeparse.wall_agreement(moves["hostd"], moves["curaengine"]).mean_iou
     return row
 
 
@@ -220,9 +223,9 @@ def _cell(m: Measured | None) -> str:
 def table(rows: list[Row]) -> str:
     """The measured rows as a Markdown table."""
     head = ("| model | faces | hostd | PrusaSlicer | CuraEngine | ours/Prusa | ours/Cura "
-            "| layers ours/P/C | filament ours/P, ours/C | wall IoU ours-P (common) | IoU Cura-P "
-            "| note |")
-    lines = [head, "|" + "---|" * 12]
+            "| layers ours/P/C | filament ours/P, ours/C | wall IoU ours-P (common) | IoU ours-C "
+            "| IoU Cura-P | note |")
+    lines = [head, "|" + "---|" * 13]
     for row in rows:
         r = row.results
         ours, pr, cu = r.get("hostd"), r.get("prusaslicer"), r.get("curaengine")
@@ -235,7 +238,8 @@ def table(rows: list[Row]) -> str:
         lines.append(
             f"| {row.model} | {row.faces:,} | {_cell(ours)} | {_cell(pr)} | {_cell(cu)} "
             f"| {_ratio(ours, pr)} | {_ratio(ours, cu)} | {layers} | {fil} | {iou} "
-            f"| {_fmt(row.iou_cura_vs_prusa, '.3f')} | {'; '.join(notes)} |")
+            f"| {_fmt(row.iou_vs_cura, '.3f')} | {_fmt(row.iou_cura_vs_prusa, '.3f')} "
+            f"| {'; '.join(notes)} |")
     return "\n".join(lines)
 
 
