@@ -3,16 +3,23 @@
 The command lines and settings are those of the project's peer notes: 0.2 mm layers,
 0.4 mm lines, 2 perimeters, 3 top and 3 bottom layers, 20 % rectilinear/lines infill,
 no support, skirt or brim, 1.75 mm filament, 200 mm bed, object centred at (100, 100).
+
+Usage (from the repository root), to install the peers and slice one model with each:
+    .venv/bin/python bench/peers.py MODEL.stl [--out DIR]
 """
 
 from __future__ import annotations
 
+import argparse
 import os
 import shutil
 import subprocess
 import sys
 from dataclasses import dataclass, field
 from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.measure import RunResult, run_measured
 
@@ -177,3 +184,24 @@ def available_peers(names: tuple[str, ...] = ("prusaslicer", "curaengine")) -> l
     makers = {"prusaslicer": prusaslicer, "curaengine": curaengine}
     peers = [makers[name]() for name in names]
     return [p for p in peers if p is not None]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Install the peers when missing and slice one model with each, measured."""
+    parser = argparse.ArgumentParser(description="Slice one model with each peer slicer.")
+    parser.add_argument("model", type=Path)
+    parser.add_argument("--out", type=Path, default=Path("bench/out/gcode"))
+    parser.add_argument("--timeout", type=float, default=600.0)
+    args = parser.parse_args(argv)
+    args.out.mkdir(parents=True, exist_ok=True)
+    for peer in available_peers():
+        out = args.out / f"{args.model.stem}.{peer.name}.gcode"
+        result = peer.slice(args.model, out, args.timeout)
+        rss = "-" if result.rss_mb is None else f"{result.rss_mb:.0f} MB"
+        status = str(out) if result.ok else result.reason()
+        print(f"{peer.name:12s} {result.wall_s:7.2f} s {rss:>8s}  {status}")
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
