@@ -86,19 +86,25 @@ def capabilities(fw: Firmware) -> list[str]:
 
 
 def execute(fw: Firmware, command: str) -> bool:
-    """Run one queued command; returns whether the caller should answer ``ok``."""
+    """Run one queued command; returns whether the caller should answer ``ok``.
+
+    The command is logged as executed once its handler has finished (for a move: once it
+    is in the planner), just before its ``ok``.
+    """
     parsed = parse(command)
     if parsed is None:
         fw.emit(f'echo:Unknown command: "{command}"')
         return True
     code, params = parsed
-    fw.log_executed(command)
     handler = _HANDLERS.get(code)
-    if handler is not None:
-        return handler(fw, params)
-    if code not in _ACCEPTED and not code.startswith("T"):
-        fw.emit(f'echo:Unknown command: "{command}"')
-    return True
+    if handler is None:
+        if code not in _ACCEPTED and not code.startswith("T"):
+            fw.emit(f'echo:Unknown command: "{command}"')
+        fw.log_executed(command)
+        return True
+    send_ok = handler(fw, params)  # a reset or kill meanwhile raises: not executed, not logged
+    fw.log_executed(command)
+    return send_ok
 
 
 def _numbers(params: Params) -> dict[str, float]:
@@ -235,7 +241,7 @@ def _quickstop(fw: Firmware, params: Params) -> bool:
 def _kill(fw: Firmware, params: Params) -> bool:
     if fw.config.emergency_parser:  # with the parser it already acted on the bytes
         return True
-    fw.kill()
+    fw.kill("M112")
     return False
 
 

@@ -221,3 +221,18 @@ def test_idle_printer_says_wait_with_no_timeouts():
         link.wait_start()
         assert link.read_until(lambda line: line == "wait", timeout=2.0)[-1] == "wait"
         link.close()
+
+
+def test_command_cut_short_by_a_reset_is_not_logged():
+    with SimulatedPrinter(SimulatorConfig(time_scale=1.0, baud=0)) as sim:
+        link = Host(sim.start())
+        link.wait_start()
+        link.read_until(lambda line: line.startswith("echo: Free"))
+        link.command(1, "M104 S200")
+        link.send(2, "M109 S200")
+        link.read_until(lambda line: "W:" in line)
+        sim.reset()
+        link.wait_start()
+        assert sim.executed == ["M104 S200"]
+        assert sim.last_line == 0
+        link.close()
