@@ -39,12 +39,15 @@ from bench.slice_vs_peers import (
     MODELS,
     OUR_SETTINGS,
     OUT,
+    SCALE_SOURCE,
     hostd_executable,
+    make_scale_model,
     model_paths,
     stl_faces,
 )
 
 _POLL_S = 0.005
+SCALE_NAME = "bunny_x16"
 _PLAN_LOG = re.compile(r"whole-model pass ([0-9.]+) s")
 
 
@@ -288,6 +291,14 @@ def print_memory(model: Path, setup: DaemonSetup, timeout: float) -> PrintMemory
     return result
 
 
+def print_models(folder: Path, names: str) -> list[Path]:
+    """The models to print for peak RSS: shared models by name, or the scale model."""
+    wanted = [n.strip() for n in names.split(",") if n.strip()]
+    paths = [make_scale_model(folder / SCALE_SOURCE) for n in wanted if n == SCALE_NAME]
+    shared = ",".join(n for n in wanted if n != SCALE_NAME)
+    return (model_paths(folder, shared) if shared else []) + paths
+
+
 def _median(values: list[float | None]) -> float | None:
     present = [v for v in values if v is not None]
     return statistics.median(present) if present else None
@@ -318,8 +329,9 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--settle-s", type=float, default=0.5)
     p.add_argument("--baud", type=int, default=250000, help="simulated wire speed (0 = no limit)")
     p.add_argument("--idle-s", type=float, default=60.0, help="idle CPU window, s (0 = skip)")
-    p.add_argument("--print-model", default="3DBenchy",
-                   help="model printed to the end for peak RSS ('' = skip)")
+    p.add_argument("--print-model", default=f"3DBenchy,{SCALE_NAME}",
+                   help="models printed to the end for peak RSS, comma-separated; "
+                        f"{SCALE_NAME} is the ~1.1M-face subdivided bunny ('' = skip)")
     p.add_argument("--print-timeout", type=float, default=900.0)
     p.add_argument("--no-cura", action="store_true", help="skip CuraEngine's timings")
     p.add_argument("--out", type=Path, default=OUT)
@@ -353,15 +365,16 @@ def main(argv: list[str] | None = None) -> int:
         idle = idle_cpu(setup, args.idle_s)
         results["idle_cpu_percent"] = idle
         print(f"\nidle daemon: {idle:.2f} % of one core over {args.idle_s:.0f} s")
-    if args.print_model:
-        model = model_paths(args.models_dir, args.print_model)[0]
+    memories = []
+    for model in print_models(args.models_dir, args.print_model):
         memory = print_memory(model, DaemonSetup(settle_s=args.settle_s, baud=0),
                               args.print_timeout)
-        results["print_memory"] = asdict(memory)
+        memories.append(asdict(memory))
         took = "-" if memory.print_s is None else f"{memory.print_s:.1f} s"
         print(f"printing {memory.model} ({memory.faces:,} faces, unlimited wire): daemon peak "
               f"RSS (VmHWM) {memory.daemon_hwm_mb:.0f} MB, daemon and children together "
               f"{memory.tree_peak_mb:.0f} MB, drop to done {took} {memory.note}")
+    results["print_memory"] = memories
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "drop_to_extrusion.json").write_text(json.dumps(results, indent=1))
     return 0
