@@ -6,13 +6,11 @@ sentence; everything repaired is reported as a warning.
 
 from __future__ import annotations
 
-import io
 import os
 from dataclasses import dataclass
 
 import numpy as np
-import trimesh
-from scipy.sparse import coo_matrix
+from scipy.sparse import csr_matrix
 from scipy.sparse.csgraph import connected_components
 
 from slicer.errors import ModelError
@@ -52,69 +50,139 @@ class PlacedMesh:
         return (float(lo[0]), float(lo[1]), float(hi[0]), float(hi[1]))
 
 
+# one binary STL record: normal, three corners, attribute bytes (50 bytes)
+_RECORD = np.dtype([("normal", "<f4", (3,)), ("corners", "<f4", (3, 3)), ("attr", "<u2")])
+# triangles parsed per read, to bound memory on big files
+_CHUNK = 1 << 18
+
+
 def read_stl(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (v, 3) float64 mm and faces (f, 3) int64 of an ASCII or binary STL.
 
-    Parsed by trimesh; identical corners are merged exactly (bitwise equal
-    coordinates, as STL writers repeat them). Raises ModelError for a missing,
-    empty or non-STL file, or coordinates that are not finite.
+    Binary files are read straight into a float32 corner array in chunks (the
+    format is fixed 50-byte records), ASCII files by trimesh's STL reader;
+    identical corners are then merged exactly (bitwise equal coordinates, as
+    STL writers repeat them). Raises ModelError for a missing, empty or
+    non-STL file, or coordinates that are not finite.
     """
     try:
-        data = open(path, "rb").read()  # noqa: SIM115 (one read, then closed)
+        size = os.path.getsize(path)
+        with open(path, "rb") as fh:
+            head = fh.read(4096)
     except OSError as exc:
         raise ModelError(f"cannot read the file: {exc.strerror or exc}") from exc
-    if not data.strip():
+    if size == 0 or (size <= len(head) and not head.strip()):
         raise ModelError("empty file")
-    kind = _stl_kind(data)
+    kind = _stl_kind(head, size)
     if kind is None:
         raise ModelError("not an STL file (neither binary STL nor ASCII 'solid ... facet')")
-    try:
-        loaded = trimesh.exchange.stl.load_stl(io.BytesIO(data))
-    except Exception as exc:  # trimesh raises many types for malformed input
-        raise ModelError(f"not a readable {kind} STL file: {exc}") from exc
-    corners = np.asarray(loaded.get("vertices", np.empty((0, 3))))
-    del loaded
+    corners = _read_binary(path, (size - 84) // 50) if kind == "binary" else _read_ascii(path)
     if len(corners) < 3:
         raise ModelError("the STL file has no triangles")
-    corners = corners[: len(corners) // 3 * 3]
-    if not np.isfinite(corners).all():
-        bad = int((~np.isfinite(corners)).any(axis=1).sum())
-        raise ModelError(f"non-finite coordinates (NaN or infinity) in {bad} vertices")
-    del data
+    finite = np.isfinite(corners).all(axis=1)
+    if not finite.all():
+        raise ModelError(
+            f"non-finite coordinates (NaN or infinity) in {int((~finite).sum())} vertices"
+        )
+    del finite
     return merge_corners(corners)
+
+
+def _read_binary(path: str | os.PathLike[str], count: int) -> np.ndarray:
+    """Corners (3 count, 3) float32 of a binary STL, read in chunks."""
+    out = np.empty((count * 3, 3), dtype=np.float32)
+    with open(path, "rb") as fh:
+        fh.seek(84)
+        done = 0
+        while done < count:
+            k = min(_CHUNK, count - done)
+            records = np.fromfile(fh, dtype=_RECORD, count=k)
+            if len(records) < k:
+                raise ModelError("truncated binary STL file")
+            out[done * 3 : (done + k) * 3] = records["corners"].reshape(-1, 3)
+            done += k
+    return out
+
+
+def _read_ascii(path: str | os.PathLike[str]) -> np.ndarray:
+    """Corners (3n, 3) of an ASCII STL, parsed by trimesh."""
+    import trimesh
+
+    try:
+        with open(path, "rb") as fh:
+            loaded = trimesh.exchange.stl.load_stl(fh)
+    except Exception as exc:  # trimesh raises many types for malformed input
+        raise ModelError(f"not a readable ASCII STL file: {exc}") from exc
+    corners = np.asarray(loaded.get("vertices", np.empty((0, 3))), dtype=np.float32)
+    return corners[: len(corners) // 3 * 3]
+
+
+# odd 64-bit multipliers of the corner hash (from splitmix64)
+_MIX = (np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB))
 
 
 def merge_corners(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Merge bitwise-equal triangle corners: (3n, 3) float -> vertices (v, 3), faces (n, 3).
 
-    Exact: two corners merge only when their coordinates are equal (``-0`` and
-    ``0`` alike). Sorting two 64-bit keys keeps memory to a few arrays of 3n.
+    Exact: two corners merge only when their float32 coordinates are equal
+    (``-0`` and ``0`` alike). Corners are sorted by a 64-bit hash of their
+    bits; equal hashes are then checked coordinate by coordinate, and the
+    rare hash collision falls back to an exact lexicographic sort. Memory stays
+    at a few arrays of 3n 64-bit numbers.
     """
-    c32 = np.ascontiguousarray(corners, dtype=np.float32) + np.float32(0.0)
-    bits = c32.view(np.uint32).astype(np.uint64)
-    key_xy = (bits[:, 0] << np.uint64(32)) | bits[:, 1]
-    key_z = bits[:, 2]
-    del bits
-    order = np.lexsort((key_z, key_xy))
-    kx, kz = key_xy[order], key_z[order]
-    new = np.ones(len(order), dtype=bool)
-    new[1:] = (kx[1:] != kx[:-1]) | (kz[1:] != kz[:-1])
-    del kx, kz, key_xy, key_z
-    index = np.cumsum(new) - 1
+    c32 = np.ascontiguousarray(corners, dtype=np.float32)
+    c32 += np.float32(0.0)  # -0 becomes 0 (in place when already float32)
+    bits = c32.view(np.uint32)
+    key = bits[:, 0].astype(np.uint64)
+    key *= _MIX[0]
+    tmp = bits[:, 1].astype(np.uint64)
+    tmp *= _MIX[1]
+    key ^= tmp
+    tmp[:] = bits[:, 2]
+    tmp *= _MIX[2]
+    key ^= tmp
+    del tmp
+    order = np.argsort(key)  # ties are identical corners: their order does not matter
+    new = np.empty(len(order), dtype=bool)
+    new[0] = True
+    step = 1 << 18
+    collision = False
+    for a in range(1, len(order), step):  # neighbours compared in chunks: no sorted copies
+        b = min(a + step, len(order))
+        here, before = order[a:b], order[a - 1 : b - 1]
+        np.not_equal(key[here], key[before], out=new[a:b])
+        same = ~new[a:b]
+        if not collision and not (c32[here[same]] == c32[before[same]]).all():
+            collision = True
+    del key
+    if collision:
+        order = np.lexsort((bits[:, 2], bits[:, 1], bits[:, 0]))
+        s = bits[order]
+        new[1:] = (s[1:] != s[:-1]).any(axis=1)
+        del s
+    vertices = c32[order[new]].astype(np.float64)
+    index = np.cumsum(new, dtype=np.int64)
+    index -= 1
     inverse = np.empty(len(order), dtype=np.int64)
     inverse[order] = index
-    vertices = c32[order[new]].astype(np.float64)
     return vertices, inverse.reshape(-1, 3)
 
 
-def _stl_kind(data: bytes) -> str | None:
-    """'binary' or 'ASCII' when the bytes look like that kind of STL, else None."""
-    if len(data) >= 84:
-        count = int.from_bytes(data[80:84], "little")
-        if 84 + 50 * count == len(data) and count > 0:
+def _stl_kind(head: bytes, size: int) -> str | None:
+    """'binary' or 'ASCII' when the file (its first bytes and size) looks like that STL."""
+    if size >= 84 and len(head) >= 84:
+        count = int.from_bytes(head[80:84], "little")
+        if 84 + 50 * count == size and count > 0:
             return "binary"
-    head = data[:1024].lstrip().lower()
-    if head.startswith(b"solid") and (b"facet" in data[:4096].lower() or len(data) < 4096):
+        body = head[84:]
+        textual = not body.translate(None, bytes(range(32, 127)) + b"\t\r\n")
+        if 84 + 50 * count > size and count > 0 and not textual:
+            raise ModelError(
+                f"truncated binary STL file: header says {count} triangles, "
+                f"the file holds {(size - 84) // 50}"
+            )
+    text = head.lstrip().lower()
+    if text.startswith(b"solid") and (b"facet" in text or size < 4096):
         return "ASCII"
     return None
 
@@ -129,17 +197,21 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, fl
     than the bed.
     """
     warnings: list[str] = []
-    faces, removed = _remove_bad_faces(faces, len(vertices))
+    faces, removed, stats = _remove_bad_faces(faces, len(vertices))
     if len(faces) == 0:
         raise ModelError("no solid triangles left: every triangle is degenerate")
     if removed:
         warnings.append(f"repaired: removed {removed} degenerate, duplicate or dangling faces")
-    stats = _edge_stats(faces, len(vertices))
     _refuse_open(stats.open, stats.total)
-    if stats.open or not stats.consistent:
-        vertices, faces, stats, notes = _trimesh_repairs(vertices, faces, stats)
-        warnings.extend(notes)
-        _refuse_open(stats.open, stats.total)
+    if not stats.consistent:
+        faces = _fix_winding(vertices, faces)
+        warnings.append("repaired: fixed inconsistent face winding")
+        stats = _edge_stats(faces, len(vertices))
+    if stats.open:
+        faces, closed = _fill_small_holes(faces, len(vertices))
+        if closed:
+            warnings.append(f"repaired: filled small holes ({closed} open edges)")
+            stats = _edge_stats(faces, len(vertices))
     with np.errstate(all="ignore"):
         volume = signed_volume(vertices, faces)
     if volume < 0:
@@ -173,55 +245,68 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, fl
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Volume enclosed by the faces, mm^3 (negative when the normals point inwards)."""
     total = 0.0
-    for a in range(0, len(faces), 1 << 20):
-        f = faces[a : a + (1 << 20)]
+    for a in range(0, len(faces), 1 << 16):
+        f = faces[a : a + (1 << 16)]
         v0, v1, v2 = vertices[f[:, 0]], vertices[f[:, 1]], vertices[f[:, 2]]
         total += float(np.einsum("ij,ij->", v0, np.cross(v1, v2)))
     return total / 6.0
 
 
-@dataclass(frozen=True)
-class _EdgeStats:
-    """Edge counts: used by one face only (open), distinct edges, winding consistent."""
+def _fix_winding(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
+    """Faces with consistent winding (trimesh's repair; only for meshes that need it)."""
+    import trimesh
 
-    open: int
-    total: int
-    consistent: bool
-
-
-def _edge_stats(faces: np.ndarray, nv: int) -> _EdgeStats:
-    """Open edges, distinct edges and winding consistency from integer edge keys.
-
-    Winding is consistent when no directed edge is used twice (each shared
-    edge is walked once in each direction).
-    """
-    a = faces.ravel()
-    b = faces[:, [1, 2, 0]].ravel()
-    directed = np.sort(a.astype(np.int64) * nv + b)
-    undirected = np.sort(np.minimum(a, b).astype(np.int64) * nv + np.maximum(a, b))
-    repeated = bool((directed[1:] == directed[:-1]).any())
-    starts = np.flatnonzero(np.concatenate(([True], undirected[1:] != undirected[:-1])))
-    counts = np.diff(np.append(starts, len(undirected)))
-    return _EdgeStats(int((counts == 1).sum()), len(counts), not repeated)
-
-
-def _trimesh_repairs(
-    vertices: np.ndarray, faces: np.ndarray, stats: _EdgeStats
-) -> tuple[np.ndarray, np.ndarray, _EdgeStats, list[str]]:
-    """The rarer repairs, with trimesh: fix winding, fill small holes."""
-    notes = []
     mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
-    if not stats.consistent:
-        trimesh.repair.fix_winding(mesh)
-        notes.append("repaired: fixed inconsistent face winding")
-    if stats.open:
-        trimesh.repair.fill_holes(mesh)
-    vertices = np.asarray(mesh.vertices, dtype=np.float64)
-    faces = np.asarray(mesh.faces, dtype=np.int64)
-    after = _edge_stats(faces, len(vertices))
-    if after.open < stats.open:
-        notes.append(f"repaired: filled small holes ({stats.open - after.open} open edges)")
-    return vertices, faces, after, notes
+    trimesh.repair.fix_winding(mesh)
+    return np.array(mesh.faces, dtype=np.int64)
+
+
+def _fill_small_holes(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int]:
+    """Close holes bounded by three or four open edges with one or two new faces.
+
+    Open edges are found as directed edges whose reverse is not used; a hole's
+    rim is walked through a successor map over those edges (vectorised), and
+    only rims that close after three or four steps are filled, wound to match
+    their neighbours. Returns the faces (new ones appended) and the number of
+    open edges closed.
+    """
+    n = len(faces)
+    a = np.concatenate([faces[:, j] for j in range(3)]).astype(np.int64)
+    b = np.concatenate([faces[:, (j + 1) % 3] for j in range(3)]).astype(np.int64)
+    forward = np.sort(a * nv + b)
+    backward = b * nv + a
+    pos = np.minimum(np.searchsorted(forward, backward), len(forward) - 1)
+    rim = forward[pos] != backward  # edge a->b whose twin b->a is missing
+    del forward, backward, pos
+    ra, rb = a[rim], b[rim]
+    del a, b
+    if len(ra) == 0 or n == 0:
+        return faces, 0
+    # the rim continues from rb at the open edge starting there (unique starts only)
+    order = np.argsort(ra, kind="stable")
+    starts = ra[order]
+    unique = np.ones(len(starts), dtype=bool)
+    unique[1:] = starts[1:] != starts[:-1]
+    unique[:-1] &= starts[1:] != starts[:-1]
+
+    def step(v: np.ndarray) -> np.ndarray:
+        i = np.minimum(np.searchsorted(starts, v), len(starts) - 1)
+        ok = (starts[i] == v) & unique[i]
+        return np.where(ok, rb[order[i]], -1)
+
+    v1 = rb
+    v2 = step(v1)
+    v3 = np.where(v2 >= 0, step(np.maximum(v2, 0)), -1)
+    v4 = np.where(v3 >= 0, step(np.maximum(v3, 0)), -1)
+    tri = (v3 == ra) & (ra < np.minimum(v1, v2))  # one face per triangle, from its lowest vertex
+    quad = (v4 == ra) & (v3 != ra) & (ra < np.minimum(np.minimum(v1, v2), v3))
+    new = [np.stack([ra[tri], v2[tri], v1[tri]], axis=1)]
+    new.append(np.stack([ra[quad], v3[quad], v2[quad]], axis=1))
+    new.append(np.stack([ra[quad], v2[quad], v1[quad]], axis=1))
+    added = np.concatenate(new).astype(np.int64)
+    if len(added) == 0:
+        return faces, 0
+    return np.concatenate([faces, added]), int(3 * tri.sum() + 4 * quad.sum())
 
 
 def _refuse_open(open_edges: int, total_edges: int) -> None:
@@ -233,49 +318,112 @@ def _refuse_open(open_edges: int, total_edges: int) -> None:
         )
 
 
-def _remove_bad_faces(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int]:
+@dataclass(frozen=True)
+class _EdgeStats:
+    """Edge counts: used by one face only (open), distinct edges, winding consistent,
+    and whether some edge is shared by three or more faces."""
+
+    open: int
+    total: int
+    consistent: bool
+    overshared: bool
+
+
+def _edge_stats(faces: np.ndarray, nv: int) -> _EdgeStats:
+    """Open edges, distinct edges and winding consistency from sorted integer edge keys.
+
+    Winding is consistent when no directed edge is used twice (each shared
+    edge is walked once in each direction). Works in place on one array of 3f
+    keys at a time.
+    """
+    n = len(faces)
+    keys = np.empty(3 * n, dtype=np.int64)
+    for j in range(3):  # directed edges, one corner column at a time
+        part = keys[j * n : (j + 1) * n]
+        np.multiply(faces[:, j], nv, out=part)
+        part += faces[:, (j + 1) % 3]
+    keys.sort()
+    repeated = bool((keys[1:] == keys[:-1]).any())
+    for j in range(3):  # undirected edges
+        a, b = faces[:, j], faces[:, (j + 1) % 3]
+        part = keys[j * n : (j + 1) * n]
+        np.minimum(a, b, out=part)
+        part *= nv
+        part += np.maximum(a, b)
+    keys.sort()
+    starts = np.flatnonzero(keys[1:] != keys[:-1]) + 1
+    counts = np.diff(np.concatenate(([0], starts, [len(keys)])))
+    return _EdgeStats(
+        int((counts == 1).sum()), len(counts), not repeated, bool((counts >= 3).any())
+    )
+
+
+def _remove_bad_faces(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int, _EdgeStats]:
     """Drop faces with repeated vertices, duplicate faces and dangling fins.
 
     A fin is a face with two open edges hanging on an edge shared by three or
-    more faces (a stray triangle). Returns the kept faces and how many went.
+    more faces (a stray triangle, as in ``dragon_100k.stl``); it is looked for
+    only when such an edge exists. Returns the kept faces, how many went and
+    the edge statistics of what is kept.
     """
-    keep = (
-        (faces[:, 0] != faces[:, 1]) & (faces[:, 1] != faces[:, 2]) & (faces[:, 0] != faces[:, 2])
-    )
-    srt = np.sort(faces, axis=1).astype(np.int64)
+    f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
+    keep = (f0 != f1) & (f1 != f2) & (f0 != f2)
+    lo = np.minimum(np.minimum(f0, f1), f2).astype(np.int64)
+    hi = np.maximum(np.maximum(f0, f1), f2).astype(np.int64)
+    mid = f0 + f1 + f2 - lo - hi
     if nv < 2_000_000:
-        key = (srt[:, 0] * nv + srt[:, 1]) * nv + srt[:, 2]
+        key = (lo * nv + mid) * nv + hi
         order = np.argsort(key, kind="stable")
-        ks = key[order]
-        dup = np.zeros(len(faces), dtype=bool)
-        dup[order[1:]] = ks[1:] == ks[:-1]
+        key = key[order]
+        dup_sorted = key[1:] == key[:-1]
     else:
-        order = np.lexsort((srt[:, 2], srt[:, 1], srt[:, 0]))
-        s2 = srt[order]
-        dup = np.zeros(len(faces), dtype=bool)
-        dup[order[1:]] = (s2[1:] == s2[:-1]).all(axis=1)
+        order = np.lexsort((hi, mid, lo))
+        dup_sorted = (
+            (lo[order[1:]] == lo[order[:-1]])
+            & (mid[order[1:]] == mid[order[:-1]])
+            & (hi[order[1:]] == hi[order[:-1]])
+        )
+    del lo, hi, mid
+    dup = np.zeros(len(faces), dtype=bool)
+    dup[order[1:][dup_sorted]] = True
     keep &= ~dup
-    del srt
+    del order, dup
+    if not keep.all():
+        faces = faces[keep]
+    removed = int((~keep).sum())
+    stats = _edge_stats(faces, nv)
+    if stats.overshared:
+        fins = _fins(faces, nv)
+        if fins.any():
+            faces = faces[~fins]
+            removed += int(fins.sum())
+            stats = _edge_stats(faces, nv)
+    return faces, removed, stats
+
+
+def _fins(faces: np.ndarray, nv: int) -> np.ndarray:
+    """Faces with two open edges that hang on an edge shared by three or more faces."""
     a = faces.ravel()
     b = faces[:, [1, 2, 0]].ravel()
     ekey = np.minimum(a, b).astype(np.int64) * nv + np.maximum(a, b)
-    ekey[~np.repeat(keep, 3)] = -1
     _, inverse, counts = np.unique(ekey, return_inverse=True, return_counts=True)
     per_face = counts[inverse].reshape(-1, 3)
-    fin = ((per_face == 1).sum(axis=1) >= 2) & (per_face >= 3).any(axis=1)
-    keep &= ~fin
-    removed = int((~keep).sum())
-    if removed:
-        faces = faces[keep]
-    return faces, removed
+    return ((per_face == 1).sum(axis=1) >= 2) & (per_face >= 3).any(axis=1)
 
 
 def _bodies(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
     """Connected shells: (body of each face (f,) int64 numbered by first face, count)."""
-    rows = np.concatenate([faces[:, 0], faces[:, 1]])
-    cols = np.concatenate([faces[:, 1], faces[:, 2]])
-    graph = coo_matrix((np.ones(len(rows), dtype=np.int8), (rows, cols)), shape=(n_vertices,) * 2)
+    # vertex graph in CSR form built directly (int32 indices): edges v0-v1 and v1-v2
+    src = np.concatenate([faces[:, 0], faces[:, 1]]).astype(np.int32)
+    dst = np.concatenate([faces[:, 1], faces[:, 2]]).astype(np.int32)
+    order = np.argsort(src, kind="stable")
+    indptr = np.searchsorted(src[order], np.arange(n_vertices + 1, dtype=np.int32)).astype(np.int32)
+    graph = csr_matrix(
+        (np.ones(len(dst), dtype=np.int8), dst[order], indptr), shape=(n_vertices, n_vertices)
+    )
+    del src, dst, order, indptr
     count, label = connected_components(graph, directed=False)
+    del graph
     face_label = label[faces[:, 0]]
     # renumber in order of first appearance so numbering follows the file
     used, first = np.unique(face_label, return_index=True)

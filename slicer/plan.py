@@ -26,7 +26,7 @@ from slicer.settings import SettingsError, SliceSettings
 from slicer.skins import skin_regions
 
 # the whole-model pass cuts at most this many (face, layer) crossings at once
-_BLOCK_CROSSINGS = 1_500_000
+_BLOCK_CROSSINGS = 250_000
 _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
 
@@ -99,10 +99,10 @@ class SlicePlan:
         Raises ModelError with a specific reason when the file cannot be sliced.
         """
         bed = (float(bed[0]), float(bed[1]), float(bed[2]))
-        vertices, faces = read_stl(path)
-        mesh = prepare(vertices, faces, bed)
-        del vertices, faces
-        return cls(_cut_model(mesh, settings, bed), settings)
+        mesh = prepare(*read_stl(path), bed)
+        geometry = _cut_model(mesh, settings, bed)
+        del mesh
+        return cls(geometry, settings)
 
     def with_settings(self, settings: SliceSettings) -> SlicePlan:
         """The same geometry with new per-layer settings; layer heights may not change."""
@@ -262,9 +262,7 @@ def _cut_model(
     """The whole-model pass: cut all layers in blocks, nest loops, number the bodies."""
     tops = layer_tops(mesh.height, settings)
     planes = cut_planes(tops, settings)
-    face_z = mesh.vertices[mesh.faces, 2]
-    lo, hi = face_layer_ranges(face_z, planes)
-    del face_z
+    lo, hi = face_layer_ranges(mesh.vertices[:, 2], mesh.faces, planes)
     tol = OutlineTolerances()
     report = GapReport()
     layers: dict[int, tuple[np.ndarray, np.ndarray]] = {}

@@ -49,14 +49,18 @@ class Chains:
     face: np.ndarray
 
 
-def face_layer_ranges(face_z: np.ndarray, planes: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+def face_layer_ranges(
+    vertex_z: np.ndarray, faces: np.ndarray, planes: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
     """Which planes each face crosses: the half-open range ``[lo, hi)`` of plane indices.
 
-    ``face_z`` (f, 3) float64 mm; ``planes`` (m,) float64 mm ascending.
-    A face crosses plane ``p`` when ``min z <= p < max z``.
+    ``vertex_z`` (v,) float64 mm; ``faces`` (f, 3) int; ``planes`` (m,)
+    float64 mm ascending. A face crosses plane ``p`` when ``min z <= p < max z``.
+    Returns two (f,) int64 arrays.
     """
-    lo = np.searchsorted(planes, face_z.min(axis=1), side="left")
-    hi = np.searchsorted(planes, face_z.max(axis=1), side="left")
+    z0, z1, z2 = vertex_z[faces[:, 0]], vertex_z[faces[:, 1]], vertex_z[faces[:, 2]]
+    lo = np.searchsorted(planes, np.minimum(np.minimum(z0, z1), z2), side="left")
+    hi = np.searchsorted(planes, np.maximum(np.maximum(z0, z1), z2), side="left")
     return lo, hi
 
 

@@ -34,7 +34,7 @@ def test_loops_close_when_planes_hit_vertices(tmp_path) -> None:
     vertices = np.array(mesh.vertices)
     faces = np.array(mesh.faces)
     planes = np.array([0.0, 0.1, 0.5, 1.0])  # on the bottom, between, on the top
-    lo, hi = face_layer_ranges(vertices[faces, 2], planes)
+    lo, hi = face_layer_ranges(vertices[:, 2], faces, planes)
     chains = cut_block(vertices, faces, planes, lo, hi, 0, len(planes))
     assert chains.closed.all()
     # the plane at z = 0 touches only the bottom: nothing or closed loops
