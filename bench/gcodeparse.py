@@ -287,6 +287,11 @@ class WallAgreement:
     layers_a: int
     layers_b: int
     offset: tuple[float, float]  # mm added to a to align it with b
+    per_layer: tuple[tuple[float, float], ...] = ()  # (z in mm, IoU) for every layer
+
+    def worst(self, count: int = 5) -> list[tuple[float, float]]:
+        """The ``count`` layers of lowest IoU, as (z in mm, IoU)."""
+        return sorted(self.per_layer, key=lambda zi: zi[1])[:count]
 
 
 def wall_agreement(a: Moves, b: Moves, align: bool = True) -> WallAgreement:
@@ -304,4 +309,5 @@ def wall_agreement(a: Moves, b: Moves, align: bool = True) -> WallAgreement:
         layers_a=len(ra),
         layers_b=len(rb),
         offset=(float(offset[0]), float(offset[1])),
+        per_layer=tuple((k / Z_KEY_SCALE, v) for k, v in ious.items()),
     )

@@ -79,6 +79,7 @@ class Row:
     iou_vs_prusa: float | None = None  # ours against PrusaSlicer, all layers
     iou_vs_prusa_common: float | None = None  # layers where both have an outer wall
     iou_vs_cura: float | None = None  # ours against CuraEngine, all layers
+    worst_layers_vs_prusa: list[tuple[float, float]] = field(default_factory=list)  # (z, IoU)
     iou_cura_vs_prusa: float | None = None  # the two peers against each other (reference)
 
 
@@ -169,6 +170,10 @@ def measure_model(
             agreement = gcodeparse.wall_agreement(moves["hostd"], moves["prusaslicer"])
             row.iou_vs_prusa = agreement.mean_iou
             row.iou_vs_prusa_common = agreement.mean_iou_common
+            row.worst_layers_vs_prusa = agreement.worst(8)
+            worst = ", ".join(f"z={z:.1f}: {iou:.2f}" for z, iou in agreement.worst(4))
+            print(f"  {model.stem:18s} worst outer-wall layers vs PrusaSlicer: {worst}",
+                  file=sys.stderr)
         if "curaengine" in moves:
             agreement = gcodeparse.wall_agreement(moves["curaengine"], moves["prusaslicer"])
             row.iou_cura_vs_prusa = agreement.mean_iou

@@ -135,3 +135,13 @@ def test_read_moves_from_file(tmp_path: Path) -> None:
 )
 def test_first_extrusion_detection(line: str, expected: bool) -> None:
     assert g.is_extruding_line(line) is expected
+
+
+def test_worst_layers_are_listed_by_height() -> None:
+    a = g.parse_moves(["M83", *loop(0, 0, 10, 0.2), *loop(0, 0, 10, 0.4)])
+    b = g.parse_moves(["M83", *loop(0, 0, 10, 0.2), *loop(5, 0, 10, 0.4)])
+    agreement = g.wall_agreement(a, b, align=False)
+    worst = agreement.worst(1)
+    assert worst[0][0] == pytest.approx(0.4)
+    assert worst[0][1] == pytest.approx(50 / 150)
+    assert len(agreement.per_layer) == 2
