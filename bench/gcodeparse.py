@@ -197,15 +197,17 @@ def outer_wall_regions(
 ) -> dict[int, shapely.Geometry]:
     """Per layer, the region enclosed by the outer-wall loops, even-odd (holes stay holes).
 
-    A loop is a run of consecutive extruding moves of an outer-wall type (``names``,
-    possibly continued by ``continuations`` types, with at least one move of ``names``);
-    runs whose ends lie farther apart than ``close_tol`` mm (open walls) are left out,
-    the others are closed. Keys are Z in units of 0.01 mm (``round(z * 100)``).
+    A loop is a run of consecutive extruding moves of an outer-wall type (``names``),
+    possibly continued by ``continuations`` types; runs whose ends lie farther apart than
+    ``close_tol`` mm (open walls) are left out, the others are closed. Loops made of
+    continuation moves alone count only as the outermost loop of an island apart from the
+    other walls (PrusaSlicer marks every wall of an island printed over air as overhang).
+    Keys are Z in units of 0.01 mm (``round(z * 100)``).
     """
     names, continuations = frozenset(names), frozenset(continuations)
     primary = moves.extruding & moves.type_mask(names)
     outer = moves.extruding & moves.type_mask(names | continuations)
-    if not primary.any():
+    if not outer.any():
         return {}
     prev = np.concatenate(([False], outer[:-1]))
     starts = outer & ~prev
@@ -224,7 +226,7 @@ def outer_wall_regions(
     first_v = last_v - counts + 1
     gap = np.hypot(vx[last_v] - vx[first_v], vy[last_v] - vy[first_v])
     has_primary = np.bincount(chain[primary] - 1, minlength=n_chains) > 0
-    keep_chain = (counts >= 4) & (gap <= close_tol) & has_primary
+    keep_chain = (counts >= 4) & (gap <= close_tol)
     if not keep_chain.any():
         return {}
     keep_v = keep_chain[vid]
@@ -234,14 +236,41 @@ def outer_wall_regions(
     polys = shapely.make_valid(shapely.polygons(rings), method="structure",
                                keep_collapsed=False)
     keys = np.round(moves.z[first_idx][keep_chain] * Z_KEY_SCALE).astype(np.int64)
+    is_primary = has_primary[keep_chain]
     regions: dict[int, shapely.Geometry] = {}
     for key in np.unique(keys):
-        group = polys[keys == key]
-        region = group[0]
-        for poly in group[1:]:
-            region = shapely.symmetric_difference(region, poly)
-        regions[int(key)] = region
+        on_layer = keys == key
+        region = _even_odd(polys[on_layer & is_primary])
+        islands = _outermost(polys[on_layer & ~is_primary], outside=region)
+        if islands.size:
+            region = shapely.union(region, _even_odd(islands))
+        if not region.is_empty:
+            regions[int(key)] = region
     return regions
+
+
+def _even_odd(polys: np.ndarray) -> shapely.Geometry:
+    """The even-odd combination of polygons (a ring inside another makes a hole)."""
+    region = shapely.Polygon()
+    for poly in polys:
+        region = shapely.symmetric_difference(region, poly)
+    return region
+
+
+def _outermost(polys: np.ndarray, outside: shapely.Geometry) -> np.ndarray:
+    """Loops that lie outside ``outside`` and inside no other loop of ``polys``.
+
+    These are the outer walls of islands a slicer marked as overhang from end to end
+    (no other wall of that island is outer); loops inside another are inner perimeters.
+    """
+    if polys.size == 0:
+        return polys
+    free = polys[~shapely.intersects(polys, outside)] if not outside.is_empty else polys
+    keep = [
+        i for i, poly in enumerate(free)
+        if not any(j != i and shapely.contains(other, poly) for j, other in enumerate(free))
+    ]
+    return free[keep]
 
 
 def outer_wall_centre(moves: Moves, names: Iterable[str] = OUTER_WALL_TYPES) -> np.ndarray:

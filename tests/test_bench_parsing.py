@@ -82,13 +82,24 @@ def test_open_walls_are_left_out_and_nearly_closed_loops_kept() -> None:
     assert regions[20].area == pytest.approx(100.0)
 
 
-def test_overhang_stretch_continues_an_outer_loop_but_never_makes_one() -> None:
+def test_overhang_stretch_continues_an_outer_loop() -> None:
     lines = ["M83", "G0 X0 Y0 Z0.2", ";TYPE:External perimeter", "G1 X10 Y0 E0.3",
              ";TYPE:Overhang perimeter", "G1 F3600", "G1 X10 Y10 E0.3",
-             ";TYPE:External perimeter", "G1 F1800", "G1 X0 Y10 E0.3", "G1 X0 Y0 E0.3",
-             *loop(30, 30, 4, 0.2, kind="Overhang perimeter")]
+             ";TYPE:External perimeter", "G1 F1800", "G1 X0 Y10 E0.3", "G1 X0 Y0 E0.3"]
     regions = g.outer_wall_regions(g.parse_moves(lines))
     assert regions[20].area == pytest.approx(100.0)
+
+
+def test_overhang_only_loops_count_as_island_outlines_but_not_as_inner_perimeters() -> None:
+    island = [*loop(30, 30, 10, 0.2, kind="Overhang perimeter"),  # island printed over air
+              *loop(31, 31, 8, 0.2, kind="Overhang perimeter")]  # ... and its inner wall
+    lines = ["M83", *loop(0, 0, 10, 0.2, kind="External perimeter"),
+             *loop(1, 1, 8, 0.2, kind="Overhang perimeter"),  # inner perimeter over air
+             *island]
+    regions = g.outer_wall_regions(g.parse_moves(lines))
+    assert regions[20].area == pytest.approx(100.0 + 100.0)
+    only_island = g.outer_wall_regions(g.parse_moves(["M83", *island]))
+    assert only_island[20].area == pytest.approx(100.0)
 
 
 def test_iou_of_shifted_squares_and_alignment() -> None:
