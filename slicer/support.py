@@ -5,6 +5,7 @@ from __future__ import annotations
 import functools
 import math
 from collections.abc import Sequence
+from dataclasses import replace
 
 import numpy as np
 import shapely
@@ -15,6 +16,7 @@ from slicer.fields.paths import as_multiline, clip, empty_paths, linestring_part
 from slicer.settings import SliceSettings
 
 INTERFACE_LAYERS = 2  # layers of denser lines right under the part
+SUPPORT_PERIOD = 4.0  # support eggcrate period, in infill spacings
 INTERFACE_SPACING = 2.0  # interface line spacing, in line widths: sparse so it breaks away
 
 
@@ -118,7 +120,7 @@ def support_paths(
     infill = empty_paths()
     if not body.is_empty:
         spacing = width / settings.support_density
-        infill = _support_field(settings).paths(body, ctx, spacing)
+        infill = _support_field(settings, spacing).paths(body, ctx, spacing)
     lines = empty_paths()
     if not roof.is_empty:
         angle = settings.infill_angle + (90.0 if ctx.index % 2 else 0.0)
@@ -143,10 +145,13 @@ def hatch(region: shapely.Geometry, spacing: float, angle_deg: float) -> np.ndar
 
 
 @functools.lru_cache(maxsize=8)
-def _support_field(settings: SliceSettings) -> EggcrateField:
-    """The support's eggcrate field, one per (frozen) settings, so the level step it fits
-    once is reused by every layer."""
-    return EggcrateField(settings)
+def _support_field(settings: SliceSettings, spacing: float) -> EggcrateField:
+    """The support's eggcrate, one per (frozen) settings so the level step it fits once
+    serves every layer. Its period is ``SUPPORT_PERIOD`` spacings at 45 degrees, so each
+    cell holds a lattice line and about one ring whatever the density (the paper's
+    dragon: levels -0.5, 0, 0.5 of a unit eggcrate)."""
+    scale = min(max(SUPPORT_PERIOD * spacing, 0.5), 200.0)
+    return EggcrateField(replace(settings, infill_scale=scale, infill_angle=45.0))
 
 
 def _gap_layers(settings: SliceSettings, layer_height: float) -> int:

@@ -12,9 +12,13 @@ from scipy import ndimage
 from skimage.measure import find_contours
 
 from slicer.fields.base import LayerContext
-from slicer.fields.levels import LevelPlan, plan_levels
+from slicer.fields.levels import LevelPlan, holes, plan_levels
 from slicer.fields.paths import empty_paths, finish, prepared
 from slicer.settings import SliceSettings
+
+MAX_LEVELS = 400  # most levels traced on one layer
+HOLE_PASSES = 2  # times a layer's levels are opened up where a hole is left
+HOLE_OCTAVES = 2  # octaves of finer levels allowed in a hole per pass
 
 
 @dataclass(frozen=True)
@@ -93,6 +97,9 @@ def trace_levels(
     """Level sets of ``values`` at the plan's levels, each only where its rank is kept.
 
     ``values`` (ny, nx) float64, ``mask`` (ny, nx) bool nodes to trace in.
+    Levels are traced rank by rank, each on the smallest window holding the cells
+    that admit that rank (fine levels live in small zones); when more than
+    ``MAX_LEVELS`` levels span the field, the finest ranks are left out.
     Returns LineStrings (k,) in mm and their level ranks (k,) int.
     """
     finite = np.isfinite(values) & mask
@@ -100,16 +107,30 @@ def trace_levels(
         return np.empty(0, dtype=object), np.empty(0, dtype=int)
     filled = np.where(np.isfinite(values), values, 0.0)
     js = plan.indices(float(values[finite].min()), float(values[finite].max()))
+    level_ranks = plan.ranks(js)
+    while js.size > MAX_LEVELS:
+        keep = level_ranks > level_ranks.min()
+        js, level_ranks = js[keep], level_ranks[keep]
     pieces: list[np.ndarray] = []
     ranks: list[int] = []
-    for j, rank in zip(js, plan.ranks(js), strict=True):
+    for rank in np.unique(level_ranks):
         allowed = finite & (plan.min_rank <= rank)
-        if not allowed.any():
+        rows = np.flatnonzero(allowed.any(axis=1))
+        cols = np.flatnonzero(allowed.any(axis=0))
+        if rows.size == 0:
             continue
-        for contour in find_contours(filled, float(j * plan.step), mask=allowed):
-            if contour.shape[0] >= 2:
-                pieces.append(contour)
-                ranks.append(int(rank))
+        r0, r1 = max(rows[0] - 1, 0), rows[-1] + 2
+        c0, c1 = max(cols[0] - 1, 0), cols[-1] + 2
+        window, window_mask = filled[r0:r1, c0:c1], allowed[r0:r1, c0:c1]
+        low, high = window[window_mask].min(), window[window_mask].max()
+        for j in js[level_ranks == rank]:
+            level = float(j * plan.step)
+            if not low <= level <= high:
+                continue
+            for contour in find_contours(window, level, mask=window_mask):
+                if contour.shape[0] >= 2:
+                    pieces.append(np.add(contour, (r0, c0)))
+                    ranks.append(int(rank))
     if not pieces:
         return np.empty(0, dtype=object), np.empty(0, dtype=int)
     owner = np.repeat(np.arange(len(pieces)), [p.shape[0] for p in pieces])
@@ -122,7 +143,8 @@ class GridField:
 
     Subclasses set ``name`` and implement :meth:`sample`; they may override
     :meth:`values` (a field solved on the grid) and the class constants:
-    ``gap`` (largest local spacing as a multiple of the mean), ``cell_fraction``
+    ``gap`` (largest local spacing as a multiple of the mean), ``densify`` (how
+    many octaves of finer levels may fill flat areas), ``cell_fraction``
     (grid cell as a fraction of the line width), ``max_cells``, ``anchor`` (the
     level always drawn; the others are whole steps from it), ``refinements``
     (after tracing, the measured length per area corrects the target spacing and
@@ -139,6 +161,7 @@ class GridField:
     refinements = 3
     anchor = 0.0
     shared_levels = False
+    densify = 2
 
     def __init__(self, settings: SliceSettings) -> None:
         self.settings = settings
@@ -232,12 +255,25 @@ class GridField:
             width,
             sampled.grid.cell,
             self.gap,
+            densify=self.densify,
             step=step,
         )
         if plan is None:
             return empty_paths(), math.inf
-        lines, ranks = trace_levels(sampled.grid, sampled.values, plan, sampled.contour_mask)
-        return finish(lines, region, width, ranks.astype(float)), plan.step
+        grid = sampled.grid
+        radius = 0.5 * self.gap * target
+        for attempt in range(HOLE_PASSES + 1):
+            lines, ranks = trace_levels(grid, sampled.values, plan, sampled.contour_mask)
+            paths = finish(lines, region, width, ranks.astype(float))
+            if attempt == HOLE_PASSES:
+                break
+            points = shapely.get_coordinates(shapely.segmentize(paths, 0.5 * grid.cell))
+            empty = holes(points, (grid.x0, grid.y0), grid.cell, sampled.region_mask, radius)
+            if not empty.any():
+                break
+            zone = ndimage.binary_dilation(empty, iterations=max(1, math.ceil(radius / grid.cell)))
+            plan = plan.opened(zone, HOLE_OCTAVES)
+        return paths, plan.step
 
     def _fit(
         self, sampled: _Sampled, region: shapely.Geometry, spacing: float, width: float

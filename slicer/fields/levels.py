@@ -32,12 +32,25 @@ class LevelPlan:
     """Levels ``c_j = j * step`` and, per grid cell, the least level rank drawn there.
 
     ``min_rank`` (ny, nx) int8: level ``j`` is drawn in a cell iff its rank is at
-    least the cell's value. ``top`` is the largest rank (given to ``j = 0``).
+    least the cell's value; ``crowd_rank`` (ny, nx) int8 the least rank that keeps
+    contours a line width apart there. ``top`` is the largest rank (given to ``j = 0``).
     """
 
     step: float
     min_rank: np.ndarray
+    crowd_rank: np.ndarray
     top: int
+
+    def opened(self, zone: np.ndarray, octaves: int) -> LevelPlan:
+        """The same levels with ``octaves`` more of them allowed in ``zone`` (ny, nx) bool,
+        never past ``crowd_rank``: fills holes the first-order spacing rule misses."""
+        lowered = np.maximum(self.crowd_rank, self.min_rank - octaves)
+        return LevelPlan(
+            step=self.step,
+            min_rank=np.where(zone, lowered, self.min_rank).astype(np.int8),
+            crowd_rank=self.crowd_rank,
+            top=self.top,
+        )
 
     def indices(self, low: float, high: float) -> np.ndarray:
         """Level indices j with ``low <= j * step <= high``: (k,) int64."""
@@ -97,8 +110,13 @@ def plan_levels(
         return np.clip(r, 0, top)
 
     if step is not None:
-        min_rank = ranks_for(float(np.log2(step)), high_need, low_need).astype(np.int8)
-        return LevelPlan(step=float(step), min_rank=min_rank, top=top)
+        log_step = float(np.log2(step))
+        return LevelPlan(
+            step=float(step),
+            min_rank=ranks_for(log_step, high_need, low_need).astype(np.int8),
+            crowd_rank=np.clip(np.ceil(high_need - log_step), 0, top).astype(np.int8),
+            top=top,
+        )
 
     sub = (slice(None, None, 2), slice(None, None, 2)) if grad.size > 60_000 else np.s_[:, :]
     sub_mask = region_mask[sub]
@@ -121,5 +139,38 @@ def plan_levels(
         else:
             hi = mid
     log_step = 0.5 * (lo + hi)
-    min_rank = ranks_for(log_step, high_need, low_need).astype(np.int8)
-    return LevelPlan(step=float(np.exp2(log_step)), min_rank=min_rank, top=top)
+    return LevelPlan(
+        step=float(np.exp2(log_step)),
+        min_rank=ranks_for(log_step, high_need, low_need).astype(np.int8),
+        crowd_rank=np.clip(np.ceil(high_need - log_step), 0, top).astype(np.int8),
+        top=top,
+    )
+
+
+def holes(
+    points: np.ndarray,
+    origin: tuple[float, float],
+    cell: float,
+    region_mask: np.ndarray,
+    radius: float,
+) -> np.ndarray:
+    """Grid nodes inside the region farther than ``radius`` mm from every path point.
+
+    ``points`` (n, 2) float64 mm sampled along the paths (at most a cell apart);
+    ``origin`` the (x, y) of node (0, 0); ``region_mask`` (ny, nx) bool. Nodes
+    outside the region count as material (the walls). Returns (ny, nx) bool.
+    """
+    covered = ~region_mask
+    if points.size:
+        cols = np.clip(
+            np.rint((points[:, 0] - origin[0]) / cell).astype(int), 0, covered.shape[1] - 1
+        )
+        rows = np.clip(
+            np.rint((points[:, 1] - origin[1]) / cell).astype(int), 0, covered.shape[0] - 1
+        )
+        covered = covered.copy()
+        covered[rows, cols] = True
+    if covered.all():
+        return np.zeros_like(region_mask)
+    distance = ndimage.distance_transform_edt(~covered) * cell
+    return (distance > radius) & region_mask

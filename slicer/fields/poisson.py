@@ -50,6 +50,7 @@ class PoissonField(GridField):
 
     name = "poisson"
     cell_fraction = 0.5
+    densify = 6  # rings near the peak shrink as the root of the level step: go fine there
     max_cells = 120_000
 
     def __init__(self, settings: SliceSettings) -> None:
