@@ -10,8 +10,6 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import csr_matrix
-from scipy.sparse.csgraph import connected_components
 
 from slicer.errors import ModelError
 
@@ -412,21 +410,30 @@ def _fins(faces: np.ndarray, nv: int) -> np.ndarray:
 
 
 def _bodies(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
-    """Connected shells: (body of each face (f,) int64 numbered by first face, count)."""
-    # vertex graph in CSR form built directly (int32 indices): edges v0-v1 and v1-v2
-    src = np.concatenate([faces[:, 0], faces[:, 1]]).astype(np.int32)
-    dst = np.concatenate([faces[:, 1], faces[:, 2]]).astype(np.int32)
-    order = np.argsort(src, kind="stable")
-    indptr = np.searchsorted(src[order], np.arange(n_vertices + 1, dtype=np.int32)).astype(np.int32)
-    graph = csr_matrix(
-        (np.ones(len(dst), dtype=np.int8), dst[order], indptr), shape=(n_vertices, n_vertices)
-    )
-    del src, dst, order, indptr
-    count, label = connected_components(graph, directed=False)
-    del graph
-    face_label = label[faces[:, 0]]
-    # renumber in order of first appearance so numbering follows the file
+    """Connected shells: (body of each face (f,) int64 numbered by first face, count).
+
+    Union-find in numpy: each round hooks the larger root of every edge whose
+    ends disagree onto the smaller one, then jumps pointers to the roots; a
+    mesh settles in a handful of rounds.
+    """
+    parent = np.arange(n_vertices, dtype=np.int64)
+    u = np.concatenate([faces[:, 0], faces[:, 1]])
+    v = np.concatenate([faces[:, 1], faces[:, 2]])
+    while True:
+        pu, pv = parent[u], parent[v]
+        differ = pu != pv
+        if not differ.any():
+            break
+        u, v, pu, pv = u[differ], v[differ], pu[differ], pv[differ]
+        np.minimum.at(parent, np.maximum(pu, pv), np.minimum(pu, pv))
+        while True:
+            jumped = parent[parent]
+            if np.array_equal(jumped, parent):
+                break
+            parent = jumped
+    del u, v
+    face_label = parent[faces[:, 0]]
     used, first = np.unique(face_label, return_index=True)
-    rank = np.full(count, -1, dtype=np.int64)
-    rank[used[np.argsort(first)]] = np.arange(len(used))
-    return rank[face_label], len(used)
+    rank = np.empty(len(used), dtype=np.int64)
+    rank[np.argsort(first)] = np.arange(len(used))
+    return rank[np.searchsorted(used, face_label)], len(used)

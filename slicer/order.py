@@ -7,7 +7,6 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
-from scipy.spatial import cKDTree
 
 
 def ring_points(ring: np.ndarray) -> np.ndarray:
@@ -50,6 +49,8 @@ def order_open_paths(
     nearest ones are already used. Returns the paths in order (reversed where
     entered from their end) and the final position.
     """
+    from scipy.spatial import cKDTree  # only fields with curved paths need it
+
     n = len(paths)
     if n == 0:
         return [], pos

@@ -23,8 +23,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.sparse import coo_matrix
-from scipy.sparse.csgraph import connected_components
 
 # the three edges of a triangle as (from, to) corner indices
 _EDGE_FROM = np.array([0, 1, 2])
@@ -161,15 +159,12 @@ def _chain(
     pred = np.full(n, -1, dtype=np.int64)
     pred[succ[src]] = src
 
-    graph = coo_matrix((np.ones(len(src), dtype=np.int8), (src, succ[src])), shape=(n, n))
-    n_comp, label = connected_components(graph, directed=True, connection="weak")
-    del graph
-    open_comp = np.zeros(n_comp, dtype=bool)
+    # every chain or loop is labelled by its lowest-numbered segment
+    label = np.minimum(_reach_min(succ), _reach_min(pred))
+    open_comp = np.zeros(n, dtype=bool)
     open_comp[label[succ < 0]] = True
     # cut every loop open just before its lowest-numbered segment (deterministic)
-    head = np.full(n_comp, n, dtype=np.int64)
-    np.minimum.at(head, label, idx)
-    loop_heads = head[~open_comp]
+    loop_heads = np.flatnonzero((label == idx) & ~open_comp)
     succ[pred[loop_heads]] = -1
 
     # distance of every segment to the end of its chain, by pointer doubling
@@ -206,6 +201,27 @@ def _chain(
         closed=closed,
         face=face_idx[seq[first]].astype(np.int64),
     )
+
+
+def _reach_min(step: np.ndarray) -> np.ndarray:
+    """Lowest index reachable from each node by following ``step`` (-1 ends), by doubling.
+
+    ``step`` (n,) int64 maps each node to one neighbour; after ``log2(n)``
+    rounds of pointer jumping each node knows the minimum over everything it
+    reaches, which on a loop is the whole loop.
+    """
+    n = len(step)
+    low = np.arange(n, dtype=np.int64)
+    nxt = step.copy()
+    active = np.flatnonzero(nxt >= 0)
+    for _ in range(max(1, int(n).bit_length())):  # 2^rounds >= n covers any loop
+        if len(active) == 0:
+            break
+        hop = nxt[active]
+        low[active] = np.minimum(low[active], low[hop])
+        nxt[active] = nxt[hop]
+        active = active[nxt[active] >= 0]
+    return low
 
 
 def _empty_chains() -> Chains:

@@ -134,3 +134,47 @@ def test_cli_exit_codes(tmp_path) -> None:
     )
     assert unknown.returncode == 2
     assert "infill.colour" in unknown.stderr
+
+
+def test_cli_reads_slicing_and_bed_from_the_config(tmp_path) -> None:
+    cfg = tmp_path / "hostd.toml"
+    cfg.write_text("[printer]\nbed = [180, 160, 100]\n[slicing]\nperimeters = 3\n")
+    out = tmp_path / "c.gcode"
+    run = subprocess.run(
+        [
+            *HOSTD,
+            "slice",
+            str(DATA / "cube20_xyz.stl"),
+            "-o",
+            str(out),
+            "--quiet",
+            "--config",
+            str(cfg),
+            "--set",
+            "infill.density=0.4",
+        ],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    text = out.read_text()
+    assert "; infill = linear 0.4" in text
+    xs = [
+        float(w[1:])
+        for line in text.splitlines()
+        if line.startswith("G1 ")
+        for w in line.split()
+        if w.startswith("X")
+    ]
+    assert min(xs) >= 80 and max(xs) <= 100  # centred on the 180 mm bed
+    assert text.count(";TYPE:WALL-INNER") > 0
+    bad = tmp_path / "bad.toml"
+    bad.write_text("[slicing]\nperimeters = -1\n")
+    refused = subprocess.run(
+        [*HOSTD, "slice", str(DATA / "cube20_xyz.stl"), "-o", str(out), "--config", str(bad)],
+        capture_output=True,
+        text=True,
+        check=False,
+    )
+    assert refused.returncode == 2 and "slicing.perimeters" in refused.stderr

@@ -7,14 +7,14 @@ import shutil
 import sys
 import tempfile
 import time
-import tomllib
 from collections import deque
 from collections.abc import Callable, Iterator
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
-from typing import Any, TextIO
+from typing import TextIO
 
 from hostd.cli import UsageError
+from hostd.config import ConfigError, load_config
 from slicer.errors import ModelError
 from slicer.gcode import GcodeSummary, LayerCode, filament_grams, header_lines
 from slicer.plan import SlicePlan
@@ -26,29 +26,17 @@ DEFAULT_BED = (220.0, 220.0, 250.0)
 def load_settings(config: str | None, assignments: list[str]) -> tuple[SliceSettings, tuple]:
     """Slicing settings and bed size from ``--config FILE`` and ``--set KEY=VALUE`` options.
 
-    The file's ``[slicing]`` table and ``[printer].bed`` are used; ``--set``
-    overrides them. Raises UsageError naming the bad key or file.
+    The file is checked whole by :func:`hostd.config.load_config` (unknown keys
+    refused); its ``[slicing]`` table and ``[printer].bed`` are used, and
+    ``--set`` overrides them. Raises UsageError naming the bad key or file.
     """
-    table: dict[str, Any] = {}
-    bed = DEFAULT_BED
-    if config:
-        try:
-            with open(config, "rb") as fh:
-                doc = tomllib.load(fh)
-        except OSError as exc:
-            raise UsageError(f"cannot read config {config}: {exc.strerror or exc}") from exc
-        except tomllib.TOMLDecodeError as exc:
-            raise UsageError(f"config {config}: {exc}") from exc
-        table = doc.get("slicing", {}) or {}
-        raw_bed = (doc.get("printer", {}) or {}).get("bed", DEFAULT_BED)
-        try:
-            bed = tuple(float(v) for v in raw_bed)
-            if len(bed) != 3 or min(bed) <= 0:
-                raise ValueError
-        except (TypeError, ValueError):
-            raise UsageError(f"printer.bed: expected [x, y, z] in mm, got {raw_bed!r}") from None
     try:
-        settings = SliceSettings.from_mapping(table)
+        cfg = load_config(config) if config else None
+    except ConfigError as exc:
+        raise UsageError(str(exc)) from exc
+    settings = cfg.slicing if cfg else SliceSettings()
+    bed = tuple(cfg.printer.bed) if cfg else DEFAULT_BED
+    try:
         overrides = dict(parse_assignment(a) for a in assignments)
         settings = SliceSettings.from_mapping(overrides, base=settings)
     except SettingsError as exc:
