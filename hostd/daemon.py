@@ -62,6 +62,7 @@ class Daemon:
         for job in self.store.interrupted():
             self.hub.event("interrupted", id=job.id, name=job.name, layer=job.layer)
         self.intake.recover_incoming()
+        self.intake.outcomes.settle()
         self.queue_changed()
         executor = concurrent.futures.ThreadPoolExecutor(
             self.config.runner.workers, thread_name_prefix="hostd-slice"

@@ -6,15 +6,15 @@ import asyncio
 import hashlib
 import logging
 import os
-import shutil
 import stat
 import tomllib
 import uuid
 from pathlib import Path
 
 from hostd.config import Config, ConfigError, slicing_settings
-from hostd.jobfolder import free_stem, leaves_folder, move, split_name, write_text
+from hostd.jobfolder import free_stem, leaves_folder, move, split_name
 from hostd.jobstore import Job, JobStore
+from hostd.outcomes import Outcomes
 from hostd.status import StatusHub
 
 log = logging.getLogger("hostd.intake")
@@ -33,6 +33,7 @@ class Intake:
         self.hub = hub
         self.jobs_folder = config.jobs.folder
         self.area = config.state.folder / "jobs"
+        self.outcomes = Outcomes(self.jobs_folder, self.area, store, hub)
 
     async def take(self, path: Path) -> Job | None:
         """Check ``path`` and queue it as a job, or send it to failed/ with the reason."""
@@ -104,52 +105,12 @@ class Intake:
     def fail(
         self, job: Job, reason: str, extra: list[Path] | None = None, state: str = "failed"
     ) -> Path:
-        """Move the job's model to failed/NAME.* with NAME.error.txt; record and announce.
+        """End the job in failed/ with NAME.error.txt (``state`` failed or cancelled)."""
+        return self.outcomes.fail(job, reason, extra, state)
 
-        ``state`` is the job's final state: ``failed``, or ``cancelled`` for a job
-        stopped by a command (its files go to failed/ too, with the reason).
-        """
-        folder = self.jobs_folder / "failed"
-        stem, suffix = split_name(job.name)
-        free = free_stem(folder, stem)
-        model = Path(job.path)
-        if model.exists() or model.is_symlink():
-            move(model, folder / f"{free}{suffix}")
-        for path in extra or []:
-            move(path, folder / f"{free}{path.suffix}")
-        error = write_text(folder / f"{free}.error.txt", reason.rstrip() + "\n")
-        self._drop_area(job)
-        current = self.store.get(job.id)
-        if current.state not in ("failed", "done", "cancelled"):
-            self.store.transition(job.id, state, note=reason, error=reason, outcome=str(error))
-        log.error("job %s %s: %s: %s", job.id, job.name, state, reason)
-        self.hub.event(state, id=job.id, name=job.name, reason=reason)
-        return error
-
-    def finish(self, job: Job, gcode: Path, summary: str, cancelled: bool = False) -> Path:
-        """Move the model and its G-code to done/NAME.* with NAME.summary.txt."""
-        folder = self.jobs_folder / "done"
-        stem, suffix = split_name(job.name)
-        free = free_stem(folder, stem)
-        model = Path(job.path)
-        if suffix == ".gcode":
-            target = move(gcode, folder / f"{free}.gcode")
-            model.unlink(missing_ok=True)
-        else:
-            if model.exists():
-                move(model, folder / f"{free}{suffix}")
-            target = move(gcode, folder / f"{free}.gcode")
-            override = model.with_name(f"{model.stem}.toml")
-            if override.exists():
-                move(override, folder / f"{free}.toml")
-        write_text(folder / f"{free}.summary.txt", summary)
-        self._drop_area(job)
-        return target
-
-    def _drop_area(self, job: Job) -> None:
-        home = self.area / job.id
-        if home.is_dir():
-            shutil.rmtree(home, ignore_errors=True)
+    def finish(self, job: Job) -> Path:
+        """End the job in done/ (model, G-code and summary); returns the G-code's path."""
+        return self.outcomes.finish(job)
 
     def recover_incoming(self) -> None:
         """Put files of an interrupted take (crash mid-intake) back into the job folder."""

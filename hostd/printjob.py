@@ -15,7 +15,7 @@ from pathlib import Path
 from drivers.streamer import LinkError, Streamer
 from hostd.config import Config
 from hostd.intake import Intake
-from hostd.jobfolder import split_name
+from hostd.jobfolder import split_name, write_text
 from hostd.jobstore import Job, JobStore
 from hostd.runner import JobCancelled, JobRunner, open_output
 from hostd.schedule import LayerSchedule
@@ -95,8 +95,8 @@ class PrintJob:
             finally:
                 link.on_ack = None
                 self.source.close()
-        summary_text = await asyncio.to_thread(self._write_final, job)
-        self._finish(summary_text)
+        await asyncio.to_thread(self._write_final, job)
+        self.intake.finish(self.store.get(job.id))
         return "done"
 
     async def _source(self, job: Job, first: int, resume: bool) -> LayerSource:
@@ -134,11 +134,10 @@ class PrintJob:
             self.store.transition(job.id, "interrupted", note=note)
             self.hub.event("interrupted", id=job.id, name=job.name, layer=job.layer)
 
-    def _write_final(self, job: Job) -> str:
-        """Header (from the whole file) + body into NAME.gcode; returns the summary text."""
+    def _write_final(self, job: Job) -> None:
+        """NAME.gcode (header from the whole file, then the body) and NAME.summary.txt."""
         if job.kind == "gcode":
-            shutil.copyfile(self.partial, self.final)
-            summary_text = f"printed {job.name} as is\n"
+            summary_text = f"job {job.id} {job.name}: printed as is\n"
         else:
             summary = summarize(_lines(self.partial))
             settings = self.schedule.base_settings if self.schedule else SliceSettings()
@@ -154,20 +153,13 @@ class PrintJob:
                 f"filament {summary.filament_mm:.0f} mm ({summary.filament_g:.1f} g)\n"
                 f"estimated print time {summary.time_s:.0f} s\n"
             )
-        return summary_text
-
-    def _finish(self, summary_text: str) -> None:
-        """Move the finished job to done/ and record it."""
-        job = stored = self.store.get(self.job.id)
-        changes = self.store.settings_changes(job.id)
-        cancelled = self.store.cancelled_objects(job.id)
-        summary_text += f"sha256 {stored.sha256}\nlines acknowledged {stored.lines_acked}\n"
+        summary_text += f"sha256 {job.sha256}\nlines acknowledged {self.runner.lines_acked}\n"
+        changes = self.schedule.changes if self.schedule else []
+        cancelled = self.schedule.cancelled if self.schedule else []
         summary_text += "".join(f"from layer {first}: {c}\n" for first, c in changes)
         summary_text += "".join(f"body {b} cancelled from layer {f}\n" for b, f in cancelled)
-        target = self.intake.finish(stored, self.final, summary_text)
-        self.store.transition(job.id, "done", outcome=str(target))
-        log.info("job %s %s: done, G-code in %s", job.id, job.name, target)
-        self.hub.event("done", id=job.id, name=job.name, gcode=str(target))
+        write_text(self.final.with_name(f"{self.final.stem}.summary.txt"), summary_text)
+        self.partial.unlink(missing_ok=True)
 
 
 def _lines(path: Path) -> Iterator[str]:
