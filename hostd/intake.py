@@ -6,6 +6,7 @@ import asyncio
 import hashlib
 import logging
 import os
+import shutil
 import stat
 import tomllib
 import uuid
@@ -50,7 +51,11 @@ class Intake:
             return None
         incoming = self.area / f"incoming-{uuid.uuid4().hex}"
         incoming.mkdir(parents=True)
-        staged = move(path, incoming / path.name)
+        if path.is_symlink():  # a link inside the folder: take a copy of what it points to
+            staged = Path(shutil.copyfile(path, incoming / path.name))
+            path.unlink()
+        else:
+            staged = move(path, incoming / path.name)
         if override.is_file() and not override.is_symlink():
             move(override, incoming / override.name)
         job = self.store.add(path.name, str(path), str(staged), kind, digest, settings)

@@ -168,3 +168,20 @@ def test_a_good_override_is_applied_and_kept_with_the_job(tmp_path: Path) -> Non
     assert job.settings["infill.density"] == 0.6 and job.settings["infill.field"] == "wave"
     assert (Path(job.path).parent / "dense.toml").exists()
     assert not (config.jobs.folder / "dense.toml").exists()
+
+
+def test_a_link_inside_the_folder_is_taken_as_a_copy(tmp_path: Path) -> None:
+    config = make_config(tmp_path)
+
+    async def drop(folder: Path) -> None:
+        library = folder / "library"
+        library.mkdir()
+        shutil.copyfile(CUBE, library / "cube.stl")
+        os.symlink(library / "cube.stl", folder / "linked.stl")
+
+    _taken, store = asyncio.run(watch_for(config, 0.8, drop))
+    (job,) = store.jobs()
+    assert job.state == "queued" and not Path(job.path).is_symlink()
+    assert Path(job.path).read_bytes() == CUBE.read_bytes()
+    assert (config.jobs.folder / "library" / "cube.stl").exists()
+    assert not (config.jobs.folder / "linked.stl").is_symlink()
