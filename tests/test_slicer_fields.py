@@ -264,6 +264,8 @@ def test_stress_lines_crowd_where_the_stress_is_high(stress_csv: Path) -> None:
 
 
 def test_every_registered_field_is_available_by_name() -> None:
+    import slicer.fields.library  # noqa: F401  (registers every built-in field)
+
     assert set(CURVED_FIELDS) | {"linear"} <= set(FIELDS)
 
 
