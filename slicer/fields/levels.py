@@ -16,7 +16,10 @@ puts its local spacing ``step * 2**r / |grad H|``:
 ``step`` is then found by bisection so that the predicted path length per area,
 ``mean(|grad H| / (step * 2**r(x))``, equals ``1 / spacing`` (coarea formula).
 Contours of a level stop where the cell's rank exceeds the level's, so spacing
-changes by whole octaves with line ends rather than by crowding.
+changes by whole octaves with line ends rather than by crowding. The spacing
+rule is first order; near a peak or a saddle, where the gradient vanishes,
+:func:`holes` finds what it left empty after tracing and :meth:`LevelPlan.opened`
+allows finer levels there (never past the crowding limit).
 """
 
 from __future__ import annotations
