@@ -57,6 +57,12 @@ class Daemon:
         for signum in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(signum, self._stop.set)
         for job in self.store.recover():
+            if job.state in ("slicing", "heating") and job.layer < 0:
+                # nothing was extruded yet: the bed is clear, start it again from the top
+                self.store.transition(job.id, "queued", note="restarted: nothing printed yet")
+                log.warning("job %s %s was stopped before printing; queued again",
+                            job.id, job.name)
+                continue
             log.warning("job %s %s was interrupted after layer %d; resume it with "
                         "`hostd resume %s`", job.id, job.name, job.layer, job.id)
         for job in self.store.interrupted():

@@ -122,6 +122,7 @@ class PrintJob:
 
     async def _cancelled(self, link: Streamer, reason: str) -> None:
         with contextlib.suppress(LinkError):
+            await link.interrupt_wait()  # M108: end a heating wait at once
             for command in CANCEL_GCODE:
                 await link.send(command)
             await link.drain()
@@ -129,10 +130,15 @@ class PrintJob:
         self.intake.fail(job, reason, state="cancelled")
 
     def _interrupted(self, note: str) -> None:
+        """Leave the job interrupted at its checkpoint, or queued again if nothing printed."""
         job = self.store.get(self.job.id)
-        if job.state in ("slicing", "heating", "printing", "paused"):
-            self.store.transition(job.id, "interrupted", note=note)
-            self.hub.event("interrupted", id=job.id, name=job.name, layer=job.layer)
+        if job.state not in ("slicing", "heating", "printing", "paused"):
+            return
+        self.store.transition(job.id, "interrupted", note=note)
+        if job.state in ("slicing", "heating") and job.layer < 0:
+            self.store.transition(job.id, "queued", note="restarted: nothing printed yet")
+            return
+        self.hub.event("interrupted", id=job.id, name=job.name, layer=job.layer)
 
     def _write_final(self, job: Job) -> None:
         """NAME.gcode (header from the whole file, then the body) and NAME.summary.txt."""

@@ -225,3 +225,20 @@ def test_an_absent_printer_leaves_the_daemon_serving_offline(tmp_path):
         if proc.poll() is None:
             proc.kill()
         proc.wait()
+
+
+def test_a_job_stopped_while_heating_is_queued_again_and_prints(daemon):
+    hostd = daemon(sim_config(time_scale=0.05))
+    hostd.drop(DATA / "cube20_xyz.stl", "warm.stl")
+    hostd.wait_for(lambda: job_state(hostd.state, "1")[0] == "heating", 30, "heating")
+    assert hostd.stop() == 0
+    assert job_state(hostd.state, "1") == ("queued", -1)  # nothing extruded: bed still clear
+    hostd.config.write_text(sim_config(time_scale=0.0))
+    hostd.start()
+    hostd.wait_for(lambda: (hostd.jobs / "done" / "warm.summary.txt").exists(), 60, "done")
+    assert hostd.stop() == 0
+    store = JobStore(hostd.state / "jobs.sqlite3")
+    states = [entry.to_state for entry in store.history("1")]
+    store.close()
+    assert states[:4] == ["queued", "slicing", "heating", "interrupted"]
+    assert states[4:] == ["queued", "slicing", "heating", "printing", "done"]
