@@ -165,7 +165,8 @@ class PrintJob:
         summary_text += "".join(f"from layer {first}: {c}\n" for first, c in changes)
         summary_text += "".join(f"body {b} cancelled from layer {f}\n" for b, f in cancelled)
         write_text(self.final.with_name(f"{self.final.stem}.summary.txt"), summary_text)
-        self.partial.unlink(missing_ok=True)
+        # the partial file stays until the job's folder is cleared: a crash before the
+        # outcome is recorded resumes from it
 
 
 def _lines(path: Path) -> Iterator[str]:

@@ -237,8 +237,10 @@ def _clock(seconds: float) -> str:
 
 def open_output(path: Path, keep_bytes: int) -> IO[str]:
     """The job's G-code file being written: fresh, or cut back to a checkpoint's length."""
-    if keep_bytes <= 0 or not path.exists():
+    if keep_bytes <= 0:
         return open(path, "w", encoding="utf-8", newline="\n")
+    if not path.exists():
+        raise OSError(f"{path.name} is missing: the job cannot resume at its checkpoint")
     if path.stat().st_size < keep_bytes:
         raise OSError(f"{path.name} is shorter than its checkpoint ({keep_bytes} bytes)")
     handle = open(path, "r+", encoding="utf-8", newline="\n")  # noqa: SIM115
