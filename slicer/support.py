@@ -42,7 +42,7 @@ def support_regions(
     empty = shapely.Polygon()
     slope = math.tan(math.radians(settings.support_angle))
     if settings.support_angle >= 89.999 or count < 2:
-        return [empty] * count
+        return [shapely.Polygon() for _ in range(count)]
     reach = shapely.buffer(solid[:-1], layer_height * slope)
     bare = shapely.difference(solid[1:], reach)
     # widen each overhang by the self-supported reach, so the thin bands of a steady
@@ -62,7 +62,8 @@ def support_regions(
     width = settings.line_width
     regions = shapely.difference(regions, shapely.buffer(solid, settings.support_clearance))
     regions = shapely.buffer(shapely.buffer(regions, -0.5 * width), 0.5 * width)
-    return [empty if g is None or g.is_empty else g for g in regions]
+    # a fresh empty per layer: no object shared by the layers (threads prepare them)
+    return [shapely.Polygon() if g is None or g.is_empty else g for g in regions]
 
 
 def support_interfaces(
@@ -83,7 +84,7 @@ def support_interfaces(
     result: list[shapely.Geometry] = []
     for i in range(count):
         if regions[i] is None or regions[i].is_empty:
-            result.append(empty)
+            result.append(shapely.Polygon())
             continue
         window = [g for g in outlines[i + 1 : i + 2 + gap + INTERFACE_LAYERS] if g is not None]
         roof = shapely.union_all(window) if window else empty
