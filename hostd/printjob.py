@@ -79,7 +79,7 @@ class PrintJob:
         with output:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
                                     first or 0, write_preamble=not resume)
-            link.on_ack = lambda number, _command: self.runner.on_ack(number)
+            link.on_ack = lambda _number, _command: self.runner.on_ack()
             verb = f"resumed at layer {first}" if resume else "started"
             log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
             self.hub.event("started", id=job.id, name=job.name, layers=self.source.layer_count,

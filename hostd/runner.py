@@ -37,9 +37,13 @@ class JobCancelled(Exception):
 
 @dataclass(frozen=True)
 class _Mark:
-    """A point in the stream: once line ``number`` is acknowledged, ``layer`` is complete."""
+    """A point in the stream: once ``sent`` job lines are acknowledged, ``layer`` is complete.
 
-    number: int
+    Counted in lines, not line numbers: the streamer renumbers (``M110``) on long jobs,
+    but acknowledges every job line once, in order.
+    """
+
+    sent: int
     layer: int
     offset: int
 
@@ -77,14 +81,12 @@ class JobRunner:
         self.completed = first - 1
         self.lines_acked = job.lines_acked if first > 0 else 0
         self.state = "slicing"
-        self._sent: collections.deque[int] = collections.deque()
         self._marks: collections.deque[_Mark] = collections.deque()
-        self._last_sent = 0
-        self._last_acked = 0
+        self._sent = 0  # job lines sent by this run
+        self._acked = 0  # job lines acknowledged in this run
         self._running = asyncio.Event()
         self._running.set()
         self._cancelled = False
-        self._done = asyncio.Event()
         self._started = time.monotonic()
         self._print_started: float | None = None
         self._layers_timed = 0
@@ -148,21 +150,17 @@ class JobRunner:
                 await self._running.wait()
             if self._cancelled:
                 raise JobCancelled(f"cancelled at layer {self.completed + 1}")
-            number = await self.link.send(command)
-            self._sent.append(number)
-            self._last_sent = number
+            await self.link.send(command)
+            self._sent += 1
         if self._cancelled:
             raise JobCancelled(f"cancelled at layer {self.completed + 1}")
-        self._marks.append(_Mark(self._last_sent, layer, self.output.tell()))
+        self._marks.append(_Mark(self._sent, layer, self.output.tell()))
         self._check_marks()
 
-    def on_ack(self, number: int) -> None:
-        """The printer acknowledged line ``number`` (and every one before it)."""
-        sent = self._sent
-        while sent and sent[0] <= number:
-            sent.popleft()
-            self.lines_acked += 1
-        self._last_acked = max(self._last_acked, number)
+    def on_ack(self) -> None:
+        """The printer acknowledged the oldest job line not yet acknowledged."""
+        self._acked += 1
+        self.lines_acked += 1
         self._check_marks()
         now = time.monotonic()
         if now - self._last_publish > 0.25:
@@ -170,7 +168,7 @@ class JobRunner:
 
     def _check_marks(self) -> None:
         marks = self._marks
-        while marks and (marks[0].number <= self._last_acked or marks[0].number == 0):
+        while marks and marks[0].sent <= self._acked:
             mark = marks.popleft()
             if mark.layer == PREAMBLE:
                 self._print_started = time.monotonic()

@@ -8,12 +8,13 @@ import itertools
 import threading
 from pathlib import Path
 
+import pytest
 from conftest import DATA
 
 from drivers.protocol import strip_comment
 from drivers.simconfig import SimulatorConfig
 from drivers.simulator import SimulatedPrinter
-from drivers.streamer import Streamer
+from drivers.streamer import Streamer, StreamerConfig
 from drivers.transport import open_transport
 from hostd.jobstore import JobStore
 from hostd.runner import JobRunner, open_output
@@ -41,7 +42,7 @@ class CountingSchedule(LayerSchedule):
         return lines
 
 
-async def print_job(tmp_path: Path, depth: int) -> dict:
+async def print_job(tmp_path: Path, depth: int, renumber_at: int = 100_000) -> dict:
     settings = SliceSettings()
     plan = SlicePlan.from_file(MODEL, settings)
     schedule = CountingSchedule(plan, settings)
@@ -54,7 +55,8 @@ async def print_job(tmp_path: Path, depth: int) -> dict:
     path = printer.start()
     executor = concurrent.futures.ThreadPoolExecutor(2)
     try:
-        async with Streamer(await open_transport(path, 250000)) as link:
+        config = StreamerConfig(renumber_at=renumber_at)
+        async with Streamer(await open_transport(path, 250000), config) as link:
             await link.connect()
             source = SlicedSource(schedule, 0, depth, executor, resume=False)
             output = open_output(tmp_path / "out.gcode.part", 0)
@@ -75,7 +77,7 @@ async def print_job(tmp_path: Path, depth: int) -> dict:
                 original_checkpoint(job_id, layer, lines, offset)
 
             store.checkpoint = checkpoint  # type: ignore[method-assign]
-            link.on_ack = lambda number, _command: runner.on_ack(number)
+            link.on_ack = lambda _number, _command: runner.on_ack()
             await runner.run()
             output.close()
     finally:
@@ -116,3 +118,11 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
     assert [c for c in map(strip_comment, text.splitlines()) if c] == expected
     assert job.gcode_bytes <= len(text.encode())
     assert seen["hub"].job.progress == 1.0 and seen["hub"].state == "printing"
+
+
+@pytest.mark.xfail(strict=True, reason="drivers.streamer stops calling on_ack for the lines "
+                   "after an M110 renumber (the M110's own ack resets _emitted_through)")
+def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> None:
+    seen = asyncio.run(print_job(tmp_path, depth=2, renumber_at=1000))
+    assert sum(c.startswith("M110") for c in seen["executed"]) > 10  # renumbered often
+    assert [c[0] for c in seen["checkpoints"]] == list(range(seen["plan"].layer_count))
