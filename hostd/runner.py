@@ -90,6 +90,7 @@ class JobRunner:
         self._started = time.monotonic()
         self._print_started: float | None = None
         self._layers_timed = 0
+        self._last_layer_at = 0.0
         self._last_publish = 0.0
         self.streaming_layer = first
 
@@ -182,6 +183,7 @@ class JobRunner:
         os.fsync(self.output.fileno())
         self.completed = mark.layer
         self._layers_timed += 1
+        self._last_layer_at = time.monotonic()
         self.store.checkpoint(self.job.id, mark.layer, self.lines_acked, mark.offset)
         status = self._publish()
         eta = "--" if status.eta_s is None else _clock(status.eta_s)
@@ -200,8 +202,9 @@ class JobRunner:
         progress = done / self.layers if self.layers else 0.0
         eta = None
         if self._print_started is not None and self._layers_timed:
-            per_layer = (time.monotonic() - self._print_started) / self._layers_timed
-            eta = round(per_layer * (self.layers - done), 1)
+            now = time.monotonic()
+            per_layer = (self._last_layer_at - self._print_started) / self._layers_timed
+            eta = round(max(0.0, per_layer * (self.layers - done) - (now - self._last_layer_at)), 1)
         return JobStatus(
             id=self.job.id,
             name=self.job.name,
