@@ -96,8 +96,14 @@ def layer_paths(
     """
     settings = ctx.settings
     islands = regions.islands
+    has_support = (
+        support_paths is not None and regions.support is not None and not regions.support.is_empty
+    )
     if len(islands) == 0:
-        return []
+        if not has_support:
+            return []
+        b = regions.support.bounds
+        return _support(regions, ctx, support_paths, np.array([b[0], b[3]]))
     w = settings.line_width
     levels = (np.arange(settings.perimeters) + 0.5) * w
     walls = (
@@ -112,6 +118,7 @@ def layer_paths(
     else:
         skin = np.full(len(islands), None, dtype=object)
         sparse = fill
+    skin, sparse = _solid_small_regions(skin, sparse, settings.infill_solid_below_area)
     shortest = _MIN_PATH * w
     skin_lines = [_hatched(r, settings.infill_angle, ctx.index, w, shortest) for r in skin]
     if isinstance(field, LinearField):
@@ -139,9 +146,39 @@ def layer_paths(
                 continue
             for coords in order.join_paths(ordered, grow[k], 2.0 * w):
                 out.append(Path(kind, coords))
-    if support_paths is not None and regions.support is not None and not regions.support.is_empty:
+    if has_support:
         out.extend(_support(regions, ctx, support_paths, pos))
     return out
+
+
+def _solid_small_regions(
+    skin: np.ndarray, sparse: np.ndarray, below: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Move sparse regions smaller than ``below`` mm^2 into the skin, per island.
+
+    Sparse lines in a small region are a few short strokes that add little
+    strength and many travels; solid fill there is what PrusaSlicer does too
+    (its ``solid_infill_below_area``).
+    """
+    if below <= 0:
+        return skin, sparse
+    parts, owner = shapely.get_parts(sparse, return_index=True)
+    if len(parts) == 0:
+        return skin, sparse
+    small = shapely.area(parts) < below
+    if not small.any():
+        return skin, sparse
+    skin = skin.copy()
+    sparse = sparse.copy()
+    for i in np.unique(owner[small]):
+        mine = owner == i
+        solid = parts[mine & small]
+        rest = parts[mine & ~small]
+        extra = shapely.union_all(solid) if len(solid) > 1 else solid[0]
+        base = skin[i]
+        skin[i] = extra if base is None or base.is_empty else geom.union(base, extra)
+        sparse[i] = shapely.multipolygons(rest) if len(rest) else None
+    return skin, sparse
 
 
 def _start_position(islands: np.ndarray) -> np.ndarray:
@@ -288,7 +325,7 @@ def _support(
     regions: LayerRegions, ctx: LayerContext, support_paths, pos: np.ndarray
 ) -> list[Path]:
     """Support toolpaths (wall, interface and infill), nearest first."""
-    outline = shapely.union_all(regions.islands)
+    outline = shapely.union_all(regions.islands) if len(regions.islands) else shapely.Polygon()
     parts = support_paths(regions.support, outline, ctx, regions.interface)
     out: list[Path] = []
     lines: list[np.ndarray] = []

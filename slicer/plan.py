@@ -152,7 +152,11 @@ class SlicePlan:
         return self._geo.bed
 
     def outline(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> shapely.Geometry:
-        """Layer ``i``'s solid region as a MultiPolygon, mm."""
+        """Layer ``i``'s solid region as a MultiPolygon, mm.
+
+        The plan's own object, shared by every thread: use it read-only and
+        never ``shapely.prepare`` it (prepare a copy instead).
+        """
         i = self._check(i)
         if excluded_bodies and np.isin(self._geo.bodies[i], list(excluded_bodies)).any():
             return _multi(self._islands(i, excluded_bodies))
@@ -166,7 +170,7 @@ class SlicePlan:
         ctx = LayerContext(
             index=i,
             z=float(self._geo.tops[i]),
-            domain=self.outline(i, excluded_bodies),
+            domain=_private(self.outline(i, excluded_bodies)),
             bounds=self._geo.bounds,
             settings=self.settings,
         )

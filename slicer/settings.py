@@ -63,6 +63,7 @@ class SliceSettings:
     infill_file: str = ""
     infill_expression: str = ""
     infill_scale: float = 10.0
+    infill_solid_below_area: float = 70.0
     support_enabled: bool = False
     support_angle: float = 50.0
     support_clearance: float = 0.2
@@ -181,6 +182,7 @@ _SPECS: dict[str, _Spec] = {
     "infill.file": _Spec(str),
     "infill.expression": _Spec(str),
     "infill.scale": _Spec(float, 0.5, 200.0),
+    "infill.solid_below_area": _Spec(float, 0.0, 10000.0),
     "support.enabled": _Spec(bool),
     "support.angle": _Spec(float, 0.0, 90.0),
     "support.clearance": _Spec(float, 0.0, 5.0),

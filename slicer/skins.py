@@ -1,12 +1,18 @@
 """Top and bottom skin regions of every layer, from the layer outlines alone.
 
-Layer ``i`` needs solid skin where its infill domain is not covered by *every*
-one of the ``top_layers`` layers above it (open air within that distance), or
-of the ``bottom_layers`` layers below (the bed and empty layers count as air).
-Since ``F - (O_1 ∩ ... ∩ O_k) = F - ∩{O_j : O_j does not contain F}``, a cheap
-vectorised ``contains`` test on prepared outlines rules out most neighbours,
-and overlays are computed only where a surface really is near. Everything runs
-as shapely array operations over all layers at once.
+Layer ``i`` needs solid skin where its infill domain ``F_i`` (inside the walls)
+is not covered by the infill domain of *every* one of the ``top_layers``
+layers above it, or of the ``bottom_layers`` layers below (the bed and empty
+layers count as air). Comparing with the neighbours' infill domains rather
+than their outlines also makes the shell of sloped surfaces solid: where the
+walls of nearby layers pass over this layer's infill, there is solid fill, so
+the outer surface is closed and as thick as the walls whatever the sparse
+field (PrusaSlicer's "ensure vertical shell thickness").
+
+Since ``F - (F_1 ∩ ... ∩ F_k) = F - ∩{F_j : F_j does not contain F}``, a
+cheap vectorised ``contains`` test on prepared domains rules out most
+neighbours, and overlays are computed only where a surface really is near.
+Everything runs as shapely array operations over all layers at once.
 """
 
 from __future__ import annotations
@@ -32,8 +38,13 @@ def _shifted(outlines: np.ndarray, step: int) -> np.ndarray:
     return out
 
 
-def _exposed(fill: np.ndarray, outlines: np.ndarray, count: int, direction: int) -> np.ndarray:
-    """Part of each layer's fill domain not covered by all ``count`` layers in ``direction``."""
+def _exposed(fill: np.ndarray, cover_by: np.ndarray, count: int, direction: int) -> np.ndarray:
+    """Part of each layer's fill domain not covered by all ``count`` layers in ``direction``.
+
+    ``fill`` (n,) the layers' infill domains; ``cover_by`` (n,) what a
+    neighbour covers with (prepared copies of the same domains).
+    """
+    outlines = cover_by
     n = len(outlines)
     result = np.full(n, None, dtype=object)
     if count <= 0:
@@ -85,9 +96,9 @@ def skin_regions(
             lambda idx: shapely.buffer(outlines[idx], -fill_distance, quad_segs=6), halves
         )
         fill = np.concatenate(list(parts))
-    # predicates run on prepared private copies, in this thread only: GEOS builds
+    # predicates run on prepared copies, in this thread only: GEOS builds
     # prepared indexes lazily, so a prepared geometry must never be shared
-    private = shapely.from_wkb(shapely.to_wkb(outlines))
+    private = shapely.from_wkb(shapely.to_wkb(fill))
     shapely.prepare(private)
     a = _exposed(fill, private, top, 1)
     b = _exposed(fill, private, bottom, -1)

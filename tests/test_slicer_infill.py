@@ -79,7 +79,7 @@ def test_skin_under_an_overhang_ledge(tmp_path) -> None:
     import trimesh
 
     base = trimesh.creation.box(extents=(30, 30, 4))
-    top = trimesh.creation.box(extents=(10, 10, 6))
+    top = trimesh.creation.box(extents=(16, 16, 6))
     top.apply_translation((0, 0, 5))
     mesh = trimesh.util.concatenate([base, top])
     path = tmp_path / "step.stl"
@@ -92,7 +92,7 @@ def test_skin_under_an_overhang_ledge(tmp_path) -> None:
     fill = extrusions(lines, FILL)
     assert skin and fill
     cx, cy = plan.bed[0] / 2, plan.bed[1] / 2
-    tower = shapely.box(cx - 5, cy - 5, cx + 5, cy + 5)
+    tower = shapely.box(cx - 8, cy - 8, cx + 8, cy + 8)
     for p in fill:
         assert shapely.LineString(p).within(tower.buffer(0.5))
 
@@ -112,3 +112,33 @@ def test_infill_stays_inside_the_walls(model_density) -> None:
         for kind in (FILL, SKIN):
             for p in extrusions(lines, kind):
                 assert shapely.LineString(p).within(domain), (i, kind)
+
+
+def test_sloped_shell_is_solid_and_small_regions_are_solid(tmp_path) -> None:
+    import trimesh
+
+    cone = trimesh.creation.cone(radius=15, height=20, sections=64)
+    pillar = trimesh.creation.box(extents=(6, 6, 20))
+    pillar.apply_translation((30, 0, 10))
+    path = tmp_path / "cone.stl"
+    path.write_bytes(trimesh.exchange.stl.export_stl(trimesh.util.concatenate([cone, pillar])))
+    plan = SlicePlan.from_file(path, SliceSettings())
+    s = plan.settings
+    i = 30  # z = 6: the cone's wall slopes 0.75 mm per 1 mm, so a band under it is solid
+    lines = plan.layer_gcode(i)
+    skin = extrusions(lines, SKIN)
+    fill = extrusions(lines, FILL)
+    assert skin and fill
+    cone_centre = shapely.Point(plan.bounds[0] + 15, (plan.bounds[1] + plan.bounds[3]) / 2)
+    radius = 15 * (1 - plan.layer_z(i) / 20)
+    inner = radius - fill_distance(s)
+    # the skin hugs the wall: the ring between the domain edge and a band inside it
+    for p in skin:
+        d = shapely.LineString(p).distance(cone_centre)
+        if d < 25:  # skin of the cone, not of the pillar
+            assert d > inner - 4 * s.layer_height / 0.75 - s.line_width
+    # the 6 mm pillar's infill domain (< 70 mm^2) is filled solid at every height
+    px = plan.bounds[2] - 3
+    for p in fill:
+        assert shapely.LineString(p).distance(shapely.Point(px, cone_centre.y)) > 4
+    assert any(shapely.LineString(p).distance(shapely.Point(px, cone_centre.y)) < 3 for p in skin)

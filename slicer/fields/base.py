@@ -64,8 +64,14 @@ def register(name: str) -> Callable[[Callable[[SliceSettings], InfillField]], Ca
 
 
 def get_field(settings: SliceSettings) -> InfillField:
-    """The field strategy the settings select (``infill.field``)."""
-    import slicer.fields.library  # noqa: F401  (registers the built-in fields)
+    """The field strategy the settings select (``infill.field``).
+
+    The library (every built-in field, and the heavier libraries some of them
+    need) is imported only when the field asked for is not registered yet, so
+    the default linear field starts fast.
+    """
+    if settings.infill_field not in FIELDS:
+        import slicer.fields.library  # noqa: F401  (registers the built-in fields)
 
     try:
         factory = FIELDS[settings.infill_field]
