@@ -167,12 +167,12 @@ def test_poisson_field_is_zero_on_the_outline_and_peaks_inside() -> None:
 def test_eggcrate_samples_the_formula() -> None:
     domain = shapely.box(0, 0, 20, 20)
     settings = SliceSettings.from_mapping(
-        {"infill.field": "eggcrate", "infill.angle": 0, "infill.scale": 8}
+        {"infill.field": "eggcrate", "infill.angle": 0, "infill.scale": 12}
     )
     ctx = layer(domain, settings)
     x = np.array([10.0, 12.0, 14.0])
     y = np.array([10.0, 10.0, 13.0])
-    a = np.pi / 8
+    a = np.pi / 12
     expected = np.sin(a * (x - 10)) ** 2 + np.sin(a * (y - 10)) ** 2
     assert np.allclose(get_field(settings).sample(x, y, ctx), expected)
 
