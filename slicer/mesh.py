@@ -141,29 +141,34 @@ def merge_corners(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     key ^= tmp
     del tmp
     order = np.argsort(key)  # ties are identical corners: their order does not matter
+    key = key[order]
     new = np.empty(len(order), dtype=bool)
     new[0] = True
-    step = 1 << 18
-    collision = False
-    for a in range(1, len(order), step):  # neighbours compared in chunks: no sorted copies
-        b = min(a + step, len(order))
-        here, before = order[a:b], order[a - 1 : b - 1]
-        np.not_equal(key[here], key[before], out=new[a:b])
-        same = ~new[a:b]
-        if not collision and not (c32[here[same]] == c32[before[same]]).all():
-            collision = True
+    np.not_equal(key[1:], key[:-1], out=new[1:])
     del key
-    if collision:
-        order = np.lexsort((bits[:, 2], bits[:, 1], bits[:, 0]))
-        s = bits[order]
-        new[1:] = (s[1:] != s[:-1]).any(axis=1)
-        del s
-    vertices = c32[order[new]].astype(np.float64)
+    vertices, inverse = _labels(c32, order, new)
+    # a hash collision would merge different corners: check every corner against
+    # its vertex (sequential reads, lookups in the small vertex table)
+    step = 1 << 18
+    for a in range(0, len(inverse), step):
+        if not (c32[a : a + step] == vertices[inverse[a : a + step]]).all():
+            order = np.lexsort((bits[:, 2], bits[:, 1], bits[:, 0]))
+            s = bits[order]
+            new[1:] = (s[1:] != s[:-1]).any(axis=1)
+            del s
+            vertices, inverse = _labels(c32, order, new)
+            break
+    return vertices.astype(np.float64), inverse.reshape(-1, 3)
+
+
+def _labels(c32: np.ndarray, order: np.ndarray, new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Vertices (float32) and each corner's vertex index from a sort ``order`` whose
+    runs of equal corners start where ``new`` is True."""
     index = np.cumsum(new, dtype=np.int64)
     index -= 1
     inverse = np.empty(len(order), dtype=np.int64)
     inverse[order] = index
-    return vertices, inverse.reshape(-1, 3)
+    return c32[order[new]], inverse
 
 
 def _stl_kind(head: bytes, size: int) -> str | None:
@@ -206,7 +211,7 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, fl
         warnings.append("repaired: fixed inconsistent face winding")
         stats = _edge_stats(faces, len(vertices))
     if stats.open:
-        faces, closed = _fill_small_holes(faces, len(vertices))
+        faces, closed = _fill_small_holes(faces, len(vertices), stats.open_keys)
         if closed:
             warnings.append(f"repaired: filled small holes ({closed} open edges)")
             stats = _edge_stats(faces, len(vertices))
@@ -259,25 +264,28 @@ def _fix_winding(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
     return np.array(mesh.faces, dtype=np.int64)
 
 
-def _fill_small_holes(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int]:
+def _fill_small_holes(faces: np.ndarray, nv: int, open_keys: np.ndarray) -> tuple[np.ndarray, int]:
     """Close holes bounded by three or four open edges with one or two new faces.
 
-    Open edges are found as directed edges whose reverse is not used; a hole's
-    rim is walked through a successor map over those edges (vectorised), and
-    only rims that close after three or four steps are filled, wound to match
-    their neighbours. Returns the faces (new ones appended) and the number of
-    open edges closed.
+    ``open_keys`` are the sorted undirected keys of the open edges (from
+    :func:`_edge_stats`); the faces' directed edges on them, looked up in that
+    small array, give each rim edge with its direction. A hole's rim is walked
+    through a successor map over those edges (vectorised), and only rims that
+    close after three or four steps are filled, wound to match their
+    neighbours. Returns the faces (new ones appended) and the number of open
+    edges closed.
     """
     n = len(faces)
-    a = np.concatenate([faces[:, j] for j in range(3)]).astype(np.int64)
-    b = np.concatenate([faces[:, (j + 1) % 3] for j in range(3)]).astype(np.int64)
-    forward = np.sort(a * nv + b)
-    backward = b * nv + a
-    pos = np.minimum(np.searchsorted(forward, backward), len(forward) - 1)
-    rim = forward[pos] != backward  # edge a->b whose twin b->a is missing
-    del forward, backward, pos
-    ra, rb = a[rim], b[rim]
-    del a, b
+    ra_parts, rb_parts = [], []
+    for j in range(3):
+        a = faces[:, j].astype(np.int64)
+        b = faces[:, (j + 1) % 3].astype(np.int64)
+        und = np.minimum(a, b) * nv + np.maximum(a, b)
+        pos = np.minimum(np.searchsorted(open_keys, und), len(open_keys) - 1)
+        on_rim = open_keys[pos] == und
+        ra_parts.append(a[on_rim])
+        rb_parts.append(b[on_rim])
+    ra, rb = np.concatenate(ra_parts), np.concatenate(rb_parts)
     if len(ra) == 0 or n == 0:
         return faces, 0
     # the rim continues from rb at the open edge starting there (unique starts only)
@@ -325,6 +333,7 @@ class _EdgeStats:
     total: int
     consistent: bool
     overshared: bool
+    open_keys: np.ndarray  # sorted undirected keys (lo * v + hi) of the open edges
 
 
 def _edge_stats(faces: np.ndarray, nv: int) -> _EdgeStats:
@@ -349,10 +358,15 @@ def _edge_stats(faces: np.ndarray, nv: int) -> _EdgeStats:
         part *= nv
         part += np.maximum(a, b)
     keys.sort()
-    starts = np.flatnonzero(keys[1:] != keys[:-1]) + 1
-    counts = np.diff(np.concatenate(([0], starts, [len(keys)])))
+    starts = np.concatenate(([0], np.flatnonzero(keys[1:] != keys[:-1]) + 1))
+    counts = np.diff(np.append(starts, len(keys)))
+    single = counts == 1
     return _EdgeStats(
-        int((counts == 1).sum()), len(counts), not repeated, bool((counts >= 3).any())
+        int(single.sum()),
+        len(counts),
+        not repeated,
+        bool((counts >= 3).any()),
+        keys[starts[single]].copy(),
     )
 
 

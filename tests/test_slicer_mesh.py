@@ -115,3 +115,16 @@ def test_binary_and_ascii_read_the_same(tmp_path) -> None:
     va, fa = read_stl(ascii_path)
     assert len(vb) == len(va) and len(fb) == len(fa)
     assert np.allclose(np.sort(vb, axis=0), np.sort(va, axis=0), atol=1e-4)
+
+
+def test_merge_survives_hash_collisions(monkeypatch) -> None:
+    import slicer.mesh as mesh_module
+
+    rng = np.random.default_rng(1)
+    corners = rng.integers(0, 4, size=(300, 3)).astype(np.float32)
+    expected = len(np.unique(corners, axis=0))
+    zero = np.uint64(0)
+    monkeypatch.setattr(mesh_module, "_MIX", (zero, zero, zero))  # every key collides
+    vertices, faces = merge_corners(corners)
+    assert len(vertices) == expected
+    assert np.array_equal(vertices[faces.ravel()], corners.astype(np.float64))
