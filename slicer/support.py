@@ -15,6 +15,7 @@ from slicer.fields.eggcrate import EggcrateField
 from slicer.fields.paths import as_multiline, clip, empty_paths, linestring_parts
 from slicer.settings import SliceSettings
 
+MIN_WIDTH_LINES = 4.0  # narrowest support region kept, in line widths
 INTERFACE_LAYERS = 2  # layers of denser lines right under the part
 SUPPORT_PERIOD = 4.0  # support eggcrate period, in infill spacings
 INTERFACE_SPACING = 2.0  # interface line spacing, in line widths: sparse so it breaks away
@@ -32,8 +33,9 @@ def support_regions(
     overhangs the one below it by more than ``layer_height * tan(support.angle)``),
     minus the part dilated by ``support.clearance``. Support stops
     ``ceil(support.clearance / layer_height)`` layers below the surface it holds
-    up, and rests on the bed or on the part below. Regions narrower than a line
-    width are dropped.
+    up, and rests on the bed or on the part below. Regions narrower than
+    ``MIN_WIDTH_LINES`` line widths are dropped: such a column cannot stand, and
+    a gap that narrow bridges (an engraved letter, a slot).
     """
     count = len(outlines)
     if count == 0:
@@ -61,7 +63,9 @@ def support_regions(
         regions[i] = carried
     width = settings.line_width
     regions = shapely.difference(regions, shapely.buffer(solid, settings.support_clearance))
-    regions = shapely.buffer(shapely.buffer(regions, -0.5 * width), 0.5 * width)
+    narrow = 0.5 * MIN_WIDTH_LINES * width
+    opened = shapely.buffer(shapely.buffer(regions, -narrow), narrow)
+    regions = shapely.intersection(opened, regions)  # arcs are polygons: never grow
     # a fresh empty per layer: no object shared by the layers (threads prepare them)
     return [shapely.Polygon() if g is None or g.is_empty else g for g in regions]
 

@@ -146,3 +146,16 @@ def test_empty_region_gives_empty_paths() -> None:
     )
     paths = support_paths(shapely.Polygon(), shapely.box(0, 0, 1, 1), ctx)
     assert all(geom.is_empty for geom in paths.values())
+
+
+@pytest.mark.parametrize(
+    ("model", "supported"), [("cube20_xyz.stl", False), ("candle_stand.stl", True)]
+)
+def test_support_from_the_plans_outlines(model: str, supported: bool) -> None:
+    from slicer.plan import SlicePlan
+
+    plan = SlicePlan.from_file(DATA / model, SETTINGS)
+    layers = [plan.outline(i) for i in range(plan.layer_count)]
+    regions = support_regions(layers, SETTINGS, SETTINGS.layer_height)
+    # the cube's engraved letters bridge; the candle stand's plate needs holding up
+    assert any(not region.is_empty for region in regions) is supported
