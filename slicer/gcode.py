@@ -179,7 +179,8 @@ def start_block(settings: SliceSettings) -> list[str]:
             f"M190 S{settings.bed_temp:g}",
             f"M109 S{settings.nozzle_temp:g}",
         ]
-    lines += ["G28", "G90", "M83", "G92 E0", fan_command(settings, 0)]
+    # lift after homing so the travel to the first layer's start never drags on the bed
+    lines += ["G28", "G90", "M83", "G92 E0", "G0 F600 Z5", fan_command(settings, 0)]
     return lines
 
 
