@@ -78,6 +78,7 @@ class Firmware:
         self._interrupt = threading.Event()
         self._stopping = False
         self._reset_pending = False
+        self._unplug_pending = False
         self._kill_pending = False
         self._halted = False
         self._cancel_wait = False
@@ -111,6 +112,13 @@ class Firmware:
         """Reset the printer as soon as the firmware thread can (thread-safe)."""
         with self._cond:
             self._reset_pending = True
+            self._cond.notify()
+        self._interrupt.set()
+
+    def request_unplug(self) -> None:
+        """Pull the cable now (thread-safe): a command waiting is cut short; see ``_unplug``."""
+        with self._cond:
+            self._unplug_pending = True
             self._cond.notify()
         self._interrupt.set()
 
@@ -153,7 +161,7 @@ class Firmware:
             with self._cond:
                 while not (
                     self._stopping or self._reset_pending or self._kill_pending
-                    or (not self._halted and (self._rx or self._queue))
+                    or self._unplug_pending or (not self._halted and (self._rx or self._queue))
                 ):
                     if not self._cond.wait(idle_wait) and not self._halted:
                         self.emit("wait")  # NO_TIMEOUTS: idle, nothing received
@@ -162,6 +170,8 @@ class Firmware:
             try:
                 if self._reset_pending:
                     self._reset()
+                elif self._unplug_pending:
+                    self._unplug()
                 elif self._kill_pending:
                     self.kill("M112")
                 else:
@@ -249,11 +259,8 @@ class Firmware:
             self._wait_sent(2.0)
             self._reset()
             return
-        if self.faults.fires("disconnect"):
-            self._wait_sent(2.0)
-            self._vanish()
-            if self.config.reset_on_open:
-                self._reset(power_cycle=False)  # a USB-powered board loses power with its cable
+        if self._unplug_pending or self.faults.fires("disconnect"):
+            self._unplug()
             return
         command, number = self._queue[0]
         if self._quickstop:  # M410 from the emergency parser while between commands
@@ -373,9 +380,21 @@ class Firmware:
         self._power_off()
         raise Abort
 
+    def _unplug(self) -> None:
+        """The cable is pulled between two commands, once every reply already produced is out.
+
+        A USB-powered board (``reset_on_open``) loses power with it: queue, receive buffer
+        and line numbers are gone; it boots when the host opens the port again.
+        """
+        self._unplug_pending = False
+        self._wait_sent(2.0)
+        self._vanish()
+        if self.config.reset_on_open:
+            self._reset(power_cycle=False)
+
     def _check_interrupts(self) -> None:
-        if self._stopping or self._reset_pending:
-            raise Abort
+        if self._stopping or self._reset_pending or self._unplug_pending:
+            raise Abort  # a wait under way is cut short: the command never completes
         if self._kill_pending:
             self.kill("M112")
         if self._quickstop:

@@ -161,8 +161,10 @@ class SimulatedPrinter:
         self._firmware.request_reset()
 
     def disconnect(self) -> None:
-        """Make the port vanish now (comes back on a new pty when ``link_path`` is set)."""
-        self._wire.vanish()
+        """Pull the cable: the port vanishes once the replies already produced are out; a
+        command still waiting is cut short. It comes back on a new pseudo-terminal when
+        ``link_path`` is set."""
+        self._firmware.request_unplug()
 
     def stats(self) -> SimStats:
         """A snapshot of the counters."""

@@ -119,3 +119,24 @@ def test_config_rejects_bad_values():
         SimulatorConfig(p_drop_ok=1.5)
     with pytest.raises(ValueError, match="bufsize"):
         SimulatorConfig(bufsize=0)
+
+
+def test_unplugging_mid_command_cuts_it_short(tmp_path):
+    link_path = str(tmp_path / "printer")
+    config = SimulatorConfig(time_scale=1.0, baud=0, link_path=link_path, reconnect_delay_s=0.1)
+    with SimulatedPrinter(config) as sim:
+        link = Host(link_path)
+        link.wait_start()
+        link.read_until(lambda line: line.startswith("echo: Free"))
+        link.command(1, "G1 X5")
+        link.send(2, "M109 S200")
+        link.read_until(lambda line: "W:" in line)
+        sim.disconnect()
+        with pytest.raises(PortGone):
+            for _ in range(100):
+                link.readline(0.05)
+        link.reopen(timeout=3.0)
+        link.wait_start()
+        assert sim.executed == ["G1 X5"]  # the heating wait never completed
+        assert sim.last_line == 0
+        link.close()
