@@ -19,11 +19,9 @@ from drivers.faults import FaultInjector
 from drivers.heater import BED, HOTEND, Heater, format_temperatures
 from drivers.simclock import SimClock
 from drivers.simconfig import SimulatorConfig
+from drivers.simlines import check_line
 from drivers.simmotion import Motion, Planner
 
-ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
-ERR_CHECKSUM = "checksum mismatch, Last Line: "
-ERR_NO_CHECKSUM = "No Checksum with line number, Last Line: "
 ERR_KILLED = "Error:Printer halted. kill() called!"
 BUSY = "echo:busy: processing"
 
@@ -33,12 +31,6 @@ _EMERGENCY = re.compile(r"^\s*(?:N\d+\s*)?(M108|M112|M410)(?!\d)")
 
 class Abort(Exception):
     """A reset, a kill or the end of the simulation cut the current command short."""
-
-
-def strtol(text: str) -> int:
-    """C's ``strtol(text, NULL, 10)``: leading blanks, optional sign, digits; else 0."""
-    match = re.match(r"\s*([-+]?\d+)", text)
-    return int(match.group(1)) if match else 0
 
 
 class Firmware:
@@ -201,43 +193,20 @@ class Firmware:
                 self._process_line(line)
 
     def _process_line(self, raw: bytes) -> None:
-        """Marlin's ``process_line``: checks, then queue the command."""
+        """Marlin's ``process_line``: check the line, then queue its command."""
         self.stats["lines"] += 1
         if self.faults.fires("corrupt_rx"):
             raw = self.faults.flip_bit("corrupt_rx", raw)
-        text = raw.decode("latin-1").split(";", 1)[0].lstrip(" ")
-        if not text.strip():
+        check = check_line(raw, self.last_n)
+        if check.error:
+            self._line_error(check.error)
             return
-        numbered = text.startswith("N")
-        is_m110 = "M110" in text
-        number = 0
-        if numbered:
-            number = strtol(text[1:])
-            if number != self.last_n + 1 and not is_m110:
-                self._line_error(ERR_LINE_NO)
-                return
-            star = text.rfind("*")
-            if star < 0:
-                self._line_error(ERR_NO_CHECKSUM)
-                return
-            cs = 0
-            for byte in text[:star].encode("latin-1"):
-                cs ^= byte
-            if strtol(text[star + 1 :]) != cs:
-                self._line_error(ERR_CHECKSUM)
-                return
-            self.last_n = number
-            command = re.sub(r"^N[-+]?\d*\s*", "", text[:star]).strip()
-        else:
-            command = text.split("*", 1)[0].strip()
-        if is_m110:
-            param = command.find("N", command.find("M110") + 4)
-            if param >= 0:
-                self.last_n = strtol(command[param + 1 :])
-        if not command:
+        self.last_n = check.last_n
+        if not check.command:
             return
-        self._queue.append((command, number if numbered else None))
-        if numbered and not is_m110 and self.faults.fires("resend"):
+        self._queue.append((check.command, check.number))
+        spurious = check.number is not None and "M110" not in check.command
+        if spurious and self.faults.fires("resend"):
             # a request for a line that arrived intact; its own ok follows when it runs,
             # so every received line is still answered by exactly one ok
             self.emit(f"Resend: {self.last_n}")

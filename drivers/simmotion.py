@@ -4,19 +4,17 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 AXES = ("X", "Y", "Z", "E")
 
 
 @dataclass(frozen=True)
 class MotionLimits:
-    """Speeds in mm/s: Marlin's default feedrate, per-axis maxima and homing speeds."""
+    """Speeds in mm/s: Marlin's default feedrate, per-axis maxima (X, Y, Z, E), homing."""
 
     default_feedrate: float = 25.0
-    max_feedrate: dict[str, float] = field(
-        default_factory=lambda: {"X": 300.0, "Y": 300.0, "Z": 5.0, "E": 25.0}
-    )
+    max_feedrate: tuple[float, float, float, float] = (300.0, 300.0, 5.0, 25.0)
     homing_xy: float = 50.0
     homing_z: float = 4.0
     homing_overhead_s: float = 3.0
@@ -72,7 +70,7 @@ class Motion:
         speed = self.feedrate * self.feed_percent / 100.0
         for axis, d in delta.items():
             axis_speed = speed * abs(d) / length
-            limit = self.limits.max_feedrate[axis]
+            limit = self.limits.max_feedrate[AXES.index(axis)]
             if axis_speed > limit:
                 speed *= limit / axis_speed
         return length, length / speed

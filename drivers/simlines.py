@@ -1,0 +1,72 @@
+"""Marlin's checks of one received line (``queue.cpp``), as a pure function."""
+
+from __future__ import annotations
+
+import re
+from dataclasses import dataclass
+
+ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
+ERR_CHECKSUM = "checksum mismatch, Last Line: "
+ERR_NO_CHECKSUM = "No Checksum with line number, Last Line: "
+
+_LEADING_N = re.compile(r"^N[-+]?\d*\s*")
+_STRTOL = re.compile(r"\s*([-+]?\d+)")
+
+
+@dataclass(frozen=True)
+class LineCheck:
+    """The outcome of checking one line.
+
+    ``error`` is one of the ``ERR_*`` prefixes (the caller appends the last line number)
+    or ``""``; ``command`` is the text to queue (``""``: nothing to run); ``number`` is
+    the line's own number (None when unnumbered); ``last_n`` the last line number after
+    the line.
+    """
+
+    error: str
+    command: str
+    number: int | None
+    last_n: int
+
+
+def strtol(text: str) -> int:
+    """C's ``strtol(text, NULL, 10)``: leading blanks, optional sign, digits; else 0."""
+    match = _STRTOL.match(text)
+    return int(match.group(1)) if match else 0
+
+
+def check_line(raw: bytes, last_n: int) -> LineCheck:
+    """Check one line (without its terminator) as Marlin does, given the last line number.
+
+    Leading blanks are skipped and a ``;`` comment dropped. Only lines starting with ``N``
+    are checked: first the number (must be ``last_n + 1`` unless the line holds ``M110``),
+    then the checksum (XOR of every byte before the last ``*``). ``M110 N<m>`` sets the
+    last line to ``m``, numbered or not; without a parameter a numbered M110 sets it to
+    its own number.
+    """
+    text = raw.decode("latin-1").split(";", 1)[0].lstrip(" ")
+    if not text.strip():
+        return LineCheck("", "", None, last_n)
+    is_m110 = "M110" in text
+    number: int | None = None
+    if text.startswith("N"):
+        number = strtol(text[1:])
+        if number != last_n + 1 and not is_m110:
+            return LineCheck(ERR_LINE_NO, "", number, last_n)
+        star = text.rfind("*")
+        if star < 0:
+            return LineCheck(ERR_NO_CHECKSUM, "", number, last_n)
+        cs = 0
+        for byte in text[:star].encode("latin-1"):
+            cs ^= byte
+        if strtol(text[star + 1 :]) != cs:
+            return LineCheck(ERR_CHECKSUM, "", number, last_n)
+        last_n = number
+        command = _LEADING_N.sub("", text[:star]).strip()
+    else:
+        command = text.split("*", 1)[0].strip()
+    if is_m110:
+        param = command.find("N", command.find("M110") + 4)
+        if param >= 0:
+            last_n = strtol(command[param + 1 :])
+    return LineCheck("", command, number, last_n)
