@@ -3,8 +3,8 @@
 A `hostd run` prints each model on the simulated printer at a given speed (time scale
 1 = real time; 0.05 = twenty times faster, a harder test), heating skipped. The
 daemon's status snapshots are read from its control socket for a bounded window and
-``job.layers_ready_ahead`` is recorded while the job prints; the target is >= 1 at
-every sample after the first layer has started.
+``job.layers_ready_ahead`` is recorded for a bounded window once the job prints; the
+target is >= 1 at every sample (the last layer, with nothing left to slice, excepted).
 
 Usage (from the repository root):
     .venv/bin/python bench/lead_over_printer.py [--models dragon_100k] [--time-scales 1,0.05]
@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import json
 import sys
 import time
@@ -25,7 +26,7 @@ if __package__ in (None, ""):
 
 from bench.daemonproc import Daemon, DaemonSetup
 from bench.slice_vs_peers import MODELS, OUT, model_paths, stl_faces
-from hostd.api import ControlClient, Snapshot
+from hostd.api import ControlClient, ControlError, Snapshot
 
 
 @dataclass
@@ -48,28 +49,44 @@ def _printing(snap: Snapshot) -> bool:
     return snap.state == "printing" and snap.job is not None
 
 
-async def watch(socket: Path, seconds: float, done: Path) -> list[Snapshot]:
-    """Status snapshots from the control socket for ``seconds`` or until a job is done."""
+async def watch(socket: Path, seconds: float, done: Path, start_timeout: float) -> list[Snapshot]:
+    """Status snapshots from the control socket: up to ``start_timeout`` s for printing to
+    start (homing at real time takes a while), then ``seconds`` of printing, or until the
+    job is done."""
     snaps: list[Snapshot] = []
-    deadline = time.monotonic() + seconds
-    async with ControlClient(str(socket)) as client:
-        stream = client.subscribe().__aiter__()
-        while time.monotonic() < deadline and not any(done.glob("*.gcode")):
-            try:
-                item = await asyncio.wait_for(stream.__anext__(), timeout=1.0)
-            except TimeoutError:
-                continue
-            except StopAsyncIteration:
-                break
-            if "status" in item:
-                snaps.append(item["status"])
+    started = asyncio.Event()
+
+    async def consume() -> None:
+        async with ControlClient(str(socket)) as client:
+            async for item in client.subscribe():
+                if "status" in item:
+                    snaps.append(item["status"])
+                    if _printing(item["status"]):
+                        started.set()
+
+    task = asyncio.create_task(consume())
+    try:
+        await asyncio.wait_for(started.wait(), timeout=start_timeout)
+        deadline = time.monotonic() + seconds
+        while time.monotonic() < deadline and not task.done() and not any(done.glob("*")):
+            await asyncio.sleep(0.2)
+    except TimeoutError:
+        pass
+    finally:
+        task.cancel()
+        with contextlib.suppress(asyncio.CancelledError, ControlError, OSError):
+            await task
     return snaps
 
 
 def summarise(model: Path, scale: float, snaps: list[Snapshot]) -> Lead:
-    """Ready-ahead figures over the samples taken after the first layer started."""
+    """Ready-ahead figures over the samples taken while printing.
+
+    Samples of the last layer (nothing left to slice ahead) are left out.
+    """
     lead = Lead(model=model.stem, faces=stl_faces(model), time_scale=scale)
-    jobs = [s.job for s in snaps if _printing(s) and s.job is not None and s.job.layer >= 1]
+    jobs = [s.job for s in snaps if _printing(s) and s.job is not None]
+    jobs = [j for j in jobs if j.layer + 1 < j.layers]
     if not jobs:
         lead.note = "no printing status seen"
         return lead
@@ -83,13 +100,13 @@ def summarise(model: Path, scale: float, snaps: list[Snapshot]) -> Lead:
     return lead
 
 
-def measure(model: Path, scale: float, seconds: float) -> Lead:
+def measure(model: Path, scale: float, seconds: float, start_timeout: float) -> Lead:
     """Print ``model`` at time scale ``scale`` and watch its status for ``seconds``."""
     with Daemon(DaemonSetup(time_scale=scale, settle_s=0.2)) as daemon:
         daemon.wait_ready()
         sockets = [p for p in daemon.state.rglob("*") if p.is_socket()]
         daemon.drop(model)
-        snaps = asyncio.run(watch(sockets[0], seconds, daemon.jobs / "done"))
+        snaps = asyncio.run(watch(sockets[0], seconds, daemon.jobs / "done", start_timeout))
         lead = summarise(model, scale, snaps)
         if lead.note:
             states = ", ".join(sorted({s.state for s in snaps})) or "none"
@@ -118,13 +135,15 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--models-dir", type=Path, default=MODELS)
     p.add_argument("--time-scales", default="1,0.05")
     p.add_argument("--seconds", type=float, default=60.0, help="watch window per print")
+    p.add_argument("--start-timeout", type=float, default=180.0,
+                   help="longest wait for printing to start (homing, first layer)")
     p.add_argument("--out", type=Path, default=OUT)
     args = p.parse_args(argv)
     scales = [float(v) for v in args.time_scales.split(",") if v.strip()]
     rows = []
     for model in model_paths(args.models_dir, args.models):
         for scale in scales:
-            rows.append(measure(model, scale, args.seconds))
+            rows.append(measure(model, scale, args.seconds, args.start_timeout))
             print(f"  {rows[-1]}", file=sys.stderr)
     print(table(rows))
     args.out.mkdir(parents=True, exist_ok=True)
