@@ -39,11 +39,23 @@ class SimulatorConfig:
     - ``p_reset``: per executed command, a reset before it (queue, receive buffer,
       line numbers, heaters and position lost; ``start`` printed after the boot delay);
     - ``p_disconnect``: per executed command, the pseudo-terminal is closed before it (the
-      port vanishes); with ``link_path`` the printer comes back on a new pseudo-terminal
-      after ``reconnect_delay_s`` and the link is pointed at it.
+      port vanishes); with ``reset_on_open`` (a USB-powered board) the printer loses power
+      with it. With ``link_path`` the printer comes back on a new pseudo-terminal after
+      ``reconnect_delay_s`` and the symlink is pointed at it; without, it never comes back.
 
     Resets and disconnects happen between commands, after every reply already produced
-    has been written, so an ``ok`` never goes missing with them.
+    has been written, so an ``ok`` never goes missing with them: every acknowledged line
+    was executed and no other line was. (A *dropped* ``ok`` just before a reset is the one
+    case no host can resolve; combine those two kinds knowingly.)
+
+    Other settings: ``rx_buffer`` bytes of receive buffer, ``bufsize`` queued commands,
+    ``planner_blocks`` (0 = no planner: a move's ``ok`` waits for the move),
+    ``max_cmd_size`` bytes per line, ``emergency_parser`` (M108/M112/M410 acted on as the
+    bytes arrive), ``ok_after_resend`` (False: Marlin 2.0 builds that answer an error with
+    ``Resend`` only), ``reset_on_open`` (opening the port resets the board, as DTR does),
+    ``boot_delay_s`` (wall time from reset to ``start``; bytes meanwhile are lost),
+    ``log_path`` (executed commands, one a line), ``link_path`` (a symlink kept pointing
+    at the current pseudo-terminal), ``seed`` (of every fault generator).
     """
 
     time_scale: float = 1.0
