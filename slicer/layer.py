@@ -163,6 +163,8 @@ def _solid_small_regions(
     if below <= 0:
         return skin, sparse
     parts, owner = shapely.get_parts(sparse, return_index=True)
+    polygon = shapely.get_type_id(parts) == 3
+    parts, owner = parts[polygon], owner[polygon]
     if len(parts) == 0:
         return skin, sparse
     small = shapely.area(parts) < below
@@ -174,9 +176,12 @@ def _solid_small_regions(
         mine = owner == i
         solid = parts[mine & small]
         rest = parts[mine & ~small]
-        extra = shapely.union_all(solid) if len(solid) > 1 else solid[0]
         base = skin[i]
-        skin[i] = extra if base is None or base.is_empty else geom.union(base, extra)
+        if base is not None and not base.is_empty:
+            solid = np.concatenate([shapely.get_parts(base), solid])
+        # disjoint pieces (the small ones come from fill - skin): no overlay needed
+        solid = solid[shapely.get_type_id(solid) == 3]
+        skin[i] = shapely.multipolygons(solid)
         sparse[i] = shapely.multipolygons(rest) if len(rest) else None
     return skin, sparse
 

@@ -176,29 +176,36 @@ def order_chords(
     has_pred[succ[succ >= 0]] = True
     del key0, key1
     heads = np.flatnonzero(~has_pred)
-    stacks: list[list[int]] = []
-    for h in heads.tolist():
-        run = [h]
-        s = succ[h]
-        while s >= 0:
-            run.append(int(s))
-            s = succ[s]
-        stacks.append(run)
-    # visit stacks greedily by the nearest of their four end points
-    ends = np.array(
-        [[chords[r[0], 0], chords[r[0], 1], chords[r[-1], 0], chords[r[-1], 1]] for r in stacks]
-    )  # (s, 4, 2)
-    done = np.zeros(len(stacks), dtype=bool)
+    # stack of every chord: walk the successor links from all heads at once
+    stack_of = np.full(n, -1, dtype=np.int64)
+    depth = np.zeros(n, dtype=np.int64)
+    cur = heads.copy()
+    ids = np.arange(len(heads))
+    step = 0
+    while len(cur):
+        stack_of[cur] = ids
+        depth[cur] = step
+        nxt = succ[cur]
+        keep = nxt >= 0
+        cur, ids = nxt[keep], ids[keep]
+        step += 1
+    seq = np.lexsort((depth, stack_of))  # chords stack by stack, bottom to top
+    bounds = np.searchsorted(stack_of[seq], np.arange(len(heads) + 1))
+    fw = _forward(chords, d)  # each chord along d; a zigzag alternates from there
+    first, last = seq[bounds[:-1]], seq[bounds[1:] - 1]
+    ends = np.stack([fw[first, 0], fw[first, 1], fw[last, 0], fw[last, 1]], axis=1)  # (s, 4, 2)
+    done = np.zeros(len(heads), dtype=bool)
     here = np.asarray(pos, dtype=np.float64)
     out: list[np.ndarray] = []
-    # chords are stored with v increasing along d; in a zigzag they alternate
-    for _ in range(len(stacks)):
+    for _ in range(len(heads)):
         dist = np.einsum("ijk,ijk->ij", ends - here, ends - here)
         dist[done] = np.inf
         s, corner = np.unravel_index(int(np.argmin(dist)), dist.shape)
         done[s] = True
-        run = stacks[s] if corner < 2 else stacks[s][::-1]
-        block = _forward(chords[run], d)
+        run = seq[bounds[s] : bounds[s + 1]]
+        if corner >= 2:
+            run = run[::-1]
+        block = fw[run]
         flip = np.zeros(len(run), dtype=bool)
         flip[(1 if corner % 2 == 0 else 0) :: 2] = True
         block[flip] = block[flip][:, ::-1]

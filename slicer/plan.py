@@ -23,7 +23,7 @@ from slicer.mesh import PlacedMesh, prepare, read_stl
 from slicer.outline import GapReport, OutlineTolerances, build_layers
 from slicer.section import cut_block, face_layer_ranges
 from slicer.settings import SettingsError, SliceSettings
-from slicer.skins import skin_regions
+from slicer.skins import SkinCache
 
 # the whole-model pass cuts at most this many (face, layer) crossings at once
 _BLOCK_CROSSINGS = 250_000
@@ -66,7 +66,7 @@ class SlicePlan:
     """A model cut into layer outlines, ready to slice any layer on demand (thread-safe)."""
 
     def __init__(
-        self, geometry: _Geometry, settings: SliceSettings, skins: np.ndarray | None = None
+        self, geometry: _Geometry, settings: SliceSettings, skins: SkinCache | None = None
     ) -> None:
         self._geo = geometry
         self.settings = settings
@@ -74,7 +74,7 @@ class SlicePlan:
         self._skins = (
             skins
             if skins is not None
-            else skin_regions(
+            else SkinCache(
                 geometry.outlines,
                 fill_distance(settings),
                 settings.top_layers,
@@ -176,7 +176,7 @@ class SlicePlan:
         )
         regions = LayerRegions(
             islands=islands,
-            skin=self._skins[i],
+            skin=self._skins.get(i),
             support=_private(self._support[i]) if self._support is not None else None,
             interface=_private(self._interface[i]) if self._interface is not None else None,
         )

@@ -17,50 +17,48 @@ Everything runs as shapely array operations over all layers at once.
 
 from __future__ import annotations
 
-from concurrent.futures import ThreadPoolExecutor
+import threading
 
 import numpy as np
 import shapely
 
 from slicer import geom
 
-
-def _shifted(outlines: np.ndarray, step: int) -> np.ndarray:
-    """``out[i] = outlines[i + step]``, None beyond either end."""
-    n = len(outlines)
-    out = np.full(n, None, dtype=object)
-    if abs(step) >= n:
-        return out
-    if step > 0:
-        out[: n - step] = outlines[step:]
-    else:
-        out[-step:] = outlines[: n + step]
-    return out
+# largest deviation of the domains used to find skins, mm
+_SIMPLIFY = 0.05
 
 
-def _exposed(fill: np.ndarray, cover_by: np.ndarray, count: int, direction: int) -> np.ndarray:
-    """Part of each layer's fill domain not covered by all ``count`` layers in ``direction``.
+def _exposed(
+    fill: np.ndarray, cover_by: np.ndarray, count: int, direction: int, targets: np.ndarray
+) -> np.ndarray:
+    """Part of the fill domain of each layer in ``targets`` not covered by all ``count``
+    layers in ``direction`` (+1 up, -1 down); (len(targets),) object array.
 
     ``fill`` (n,) the layers' infill domains; ``cover_by`` (n,) what a
-    neighbour covers with (prepared copies of the same domains).
+    neighbour covers with (prepared copies of the same domains); a neighbour
+    beyond either end of the arrays is air.
     """
-    outlines = cover_by
-    n = len(outlines)
-    result = np.full(n, None, dtype=object)
-    if count <= 0:
+    n = len(fill)
+    m = len(targets)
+    result = np.full(m, None, dtype=object)
+    if count <= 0 or m == 0:
         return result
-    live = np.array([f is not None and not f.is_empty for f in fill], dtype=bool)
-    bare = np.zeros(n, dtype=bool)  # a neighbour is missing: the whole domain is skin
-    cover = np.full(n, None, dtype=object)
+    here = fill[targets]
+    live = np.array([f is not None and not f.is_empty for f in here], dtype=bool)
+    bare = np.zeros(m, dtype=bool)  # a neighbour is missing: the whole domain is skin
+    cover = np.full(m, None, dtype=object)
     for k in range(1, count + 1):
-        other = _shifted(outlines, direction * k)
+        j = targets + direction * k
+        inside_range = (j >= 0) & (j < n)
+        other = np.full(m, None, dtype=object)
+        other[inside_range] = cover_by[j[inside_range]]
         missing = np.array([o is None or o.is_empty for o in other], dtype=bool)
         bare |= missing & live
         todo = np.flatnonzero(live & ~bare)
         if len(todo) == 0:
             break
-        inside = shapely.contains(other[todo], fill[todo])
-        todo = todo[~inside]
+        covered = shapely.contains(other[todo], here[todo])
+        todo = todo[~covered]
         if len(todo) == 0:
             continue
         first = np.array([cover[t] is None for t in todo], dtype=bool)
@@ -68,49 +66,95 @@ def _exposed(fill: np.ndarray, cover_by: np.ndarray, count: int, direction: int)
         rest = todo[~first]
         if len(rest):
             cover[rest] = geom.intersection(cover[rest], other[rest])
-    result[bare] = fill[bare]
+    result[bare] = here[bare]
     idx = np.flatnonzero(~bare & np.array([c is not None for c in cover], dtype=bool))
     if len(idx):
-        result[idx] = geom.difference(fill[idx], cover[idx])
+        result[idx] = geom.difference(here[idx], cover[idx])
     return result
 
 
-def skin_regions(
-    outlines: np.ndarray, fill_distance: float, top: int, bottom: int, threads: int = 2
+def skin_block(
+    outlines: np.ndarray, lo: int, hi: int, fill_distance: float, top: int, bottom: int
 ) -> np.ndarray:
-    """Skin region of every layer: (n,) object array of (Multi)Polygons, or None for no skin.
+    """Skin regions of layers ``lo..hi-1``: (hi - lo,) object array of (Multi)Polygons or None.
 
-    ``outlines`` (n,) (Multi)Polygons, bottom layer first;
+    ``outlines`` (n,) every layer's (Multi)Polygon, bottom layer first;
     ``fill_distance`` mm from the outline to the infill domain; ``top`` and
-    ``bottom`` the numbers of solid layers. The result lies inside each
-    layer's infill domain. Work is split over ``threads`` threads (shapely
-    releases the interpreter lock).
+    ``bottom`` the numbers of solid layers. Only the layers of the block and
+    their neighbours are buffered; the prepared copies it makes are its own,
+    so blocks may run on several threads at once. The result lies inside each
+    layer's infill domain.
     """
-    outlines = np.asarray(outlines, dtype=object)
     n = len(outlines)
-    if n == 0 or (top <= 0 and bottom <= 0):
-        return np.full(n, None, dtype=object)
-    with ThreadPoolExecutor(max_workers=threads) as pool:
-        halves = np.array_split(np.arange(n), threads)
-        parts = pool.map(
-            lambda idx: shapely.buffer(outlines[idx], -fill_distance, quad_segs=6), halves
-        )
-        fill = np.concatenate(list(parts))
-    # predicates run on prepared copies, in this thread only: GEOS builds
+    if hi <= lo or (top <= 0 and bottom <= 0):
+        return np.full(max(hi - lo, 0), None, dtype=object)
+    a, b = max(0, lo - bottom), min(n, hi + top)
+    fill = shapely.buffer(np.asarray(outlines[a:b], dtype=object), -fill_distance, quad_segs=6)
+    # skins need no finer detail than this; it halves the overlays' work on curved parts
+    fill = shapely.simplify(fill, _SIMPLIFY)
+    # predicates run on prepared copies private to this call: GEOS builds
     # prepared indexes lazily, so a prepared geometry must never be shared
     private = shapely.from_wkb(shapely.to_wkb(fill))
     shapely.prepare(private)
-    a = _exposed(fill, private, top, 1)
-    b = _exposed(fill, private, bottom, -1)
+    targets = np.arange(lo - a, hi - a)
+    up = _exposed(fill, private, top, 1, targets)
+    down = _exposed(fill, private, bottom, -1, targets)
     del private
-    has_a = np.array([g is not None and not g.is_empty for g in a], dtype=bool)
-    has_b = np.array([g is not None and not g.is_empty for g in b], dtype=bool)
-    out = np.full(n, None, dtype=object)
-    out[has_a] = a[has_a]
-    out[has_b & ~has_a] = b[has_b & ~has_a]
+    # a neighbour outside [a, b) lies beyond the model's ends only, which _exposed
+    # treats as air; inside the model the window always reaches far enough
+    has_a = np.array([g is not None and not g.is_empty for g in up], dtype=bool)
+    has_b = np.array([g is not None and not g.is_empty for g in down], dtype=bool)
+    out = np.full(len(targets), None, dtype=object)
+    out[has_a] = up[has_a]
+    out[has_b & ~has_a] = down[has_b & ~has_a]
     both = has_a & has_b
     if both.any():
-        out[both] = geom.union(a[both], b[both])
+        out[both] = geom.union(up[both], down[both])
     keep = np.array([g is not None and g.area > 1e-6 for g in out], dtype=bool)
     out[~keep] = None
     return out
+
+
+def skin_regions(outlines: np.ndarray, fill_distance: float, top: int, bottom: int) -> np.ndarray:
+    """Skin region of every layer (one block spanning the model); see :func:`skin_block`."""
+    outlines = np.asarray(outlines, dtype=object)
+    return skin_block(outlines, 0, len(outlines), fill_distance, top, bottom)
+
+
+class SkinCache:
+    """Skin regions computed on demand in blocks of layers, each block once, thread-safe.
+
+    A layer's skin needs its neighbours, so skins are made for ``block``
+    layers at a time (vectorised), when the first of them is asked for: the
+    first layer of a job is ready without computing the whole model, and
+    threads slicing different blocks compute them in parallel.
+    """
+
+    def __init__(
+        self, outlines: np.ndarray, fill_distance: float, top: int, bottom: int, block: int = 16
+    ) -> None:
+        self._outlines = outlines
+        self._args = (fill_distance, top, bottom)
+        self._block = block
+        self._lock = threading.Lock()
+        self._blocks: dict[int, np.ndarray] = {}
+        self._busy: dict[int, threading.Lock] = {}
+
+    def get(self, i: int) -> shapely.Geometry | None:
+        """Skin region of layer ``i`` (None when the layer needs no skin)."""
+        b = i // self._block
+        with self._lock:
+            done = self._blocks.get(b)
+            if done is not None:
+                return done[i - b * self._block]
+            busy = self._busy.setdefault(b, threading.Lock())
+        with busy:
+            with self._lock:
+                done = self._blocks.get(b)
+            if done is None:
+                lo = b * self._block
+                hi = min(lo + self._block, len(self._outlines))
+                done = skin_block(self._outlines, lo, hi, *self._args)
+                with self._lock:
+                    self._blocks[b] = done
+        return done[i - b * self._block]

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import multiprocessing
 import os
 import shutil
 import sys
@@ -60,7 +61,8 @@ def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCo
     """Every layer's G-code in order, sliced on a thread pool a bounded window ahead.
 
     At most ``2 * workers`` layers are held at once, so memory does not grow
-    with the layer count.
+    with the layer count. (The daemon's way; ``hostd slice`` itself uses
+    :func:`iter_layer_texts`, which also spreads the Python work over cores.)
     """
     workers = workers or max(1, os.cpu_count() or 1)
     n = plan.layer_count
@@ -78,8 +80,65 @@ def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCo
             yield code
 
 
+# the plan a forked worker slices (inherited from the parent at fork time)
+_FORKED_PLAN: SlicePlan | None = None
+# layers per task: the skin cache's block, so each block is computed by one worker
+_CHUNK = 16
+
+
+def _slice_chunk(lo: int, hi: int) -> list[tuple[str, float, float]]:
+    """In a forked worker: layers ``lo..hi-1`` as (text, filament mm, time s)."""
+    plan = _FORKED_PLAN
+    assert plan is not None
+    out = []
+    for i in range(lo, hi):
+        code = plan.layer_code(i)
+        out.append(("\n".join(code.lines) + "\n", code.filament_mm, code.time_s))
+    return out
+
+
+def iter_layer_texts(
+    plan: SlicePlan, workers: int | None = None
+) -> Iterator[tuple[str, float, float]]:
+    """Every layer as (G-code text, filament mm, time s), in order.
+
+    Most of a layer's work is Python and numpy holding the interpreter lock,
+    so threads barely overlap; forked worker processes (which inherit the
+    plan, no copy) slice blocks of layers in parallel instead, a bounded
+    window ahead of the writer. Without ``fork`` or with one core the layers
+    are sliced here. The bytes are the same either way.
+    """
+    global _FORKED_PLAN
+    workers = workers or max(1, os.cpu_count() or 1)
+    n = plan.layer_count
+    if workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
+        for code in iter_layers(plan, 1):
+            yield "\n".join(code.lines) + "\n", code.filament_mm, code.time_s
+        return
+    _FORKED_PLAN = plan
+    try:
+        with multiprocessing.get_context("fork").Pool(workers) as pool:
+            window: deque = deque()
+            starts = iter(range(0, n, _CHUNK))
+            for lo in starts:
+                window.append(pool.apply_async(_slice_chunk, (lo, min(n, lo + _CHUNK))))
+                if len(window) >= 2 * workers:
+                    break
+            while window:
+                chunk = window.popleft().get()
+                lo = next(starts, None)
+                if lo is not None:
+                    window.append(pool.apply_async(_slice_chunk, (lo, min(n, lo + _CHUNK))))
+                yield from chunk
+    finally:
+        _FORKED_PLAN = None
+
+
 def write_gcode(
-    plan: SlicePlan, out: str | os.PathLike[str], progress: Callable[[int, int], None] | None = None
+    plan: SlicePlan,
+    out: str | os.PathLike[str],
+    progress: Callable[[int, int], None] | None = None,
+    workers: int | None = None,
 ) -> GcodeSummary:
     """Write the whole program to ``out`` (header, start, layers, end); return its totals.
 
@@ -93,11 +152,10 @@ def write_gcode(
     seconds = 0.0
     n = plan.layer_count
     with tempfile.TemporaryFile("w+", encoding="ascii", newline="\n") as body:
-        for i, code in enumerate(iter_layers(plan)):
-            body.write("\n".join(code.lines))
-            body.write("\n")
-            filament += code.filament_mm
-            seconds += code.time_s
+        for i, (text, layer_filament, layer_time) in enumerate(iter_layer_texts(plan, workers)):
+            body.write(text)
+            filament += layer_filament
+            seconds += layer_time
             if progress:
                 progress(i + 1, n)
         body.write("\n".join(plan.end_gcode()) + "\n")
