@@ -164,7 +164,8 @@ def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: f
         return np.zeros(0, dtype=bool)
     lines = shapely.linestrings(np.stack([a, b], axis=1))
     zero = np.all(a == b, axis=1)
-    area = shapely.buffer(outline, 0.05 * w, quad_segs=2)
+    # a private, prepared copy: the outline may be shared with other threads
+    area = shapely.from_wkb(shapely.to_wkb(outline))
     shapely.prepare(area)
     return ~(shapely.covered_by(lines, area) | zero)
 

@@ -113,7 +113,10 @@ def layer_paths(
     )
     fill = shapely.buffer(islands, -fill_distance(settings), quad_segs=_QUAD_SEGS)
     if regions.skin is not None and not regions.skin.is_empty:
-        skin = geom.intersection(fill, regions.skin)
+        if len(islands) == 1:  # the skin already lies in this island's infill domain
+            skin = np.array([regions.skin], dtype=object)
+        else:
+            skin = geom.intersection(fill, regions.skin)
         sparse = geom.difference(fill, regions.skin)
     else:
         skin = np.full(len(islands), None, dtype=object)
@@ -126,7 +129,6 @@ def layer_paths(
         sparse_lines = [_hatched(r, field.angle, ctx.index, spacing, shortest) for r in sparse]
     else:
         sparse_lines = _sparse_lines(sparse, ctx, field)
-    grow = shapely.buffer(fill, w / 2.0, quad_segs=2)
 
     out: list[Path] = []
     pos = _start_position(islands)
@@ -144,7 +146,7 @@ def layer_paths(
                 ordered, pos = order.order_open_paths(lines, pos)
             else:
                 continue
-            for coords in order.join_paths(ordered, grow[k], 2.0 * w):
+            for coords in order.join_paths(ordered, fill[k], 2.0 * w, w / 2.0):
                 out.append(Path(kind, coords))
     if has_support:
         out.extend(_support(regions, ctx, support_paths, pos))

@@ -86,13 +86,14 @@ def order_open_paths(
 
 
 def join_paths(
-    paths: list[np.ndarray], region: shapely.Geometry, max_gap: float
+    paths: list[np.ndarray], region: shapely.Geometry, max_gap: float, slack: float = 0.0
 ) -> list[np.ndarray]:
     """Join consecutive ordered open paths whose ends lie within ``max_gap`` mm.
 
     The connecting segment is extruded, so it is joined only when it stays
-    inside ``region`` (the fill region, slightly grown), checked for all joints
-    in one vectorised call.
+    near ``region`` (the fill region): its middle within ``slack`` mm of it
+    (its ends lie on the region's edge), checked for all joints in one
+    vectorised call.
     """
     if len(paths) < 2:
         return paths
@@ -103,9 +104,9 @@ def join_paths(
     if not near.any():
         return paths
     idx = np.flatnonzero(near)
-    connectors = shapely.linestrings(np.stack([a[idx], b[idx]], axis=1))
+    middle = shapely.points((a[idx] + b[idx]) / 2.0)
     ok = np.zeros(len(near), dtype=bool)
-    ok[idx] = shapely.covered_by(connectors, region)
+    ok[idx] = shapely.distance(region, middle) <= slack
     out: list[np.ndarray] = []
     current = [paths[0]]
     for i in range(1, len(paths)):
@@ -176,19 +177,20 @@ def order_chords(
     has_pred[succ[succ >= 0]] = True
     del key0, key1
     heads = np.flatnonzero(~has_pred)
-    # stack of every chord: walk the successor links from all heads at once
-    stack_of = np.full(n, -1, dtype=np.int64)
-    depth = np.zeros(n, dtype=np.int64)
-    cur = heads.copy()
-    ids = np.arange(len(heads))
-    step = 0
-    while len(cur):
-        stack_of[cur] = ids
-        depth[cur] = step
-        nxt = succ[cur]
-        keep = nxt >= 0
-        cur, ids = nxt[keep], ids[keep]
-        step += 1
+    # head and depth of every chord's stack, by pointer doubling down the links
+    pred = np.full(n, -1, dtype=np.int64)
+    pred[succ[succ >= 0]] = np.flatnonzero(succ >= 0)
+    root = np.where(pred >= 0, pred, np.arange(n))
+    depth = (pred >= 0).astype(np.int64)
+    jump = pred.copy()
+    active = np.flatnonzero(jump >= 0)
+    while len(active):
+        hop = jump[active]
+        depth[active] += depth[hop]
+        root[active] = root[hop]
+        jump[active] = jump[hop]
+        active = active[jump[active] >= 0]
+    stack_of = np.searchsorted(heads, root)
     seq = np.lexsort((depth, stack_of))  # chords stack by stack, bottom to top
     bounds = np.searchsorted(stack_of[seq], np.arange(len(heads) + 1))
     fw = _forward(chords, d)  # each chord along d; a zigzag alternates from there
