@@ -449,13 +449,10 @@ class Streamer:
             self._advanced_ok = True
             if self.config.learn_bufsize:
                 self._window.max_lines = max(self._window.max_lines, response.queue_free + 1)
-        if response.line is not None:
-            done = self._window.ack_through(response.line)
-        elif response.has_temperatures:
-            done = self._window.ack_probe()
-        else:
-            done = self._window.ack_one()
-        for entry in done:
+        # oks are counted in order; an advanced ok's N is not trusted to name the line it
+        # acknowledges (firmwares print the last line received or the one executed)
+        ack = self._window.ack_probe if response.has_temperatures else self._window.ack_one
+        for entry in ack():
             self._acknowledged(entry)
         self._wake.set()
         self._progress.set()
@@ -808,7 +805,7 @@ class Streamer:
     # -- internals: state -----------------------------------------------------------------
 
     def _idle(self) -> bool:
-        return (not len(self._window) and not self._control and not self._pending
+        return (not len(self._window) and not self._control
                 and self._replay_next is None and self._renumber is None)
 
     def _check_alive(self) -> None:

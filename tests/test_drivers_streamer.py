@@ -1,0 +1,534 @@
+"""The streamer against the simulated printer and a scripted Marlin-like responder on a pty."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import math
+import os
+import select
+import threading
+import tty
+from collections.abc import Callable
+
+import pytest
+
+from drivers.protocol import checksum
+from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from drivers.streamer import HALTED, LinkError, StreamCancelled, Streamer, StreamerConfig
+from drivers.transport import open_transport
+
+INTERNAL = ("M110", "M115", "M155", "M105")
+
+# short timeouts so that stalls cost milliseconds with an instant printer
+FAST = StreamerConfig(probe_after_s=0.02, resync_quiet_s=0.01, start_timeout_s=0.05,
+                      reconnect_attempts=200, reconnect_delay_s=0.005,
+                      temperature_interval_s=1.0)
+
+
+def job(n: int, seed: int = 0) -> list[str]:
+    """A curved perimeter of ``n`` short G1 segments (distinct lines, so order is visible)."""
+    out = []
+    for i in range(n):
+        a = 0.01 * i + seed
+        out.append(f"G1 X{100 + 40 * math.cos(a):.3f} Y{100 + 40 * math.sin(a):.3f} "
+                   f"E{0.002 * (i % 97):.4f} F9000")
+    return out
+
+
+def job_lines(executed: list[str]) -> list[str]:
+    """The executed commands that came from the job (the link's own lines removed)."""
+    return [c for c in executed if c.split(" ", 1)[0] not in INTERNAL]
+
+
+async def stream_job(
+    sim: SimulatedPrinter,
+    lines: list[str],
+    config: StreamerConfig = FAST,
+    port: str | None = None,
+    errors: list[str] | None = None,
+) -> Streamer:
+    """Connect to ``sim``, stream ``lines``, drain; returns the (closed) streamer."""
+    transport = await open_transport(port or sim.path, 250000)
+    async with Streamer(transport, config) as link:
+        if errors is not None:
+            link.on_error = errors.append
+        await link.connect()
+        for line in lines:
+            await link.send(line)
+        await link.drain()
+    return link
+
+
+def sim_config(**kw) -> SimulatorConfig:
+    base = {"time_scale": 0.0, "baud": 0, "boot_delay_s": 0.0}
+    base.update(kw)
+    return SimulatorConfig(**base)
+
+
+# -- scripted responder ----------------------------------------------------------------------
+
+Answer = Callable[[int, str], list[str] | None]
+
+
+class ScriptedPrinter:
+    """A tiny Marlin-like responder on a pty: checks N and checksum, answers ok or Resend.
+
+    ``answer(number, command)`` may return the reply lines for a numbered line (``None``:
+    the usual ``ok``; ``[]``: silence; a reply starting with ``Error:`` refuses the line).
+    Every received raw line is kept in ``received``; accepted commands in ``executed``.
+    """
+
+    def __init__(self, answer: Answer | None = None) -> None:
+        self.answer = answer
+        self.received: list[str] = []
+        self.executed: list[str] = []
+        self.last_n = 0
+        self._master, slave = os.openpty()
+        tty.setraw(slave)
+        self.path = os.ttyname(slave)
+        os.close(slave)
+        self._stop_r, self._stop_w = os.pipe()
+        self._thread = threading.Thread(target=self._serve, name="scripted-printer", daemon=True)
+        self._thread.start()
+
+    def close(self) -> None:
+        os.write(self._stop_w, b"x")
+        self._thread.join(2)
+        for fd in (self._master, self._stop_r, self._stop_w):
+            with contextlib.suppress(OSError):
+                os.close(fd)
+
+    def _send(self, lines: list[str]) -> None:
+        with contextlib.suppress(OSError):
+            os.write(self._master, "".join(f"{line}\n" for line in lines).encode())
+
+    def _serve(self) -> None:
+        buffer = b""
+        while True:
+            ready, _, _ = select.select([self._master, self._stop_r], [], [])
+            if self._stop_r in ready:
+                return
+            try:
+                data = os.read(self._master, 4096)
+            except OSError:
+                select.select([self._stop_r], [], [], 0.05)
+                continue
+            buffer += data
+            while b"\n" in buffer:
+                raw, buffer = buffer.split(b"\n", 1)
+                self._line(raw.decode())
+
+    def _line(self, text: str) -> None:
+        self.received.append(text)
+        if not text.startswith("N"):
+            self._run(text.split("*")[0], None)
+            return
+        body, _, cs = text.rpartition("*")
+        number = int(body[1:].split(" ", 1)[0])
+        command = body.split(" ", 1)[1]
+        if checksum(body) != int(cs):
+            self._send([f"Error:checksum mismatch, Last Line: {self.last_n}",
+                        f"Resend: {self.last_n + 1}", "ok"])
+            return
+        if command.startswith("M110"):
+            self.last_n = int(command.split("N")[1])
+            self._send(["ok"])
+            return
+        if number != self.last_n + 1:
+            self._send([f"Error:Line Number is not Last Line Number+1, Last Line: {self.last_n}",
+                        f"Resend: {self.last_n + 1}", "ok"])
+            return
+        reply = self.answer(number, command) if self.answer else None
+        if reply and reply[0].startswith("Error:"):
+            self._send(reply)  # refused: not executed, last line unchanged
+            return
+        self.last_n = number
+        self._run(command, number, reply)
+
+    def _run(self, command: str, number: int | None, reply: list[str] | None = None) -> None:
+        if reply is not None:
+            self._send(reply)
+            if reply:
+                self.executed.append(command)
+            return
+        self.executed.append(command)
+        if command == "M115":
+            self._send(["FIRMWARE_NAME:Scripted 1.0", "ok"])
+        elif command == "M105":
+            self._send(["ok T:20.0 /0.0 B:20.0 /0.0 @:0 B@:0"])
+        else:
+            self._send(["ok"])
+
+
+@contextlib.contextmanager
+def scripted(answer: Answer | None = None):
+    printer = ScriptedPrinter(answer)
+    try:
+        yield printer
+    finally:
+        printer.close()
+
+
+async def stream_scripted(printer: ScriptedPrinter, lines: list[str],
+                          config: StreamerConfig = FAST) -> Streamer:
+    async with Streamer(await open_transport(printer.path, 115200), config) as link:
+        await link.connect()
+        for line in lines:
+            await link.send(line)
+        await link.drain()
+    return link
+
+
+# -- basic streaming -------------------------------------------------------------------------
+
+def test_streams_a_job_exactly_once_in_order_with_handshake():
+    lines = job(500)
+    with SimulatedPrinter(sim_config()) as sim:
+        link = asyncio.run(stream_job(sim, lines))
+        executed = list(sim.executed)
+    assert executed[0] == "M110 N0"
+    assert "M115" in executed
+    assert "M155 S1" in executed  # the simulator offers AUTOREPORT_TEMP
+    assert job_lines(executed) == lines
+    assert link.acked == len(lines)
+    assert "EMERGENCY_PARSER" in link.capable
+    assert link.firmware.startswith("Marlin")
+
+
+def test_on_ack_reports_every_job_line_once_in_order():
+    lines = job(300)
+    acked: list[str] = []
+
+    async def run(sim: SimulatedPrinter) -> None:
+        async with Streamer(await open_transport(sim.path, 250000), FAST) as link:
+            link.on_ack = lambda number, command: acked.append(command)
+            await link.connect()
+            for line in lines:
+                await link.send(line)
+            await link.drain()
+
+    with SimulatedPrinter(sim_config(p_corrupt_rx=0.05, seed=3)) as sim:
+        asyncio.run(run(sim))
+    assert acked == lines
+
+
+def test_at_the_wire_limit_the_receive_buffer_never_overflows():
+    lines = job(1500)
+    with SimulatedPrinter(sim_config(baud=250000)) as sim:
+        link = asyncio.run(stream_job(sim, lines))
+        stats = sim.stats()
+        executed = list(sim.executed)
+    assert job_lines(executed) == lines
+    assert stats.rx_overflow_bytes == 0
+    assert stats.errors == 0
+    assert link.stats.resends == 0
+
+
+def test_advanced_ok_teaches_the_command_buffer_size():
+    lines = job(400)
+    with SimulatedPrinter(sim_config(advanced_ok=True, bufsize=8, baud=250000)) as sim:
+        link = asyncio.run(stream_job(sim, lines))
+        executed = list(sim.executed)
+    assert job_lines(executed) == lines
+    assert link._window.max_lines >= 8
+
+
+def test_line_numbers_restart_with_m110_before_they_grow_large():
+    lines = job(2600)
+    config = StreamerConfig(**{**FAST.__dict__, "renumber_at": 1000})
+    with SimulatedPrinter(sim_config(p_corrupt_rx=0.01, seed=5)) as sim:
+        link = asyncio.run(stream_job(sim, lines, config))
+        executed = list(sim.executed)
+        last = sim.last_line
+    assert job_lines(executed) == lines
+    assert link.stats.renumbers == 2
+    assert executed.count("M110 N0") == 3
+    assert last < 1000
+
+
+# -- resend sanity with a scripted printer ---------------------------------------------------
+
+def test_resend_with_lost_digits_replays_the_right_line():
+    failed = []
+
+    def answer(number: int, command: str) -> list[str] | None:
+        if number == 15 and not failed:
+            failed.append(number)
+            # the line is refused; the reply lost a digit: 14 -> 4, 15 -> 05
+            return ["Error:checksum mismatch, Last Line: 4", "Resend: 05", "ok"]
+        return None
+
+    lines = job(40)
+    with scripted(answer) as printer:
+        link = asyncio.run(stream_scripted(printer, lines))
+        executed = [c for c in printer.executed if c.split()[0] not in INTERNAL]
+    assert executed == lines
+    assert link.stats.lines_resent >= 1
+
+
+def test_resend_for_a_line_never_sent_is_not_obeyed():
+    def answer(number: int, command: str) -> list[str] | None:
+        if number == 10:
+            return ["ok", "Resend: 99999"]
+        return None
+
+    lines = job(30)
+    with scripted(answer) as printer:
+        link = asyncio.run(stream_scripted(printer, lines))
+        executed = [c for c in printer.executed if c.split()[0] not in INTERNAL]
+    assert executed == lines
+    assert link.stats.lines_resent == 0
+
+
+def test_no_autoreport_means_m105_polling():
+    config = StreamerConfig(**{**FAST.__dict__, "temperature_interval_s": 0.05})
+    reports = []
+
+    async def run(printer: ScriptedPrinter) -> None:
+        async with Streamer(await open_transport(printer.path, 115200), config) as link:
+            link.on_temperature = reports.append
+            await link.connect()
+            await asyncio.sleep(0.4)
+            await link.drain()
+
+    with scripted() as printer:
+        asyncio.run(run(printer))
+        received = list(printer.received)
+    assert not any("M155" in line for line in received)
+    assert sum("M105" in line for line in received) >= 3
+    assert reports and reports[0].temperatures["T"] == (20.0, 0.0)
+
+
+def test_silent_printer_is_probed_then_the_link_fails_and_stops_sending():
+    silent_from = 20
+
+    def answer(number: int, command: str) -> list[str] | None:
+        return [] if number >= silent_from or command == "M105" else None
+
+    config = StreamerConfig(**{**FAST.__dict__, "probe_after_s": 0.05, "probe_retries": 2})
+    errors: list[str] = []
+
+    async def run(printer: ScriptedPrinter) -> None:
+        async with Streamer(await open_transport(printer.path, 115200), config) as link:
+            link.on_error = errors.append
+            await link.connect()
+            with pytest.raises(LinkError):
+                for line in job(200):
+                    await link.send(line)
+                await link.drain()
+            assert link.state == "error"
+            with pytest.raises(LinkError):
+                await link.send("G1 X1")
+
+    with scripted(answer) as printer:
+        asyncio.run(run(printer))
+        received = list(printer.received)
+    assert errors and "not responding" in errors[-1]
+    probes = [i for i, line in enumerate(received) if "M105" in line]
+    assert len(probes) == 2
+    # after the first probe, nothing but probes went out
+    assert all("M105" in line for line in received[probes[0]:])
+
+
+def test_firmware_without_ok_after_resend():
+    lines = job(3000)
+    config = StreamerConfig(**{**FAST.__dict__, "ok_after_resend": False})
+    with SimulatedPrinter(sim_config(ok_after_resend=False, p_corrupt_rx=0.01, seed=2)) as sim:
+        asyncio.run(stream_job(sim, lines, config))
+        executed = list(sim.executed)
+    assert job_lines(executed) == lines
+
+
+def test_wrong_guess_about_ok_after_resend_costs_time_not_lines():
+    lines = job(2000)
+    with SimulatedPrinter(sim_config(ok_after_resend=False, p_corrupt_rx=0.01, seed=4)) as sim:
+        asyncio.run(stream_job(sim, lines))
+        executed = list(sim.executed)
+    assert job_lines(executed) == lines
+
+
+# -- long commands ---------------------------------------------------------------------------
+
+def test_heating_and_homing_never_trip_the_timeout():
+    # M109/M190 take seconds of wall time here; probes are due after 0.1 s of silence and
+    # the link would give up after one unanswered probe, if busy and temperature lines did
+    # not count as signs of life
+    config = StreamerConfig(**{**FAST.__dict__, "probe_after_s": 0.1, "probe_retries": 1,
+                               "long_command_timeout_s": 0.3})
+    lines = ["M140 S60", "M104 S200", "G28", "M190 S60", "M109 S200", *job(50)]
+    errors: list[str] = []
+    with SimulatedPrinter(sim_config(time_scale=0.02, keepalive_s=2.0)) as sim:
+        link = asyncio.run(stream_job(sim, lines, config, errors=errors))
+        executed = list(sim.executed)
+    assert job_lines(executed) == lines
+    assert errors == []
+    assert link.state != "error"
+
+
+# -- control ---------------------------------------------------------------------------------
+
+def _slow_sim() -> SimulatorConfig:
+    return sim_config(time_scale=0.05)
+
+
+# moves take wall time here: silence while the planner is full is normal
+SLOW = StreamerConfig(**{**FAST.__dict__, "probe_after_s": 0.5})
+
+
+async def _wait_acked(link: Streamer, count: int) -> None:
+    while link.acked < count:
+        assert link.state not in ("error", "halted"), link.error
+        await asyncio.sleep(0.01)
+
+
+def test_pause_parks_and_resume_continues_exactly_where_it_stopped():
+    lines = job(300)
+    park = ("G91", "G1 Z5 F600", "G90")
+    unpark = ("G91", "G1 Z-5 F600", "G90")
+
+    async def run(sim: SimulatedPrinter) -> tuple[int, int]:
+        async with Streamer(await open_transport(sim.path, 250000), SLOW) as link:
+            await link.connect()
+
+            async def producer() -> None:
+                for line in lines:
+                    await link.send(line)
+
+            task = asyncio.create_task(producer(), name="producer")
+            await _wait_acked(link, 100)
+            await link.pause(park=park)
+            at_pause = len(sim.executed)
+            await asyncio.sleep(0.3)
+            still = len(sim.executed)
+            await link.resume(unpark=unpark)
+            await task
+            await link.drain()
+            return at_pause, still
+
+    with SimulatedPrinter(_slow_sim()) as sim:
+        at_pause, still = asyncio.run(run(sim))
+        executed = list(sim.executed)
+    assert at_pause == still  # nothing ran while paused
+    body = job_lines(executed)
+    cut = body.index("G91")
+    assert body[cut:cut + 3] == list(park)
+    assert body[cut + 3:cut + 6] == list(unpark)
+    assert body[:cut] + body[cut + 6:] == lines
+    assert 100 <= cut < 300
+
+
+def test_cancel_sends_end_gcode_and_refuses_further_lines():
+    lines = job(400)
+    end = ("M104 S0", "M140 S0", "M84")
+
+    async def run(sim: SimulatedPrinter) -> None:
+        async with Streamer(await open_transport(sim.path, 250000), SLOW) as link:
+            await link.connect()
+
+            async def producer() -> None:
+                for line in lines:
+                    await link.send(line)
+
+            task = asyncio.create_task(producer(), name="producer")
+            await _wait_acked(link, 50)
+            await link.cancel(end)
+            with pytest.raises(StreamCancelled):
+                await task
+            with pytest.raises(StreamCancelled):
+                await link.send("G1 X0")
+
+    with SimulatedPrinter(_slow_sim()) as sim:
+        asyncio.run(run(sim))
+        body = job_lines(sim.executed)
+    assert body[-3:] == list(end)
+    done = body[:-3]
+    assert done == lines[:len(done)]
+    assert 50 <= len(done) < len(lines)
+
+
+@pytest.mark.parametrize("parser", [True, False])
+def test_emergency_stop_halts_the_printer_at_once(parser):
+    lines = job(400)
+
+    async def run(sim: SimulatedPrinter) -> Streamer:
+        async with Streamer(await open_transport(sim.path, 250000), SLOW) as link:
+            await link.connect()
+
+            async def producer() -> None:
+                for line in lines:
+                    await link.send(line)
+
+            task = asyncio.create_task(producer(), name="producer")
+            await _wait_acked(link, 30)
+            await link.emergency_stop()
+            with pytest.raises(LinkError):
+                await task
+            with pytest.raises(LinkError):
+                await link.send("G1 X0")
+            await asyncio.sleep(0.2)
+            return link
+
+    with SimulatedPrinter(sim_config(time_scale=0.05, emergency_parser=parser)) as sim:
+        link = asyncio.run(run(sim))
+        executed = list(sim.executed)
+    assert link.state == HALTED
+    assert "M112" in executed
+    body = job_lines(executed)
+    stop = body.index("M112")
+    assert body[:stop] == lines[:stop]
+    assert stop < len(lines)
+    assert body[stop + 1:] == []  # nothing after the stop
+
+
+# -- unplug and reconnect --------------------------------------------------------------------
+
+@pytest.mark.parametrize("reset_on_open", [False, True])
+def test_unplug_mid_stream_reports_at_once_and_reconnects(tmp_path, reset_on_open):
+    link_path = str(tmp_path / "printer")
+    lines = job(1500)
+    errors: list[str] = []
+    seen: list[float] = []
+
+    async def run(sim: SimulatedPrinter) -> Streamer:
+        async with Streamer(await open_transport(link_path, 250000), FAST) as link:
+            loop = asyncio.get_running_loop()
+            link.on_error = lambda text: (errors.append(text), seen.append(loop.time()))
+            await link.connect()
+            for i, line in enumerate(lines):
+                if i == 700:
+                    await link.drain()  # no reply in transit: nothing to lose
+                    unplugged = loop.time()
+                    sim.disconnect()
+                await link.send(line)
+            await link.drain()
+            assert seen and seen[0] - unplugged < 1.0
+            return link
+
+    config = sim_config(baud=250000, link_path=link_path, reconnect_delay_s=0.05,
+                        reset_on_open=reset_on_open)
+    with SimulatedPrinter(config) as sim:
+        link = asyncio.run(run(sim))
+        executed = list(sim.executed)
+    assert job_lines(executed) == lines
+    assert link.stats.reconnects == 1
+    assert any("link lost" in e for e in errors)
+
+
+def test_port_lost_for_good_gives_an_error_state():
+    config = StreamerConfig(**{**FAST.__dict__, "reconnect_attempts": 2})
+
+    async def run(sim: SimulatedPrinter) -> Streamer:
+        async with Streamer(await open_transport(sim.path, 250000), config) as link:
+            await link.connect()
+            sim.stop()
+            with pytest.raises(LinkError):
+                for line in job(5000):
+                    await link.send(line)
+            return link
+
+    sim = SimulatedPrinter(sim_config(time_scale=0.05))
+    sim.start()
+    link = asyncio.run(run(sim))
+    assert link.state == "error"
+    assert "link lost" in (link.error or "")
