@@ -117,7 +117,7 @@ def measure(model: Path, scale: float, seconds: float, start_timeout: float) -> 
 
 def table(rows: list[Lead]) -> str:
     """Markdown table of the measured windows."""
-    lines = ["| model | faces | time scale | layers printed | status samples "
+    lines = ["| model | faces | time scale | layer reached | status samples "
              "| samples with < 1 layer ready | min ready ahead | mean ready ahead | note |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
