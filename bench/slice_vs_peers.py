@@ -80,6 +80,7 @@ class Row:
     iou_vs_prusa_common: float | None = None  # layers where both have an outer wall
     iou_vs_cura: float | None = None  # ours against CuraEngine, all layers
     worst_layers_vs_prusa: list[tuple[float, float]] = field(default_factory=list)  # (z, IoU)
+    offset_vs_prusa: tuple[float, float] | None = None  # mm moved to align ours on PrusaSlicer's
     iou_cura_vs_prusa: float | None = None  # the two peers against each other (reference)
 
 
@@ -171,8 +172,10 @@ def measure_model(
             row.iou_vs_prusa = agreement.mean_iou
             row.iou_vs_prusa_common = agreement.mean_iou_common
             row.worst_layers_vs_prusa = agreement.worst(8)
+            row.offset_vs_prusa = agreement.offset
             worst = ", ".join(f"z={z:.1f}: {iou:.2f}" for z, iou in agreement.worst(4))
-            print(f"  {model.stem:18s} worst outer-wall layers vs PrusaSlicer: {worst}",
+            print(f"  {model.stem:18s} worst outer-wall layers vs PrusaSlicer: {worst}; "
+                  f"aligned by ({agreement.offset[0]:+.3f}, {agreement.offset[1]:+.3f}) mm",
                   file=sys.stderr)
         if "curaengine" in moves:
             agreement = gcodeparse.wall_agreement(moves["curaengine"], moves["prusaslicer"])
