@@ -166,23 +166,28 @@ def measure_model(
             st = gcodeparse.stats(moves[name])
             row.results[name].layers = st.layers
             row.results[name].filament_mm = st.filament_mm
-    if compare and "prusaslicer" in moves:
-        if "hostd" in moves:
-            agreement = gcodeparse.wall_agreement(moves["hostd"], moves["prusaslicer"])
-            row.iou_vs_prusa = agreement.mean_iou
-            row.iou_vs_prusa_common = agreement.mean_iou_common
-            row.worst_layers_vs_prusa = agreement.worst(8)
-            row.offset_vs_prusa = agreement.offset
-            worst = ", ".join(f"z={z:.1f}: {iou:.2f}" for z, iou in agreement.worst(4))
-            print(f"  {model.stem:18s} worst outer-wall layers vs PrusaSlicer: {worst}; "
-                  f"aligned by ({agreement.offset[0]:+.3f}, {agreement.offset[1]:+.3f}) mm",
-                  file=sys.stderr)
-        if "curaengine" in moves:
-            agreement = gcodeparse.wall_agreement(moves["curaengine"], moves["prusaslicer"])
-            row.iou_cura_vs_prusa = agreement.mean_iou
-    if compare and "hostd" in moves and "curaengine" in moves:
-        row.iou_vs_cura = gcodeparse.wall_agreement(moves["hostd"], moves["curaengine"]).mean_iou
+    if compare:
+        compare_walls(row, moves)
     return row
+
+
+def compare_walls(row: Row, moves: dict[str, gcodeparse.Moves]) -> None:
+    """Fill the outer-wall IoU figures of ``row`` from the parsed G-code of each slicer."""
+    ours, prusa, cura = moves.get("hostd"), moves.get("prusaslicer"), moves.get("curaengine")
+    if ours is not None and prusa is not None:
+        agreement = gcodeparse.wall_agreement(ours, prusa)
+        row.iou_vs_prusa = agreement.mean_iou
+        row.iou_vs_prusa_common = agreement.mean_iou_common
+        row.worst_layers_vs_prusa = agreement.worst(8)
+        row.offset_vs_prusa = agreement.offset
+        worst = ", ".join(f"z={z:.1f}: {iou:.2f}" for z, iou in agreement.worst(4))
+        print(f"  {row.model:18s} worst outer-wall layers vs PrusaSlicer: {worst}; "
+              f"aligned by ({agreement.offset[0]:+.3f}, {agreement.offset[1]:+.3f}) mm",
+              file=sys.stderr)
+    if cura is not None and prusa is not None:
+        row.iou_cura_vs_prusa = gcodeparse.wall_agreement(cura, prusa).mean_iou
+    if ours is not None and cura is not None:
+        row.iou_vs_cura = gcodeparse.wall_agreement(ours, cura).mean_iou
 
 
 def summarise(results: list[RunResult]) -> Measured:
@@ -191,8 +196,10 @@ def summarise(results: list[RunResult]) -> Measured:
     if not good:
         return Measured(ok=False, reason=results[-1].reason() if results else "not run")
     rss = [r.rss_mb for r in good if r.rss_mb is not None]
+    bad = [r for r in results if not r.ok]
     return Measured(
         ok=True,
+        reason=f"{len(bad)} of {len(results)} runs failed: {bad[0].reason()}" if bad else "",
         wall_s=statistics.median(r.wall_s for r in good),
         peak_rss_mb=statistics.median(rss) if rss else None,
         runs=[round(r.wall_s, 3) for r in good],
@@ -242,7 +249,7 @@ def table(rows: list[Row]) -> str:
         iou = "-"
         if row.iou_vs_prusa is not None:
             iou = f"{row.iou_vs_prusa:.3f} ({_fmt(row.iou_vs_prusa_common, '.3f')})"
-        notes = [f"{name}: {_clean(m.reason)}" for name, m in r.items() if not m.ok]
+        notes = [f"{name}: {_clean(m.reason)}" for name, m in r.items() if m.reason]
         lines.append(
             f"| {row.model} | {row.faces:,} | {_cell(ours)} | {_cell(pr)} | {_cell(cu)} "
             f"| {_ratio(ours, pr)} | {_ratio(ours, cu)} | {layers} | {fil} | {iou} "
@@ -259,7 +266,7 @@ def scale_table(rows: list[Row]) -> str:
         r = row.results
         ours, cu = r.get("hostd"), r.get("curaengine")
         layers = "/".join(_fmt(m.layers if m else None, "d") for m in (ours, cu))
-        notes = [f"{name}: {_clean(m.reason)}" for name, m in r.items() if not m.ok]
+        notes = [f"{name}: {_clean(m.reason)}" for name, m in r.items() if m.reason]
         lines.append(f"| {row.model} | {row.faces:,} | {_cell(ours)} | {_cell(cu)} "
                      f"| {_ratio(ours, cu)} | {layers} | {'; '.join(notes)} |")
     return "\n".join(lines)
