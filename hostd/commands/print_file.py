@@ -1,0 +1,215 @@
+"""`hostd print FILE --port PORT`: stream G-code (or an STL sliced just in time) to a printer."""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import signal
+import sys
+import time
+from collections.abc import AsyncIterator, Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import TextIO
+
+from drivers.protocol import Response, strip_comment
+from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from drivers.streamer import LinkError, StreamCancelled, Streamer, StreamerConfig
+from drivers.transport import TransportError, open_transport
+from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
+
+GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
+LAYERS_AHEAD = 3
+# what a cancelled G-code file gets: heaters and fan off, motors released
+DEFAULT_END_GCODE = ("M104 S0", "M140 S0", "M107", "M84")
+
+
+@dataclass
+class Progress:
+    """How far the job is: ``done`` of ``total`` units (lines or layers), ``acked`` lines."""
+
+    unit: str
+    total: int
+    done: int = 0
+    acked: int = 0
+    hotend: tuple[float, float | None] | None = None
+
+
+class ProgressBar:
+    """One text line on ``stream``, redrawn at most ten times a second."""
+
+    def __init__(self, stream: TextIO, width: int = 30, enabled: bool = True) -> None:
+        self.stream = stream
+        self.width = width
+        self.enabled = enabled
+        self.started = time.monotonic()
+        self._last = 0.0
+
+    def draw(self, progress: Progress, final: bool = False) -> None:
+        """Redraw the bar (always when ``final``)."""
+        now = time.monotonic()
+        if not self.enabled or (not final and now - self._last < 0.1):
+            return
+        self._last = now
+        frac = min(1.0, progress.done / progress.total) if progress.total else 1.0
+        filled = round(frac * self.width)
+        temp = ""
+        if progress.hotend is not None:
+            actual, target = progress.hotend
+            temp = f" T {actual:.0f}/{target:.0f}" if target is not None else f" T {actual:.0f}"
+        self.stream.write(
+            f"\r[{'#' * filled}{'-' * (self.width - filled)}] {100 * frac:5.1f}% "
+            f"{progress.done}/{progress.total} {progress.unit} {progress.acked} lines{temp} "
+            f"{now - self.started:6.1f}s"
+        )
+        if final:
+            self.stream.write("\n")
+        self.stream.flush()
+
+
+def gcode_commands(path: Path) -> tuple[int, Callable[[Progress], AsyncIterator[str]]]:
+    """Count the file's commands, and a generator of them that advances ``progress``."""
+    with path.open(encoding="utf-8", errors="replace") as handle:
+        total = sum(1 for line in handle if strip_comment(line))
+
+    async def commands(progress: Progress) -> AsyncIterator[str]:
+        with path.open(encoding="utf-8", errors="replace") as handle:
+            for line in handle:
+                command = strip_comment(line)
+                if command:
+                    yield command
+                    progress.done += 1
+
+    return total, commands
+
+
+def stl_commands(plan) -> Callable[[Progress], AsyncIterator[str]]:
+    """Start G-code, every layer sliced a few layers ahead on worker threads, end G-code."""
+
+    async def commands(progress: Progress) -> AsyncIterator[str]:
+        loop = asyncio.get_running_loop()
+        for line in plan.start_gcode():
+            if strip_comment(line):
+                yield strip_comment(line)
+        ahead: dict[int, asyncio.Future[list[str]]] = {}
+        for i in range(plan.layer_count):
+            for j in range(i, min(plan.layer_count, i + LAYERS_AHEAD + 1)):
+                if j not in ahead:
+                    ahead[j] = loop.run_in_executor(None, plan.layer_gcode, j)
+            for line in await ahead.pop(i):
+                command = strip_comment(line)
+                if command:
+                    yield command
+            progress.done = i + 1
+        for line in plan.end_gcode():
+            if strip_comment(line):
+                yield strip_comment(line)
+
+    return commands
+
+
+async def stream(
+    port: str,
+    baud: int,
+    commands: AsyncIterator[str],
+    progress: Progress,
+    bar: ProgressBar,
+    end_gcode: tuple[str, ...],
+    config: StreamerConfig | None = None,
+) -> int:
+    """Connect, stream every command, drain; Ctrl-C cancels with ``end_gcode``."""
+    try:
+        transport = await open_transport(port, baud)
+    except TransportError as exc:
+        raise UsageError(str(exc)) from exc
+    loop = asyncio.get_running_loop()
+    async with Streamer(transport, config or StreamerConfig()) as link:
+        interrupted = asyncio.Event()
+
+        def on_ack(number: int, command: str) -> None:
+            progress.acked += 1
+            bar.draw(progress)
+
+        def on_temperature(report: Response) -> None:
+            progress.hotend = report.temperatures.get("T") or report.temperatures.get("T0")
+
+        def on_error(text: str) -> None:
+            bar.stream.write(f"\nprinter: {text}\n")
+
+        link.on_ack, link.on_temperature, link.on_error = on_ack, on_temperature, on_error
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(signal.SIGINT, interrupted.set)
+        try:
+            await link.connect()
+            sender = asyncio.create_task(_send_all(link, commands), name="print-sender")
+            stop = asyncio.create_task(interrupted.wait(), name="print-interrupt")
+            await asyncio.wait({sender, stop}, return_when=asyncio.FIRST_COMPLETED)
+            if not sender.done():
+                await link.cancel(end_gcode)
+                with contextlib.suppress(StreamCancelled):
+                    await sender
+                bar.draw(progress, final=True)
+                bar.stream.write("cancelled\n")
+                return 130
+            stop.cancel()
+            await sender
+            await link.drain()
+        except LinkError as exc:
+            bar.draw(progress, final=True)
+            bar.stream.write(f"hostd print: link failed: {exc}\n")
+            return EXIT_FAILURE
+        finally:
+            with contextlib.suppress(NotImplementedError, RuntimeError):
+                loop.remove_signal_handler(signal.SIGINT)
+        bar.draw(progress, final=True)
+        stats = link.stats
+        bar.stream.write(
+            f"done: {progress.acked} lines in {time.monotonic() - bar.started:.1f} s, "
+            f"{stats.resends} resend requests, {stats.lines_resent} lines resent\n"
+        )
+    return EXIT_OK
+
+
+async def _send_all(link: Streamer, commands: AsyncIterator[str]) -> None:
+    async for command in commands:
+        await link.send(command)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Stream ``args.file`` to ``args.port`` (``sim``: the in-process simulated printer)."""
+    path = Path(args.file)
+    if not path.is_file():
+        raise UsageError(f"{path}: no such file")
+    if args.baud < 0 or (args.baud == 0 and args.port != "sim"):
+        raise UsageError(f"--baud {args.baud}: must be a positive speed")
+    suffix = path.suffix.lower()
+    if suffix == ".stl":
+        from hostd.commands.slice import load_plan, load_settings
+
+        settings, bed = load_settings(args.config, args.set)
+        plan = load_plan(str(path), settings, bed)
+        progress = Progress("layers", plan.layer_count)
+        commands = stl_commands(plan)
+        end_gcode = tuple(c for c in map(strip_comment, plan.end_gcode()) if c)
+    elif suffix in GCODE_SUFFIXES:
+        total, commands = gcode_commands(path)
+        progress = Progress("lines", total)
+        end_gcode = DEFAULT_END_GCODE
+    else:
+        raise UsageError(f"{path}: not a G-code file ({', '.join(GCODE_SUFFIXES)}) or an STL")
+    bar = ProgressBar(sys.stderr, enabled=not args.quiet)
+    sim: SimulatedPrinter | None = None
+    port = args.port
+    if port == "sim":
+        try:
+            sim = SimulatedPrinter(SimulatorConfig(time_scale=args.time_scale, baud=args.baud))
+        except ValueError as exc:
+            raise UsageError(str(exc)) from exc
+        port = sim.start()
+    try:
+        return asyncio.run(stream(port, args.baud or 250000, commands(progress), progress,
+                                  bar, end_gcode))
+    finally:
+        if sim is not None:
+            sim.stop()
