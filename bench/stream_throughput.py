@@ -1,0 +1,183 @@
+"""Streaming throughput on the simulated printer: windowed streamer vs wire and one-at-a-time.
+
+Run from the repository root::
+
+    .venv/bin/python -m bench.stream_throughput [--lines 5000] [--bauds 115200 250000]
+
+The simulated printer runs in its own process (``hostd simulate``) with its wire limited
+to the baud rate, so the host's CPU time measured here is the host's alone. For each
+speed the table gives lines per second of the windowed streamer and of a send-one,
+wait-for-ok host on the same simulator, the wire's line rate (baud / 10 bytes per second
+over the mean framed line length), the ratios, and the host CPU use while streaming.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import math
+import subprocess
+import sys
+import time
+from dataclasses import dataclass
+
+from drivers.protocol import frame, parse_response
+from drivers.streamer import Streamer, StreamerConfig
+from drivers.transport import Transport, open_transport
+
+
+def curved_perimeter(n: int, segment_mm: float = 0.3, radius_mm: float = 40.0) -> list[str]:
+    """``n`` short G1 moves around a circle at 200 mm/s, as a fast curved perimeter."""
+    step = segment_mm / radius_mm
+    e_per_mm = 0.0332  # 0.45 x 0.2 mm bead on 1.75 mm filament
+    lines = [f"G1 X{100 + radius_mm:.3f} Y100.000 F12000"]
+    for i in range(1, n):
+        a = i * step
+        lines.append(f"G1 X{100 + radius_mm * math.cos(a):.3f} "
+                     f"Y{100 + radius_mm * math.sin(a):.3f} E{segment_mm * e_per_mm:.5f}")
+    return lines
+
+
+@dataclass(frozen=True)
+class Run:
+    """One measured stream: lines, wall seconds, host CPU seconds, framed bytes."""
+
+    lines: int
+    wall_s: float
+    cpu_s: float
+    framed_bytes: int
+
+    @property
+    def rate(self) -> float:
+        """Lines per second."""
+        return self.lines / self.wall_s
+
+    @property
+    def cpu_share(self) -> float:
+        """Host CPU use as a fraction of one core."""
+        return self.cpu_s / self.wall_s
+
+
+class SimProcess:
+    """``hostd simulate`` in a subprocess; ``path`` is its pseudo-terminal."""
+
+    def __init__(self, baud: int, time_scale: float) -> None:
+        self.proc = subprocess.Popen(
+            [sys.executable, "-m", "hostd.cli", "simulate", "--baud", str(baud),
+             "--time-scale", str(time_scale)],
+            stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
+        )
+        assert self.proc.stdout is not None
+        self.path = self.proc.stdout.readline().strip()
+        if not self.path:
+            raise RuntimeError("hostd simulate printed no device path")
+
+    def stop(self) -> None:
+        """Terminate the simulator and wait for it."""
+        self.proc.terminate()
+        try:
+            self.proc.wait(5)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+
+
+async def windowed(path: str, baud: int, lines: list[str]) -> Run:
+    """The project's streamer: send-ahead window over the receive buffer."""
+    config = StreamerConfig(temperature_interval_s=0)
+    async with Streamer(await open_transport(path, baud), config) as link:
+        await link.connect()
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        for line in lines:
+            await link.send(line)
+        await link.drain()
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        first = link.stats.lines_sent - len(lines)
+        framed = sum(len(frame(first + i + 1, line)) for i, line in enumerate(lines))
+        if link.stats.resends:
+            print(f"  note: {link.stats.resends} resend requests", file=sys.stderr)
+    return Run(len(lines), wall, cpu, framed)
+
+
+async def one_at_a_time(path: str, baud: int, lines: list[str]) -> Run:
+    """The baseline: write one numbered line, wait for its ok, repeat."""
+    transport = await open_transport(path, baud)
+    try:
+        await _settle(transport)
+        await _exchange(transport, frame(0, "M110 N0"))
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        framed = 0
+        for i, line in enumerate(lines, 1):
+            data = frame(i, line)
+            framed += len(data)
+            await _exchange(transport, data)
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    finally:
+        await transport.close()
+    return Run(len(lines), wall, cpu, framed)
+
+
+async def _settle(transport: Transport) -> None:
+    """Read the boot banner until the line is quiet."""
+    while True:
+        try:
+            await asyncio.wait_for(transport.readline(), 0.3)
+        except TimeoutError:
+            return
+
+
+async def _exchange(transport: Transport, data: bytes) -> None:
+    await transport.write(data)
+    while True:
+        response = parse_response(await transport.readline())
+        if response.kind == "ok":
+            return
+        if response.kind in ("resend", "error"):
+            raise RuntimeError(f"baseline got {response.raw!r}: the wire must be clean here")
+
+
+def measure(baud: int, lines: list[str], time_scale: float) -> tuple[Run, Run]:
+    """Windowed and one-at-a-time runs on fresh simulators at ``baud``."""
+    results = []
+    for method in (windowed, one_at_a_time):
+        sim = SimProcess(baud, time_scale)
+        try:
+            results.append(asyncio.run(method(sim.path, baud, lines)))
+        finally:
+            sim.stop()
+    return results[0], results[1]
+
+
+def main(argv: list[str] | None = None) -> int:
+    """Measure and print the table."""
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--lines", type=int, default=5000)
+    parser.add_argument("--bauds", type=int, nargs="+", default=[115200, 250000])
+    parser.add_argument("--time-scale", type=float, default=0.0,
+                        help="simulated printer speed (0: moves take no time, the wire limits)")
+    args = parser.parse_args(argv)
+    lines = curved_perimeter(args.lines)
+    header = (f"{'baud':>7} {'wire l/s':>9} {'window l/s':>10} {'% wire':>7} "
+              f"{'1-at-a-time l/s':>15} {'% wire':>7} {'speedup':>7} {'host CPU':>9} "
+              f"{'bytes/line':>10}")
+    rows = []
+    for baud in args.bauds:
+        win, base = measure(baud, lines, args.time_scale)
+        mean_len = win.framed_bytes / win.lines
+        wire = baud / 10 / mean_len
+        rows.append(
+            f"{baud:>7} {wire:>9.1f} {win.rate:>10.1f} {100 * win.rate / wire:>6.1f}% "
+            f"{base.rate:>15.1f} {100 * base.rate / wire:>6.1f}% {win.rate / base.rate:>6.2f}x "
+            f"{100 * win.cpu_share:>8.1f}% {mean_len:>10.1f}"
+        )
+        print(f"measured {baud} baud", file=sys.stderr)
+    print(f"{args.lines} short G1 moves (0.3 mm at 200 mm/s), simulated printer "
+          f"time scale {args.time_scale:g}")
+    print(header)
+    for row in rows:
+        print(row)
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
