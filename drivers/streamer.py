@@ -493,7 +493,13 @@ class Streamer:
         self._last_acked_number = value
 
     def _on_resend(self, response: Response, error_before: Response | None) -> None:
-        """``Resend: N``: replay from N, if the request is sane (see module notes)."""
+        """``Resend: N``: replay from N, when the request is sane.
+
+        The number is checked against the lines that can be asked for (unacknowledged or
+        next), repaired when digits were lost, confirmed by the ``Error`` line before it or
+        by repetition; further requests for the same error (lines that were still on the
+        wire) are answered once; a request for an acknowledged line means lost state.
+        """
         # Marlin follows Error + Resend with an ok (2.1; some 2.0 builds do not)
         self._expect_resend_ok = error_before is not None and self.config.ok_after_resend
         error_line = error_before.line if error_before is not None else None

@@ -38,6 +38,10 @@ def test_each_fault_kind_at_one_percent(tmp_path, kind):
     _, fired, link = _run(tmp_path, seed=11, **{f"p_{kind}": P})
     assert fired.get(kind, 0) >= 100  # the faults really happened
     assert link.acked == LINES
+    if kind == "corrupt_rx":
+        # lines still on the wire after a refused one are refused too: one replay each time
+        assert link.stats.duplicate_resends > 0
+        assert link.stats.lines_resent < 4 * fired[kind]
 
 
 def test_all_faults_combined_but_resets(tmp_path):
