@@ -262,8 +262,6 @@ class Streamer:
         except TimeoutError as exc:
             self._fail("printer did not answer the connection handshake")
             raise LinkError(self.error) from exc
-        if self.config.learn_bufsize and not self._advanced_ok:
-            self._window.max_lines = self.config.bufsize
         self.state = PAUSED if self._paused else READY
         self._last_poll = loop.time()
 
@@ -316,7 +314,11 @@ class Streamer:
         self._wake.set()
 
     async def cancel(self, end_gcode: Iterable[str] = ()) -> None:
-        """Refuse further job lines, send ``end_gcode`` after what is in flight, drain."""
+        """Refuse further job lines, send ``end_gcode`` after what is in flight, drain.
+
+        Pending and later ``send()`` calls raise :class:`StreamCancelled` until
+        ``begin_job()`` opens the link to the next job.
+        """
         self._cancelled = True
         self._paused = False
         while self._pending:
@@ -329,6 +331,13 @@ class Streamer:
         await self.drain()
         if self.state not in (ERROR, HALTED):
             self.state = CANCELLED
+
+    def begin_job(self) -> None:
+        """Accept job lines again after ``cancel()`` (the link itself stays connected)."""
+        self._cancelled = False
+        if self.state == CANCELLED:
+            self.state = READY
+        self._wake.set()
 
     async def emergency_stop(self) -> None:
         """``M112`` at once: out of band with an emergency parser, else as the next line."""

@@ -437,10 +437,16 @@ def test_cancel_sends_end_gcode_and_refuses_further_lines():
                 await task
             with pytest.raises(StreamCancelled):
                 await link.send("G1 X0")
+            link.begin_job()  # the next job on the same link
+            for line in lines[:5]:
+                await link.send(line)
+            await link.drain()
 
     with SimulatedPrinter(_slow_sim()) as sim:
         asyncio.run(run(sim))
         body = job_lines(sim.executed)
+    assert body[-5:] == lines[:5]
+    body = body[:-5]
     assert body[-3:] == list(end)
     done = body[:-3]
     assert done == lines[:len(done)]
