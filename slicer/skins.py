@@ -25,7 +25,7 @@ import shapely
 from slicer import geom
 
 # largest deviation of the domains used to find skins, mm
-_SIMPLIFY = 0.05
+_SIMPLIFY = 0.1
 
 
 def _exposed(
