@@ -140,7 +140,7 @@ class Daemon:
 
     def _attach(self, link: Streamer) -> None:
         link.on_temperature = self._temperature
-        link.on_error = lambda text: log.warning("printer: %s", text)
+        link.on_error = self._printer_error
         self.hub.update(state="idle", error=None,
                         printer=PrinterInfo(self.config.printer.id, self.config.printer.port, True))
 
@@ -165,6 +165,10 @@ class Daemon:
                 self.current = None
                 self.hub.update(state="idle", job=None)
                 self.queue_changed()
+
+    def _printer_error(self, text: str) -> None:
+        log.warning("printer: %s", text)
+        self.hub.event("error", source="printer", message=text)
 
     def _temperature(self, report: Response) -> None:
         temps = self.hub.current.temps

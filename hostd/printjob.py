@@ -13,6 +13,7 @@ from collections.abc import Iterator
 from pathlib import Path
 
 from drivers.streamer import LinkError, Streamer
+from hostd.api import JobStatus
 from hostd.config import Config
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
@@ -65,7 +66,8 @@ class PrintJob:
         checkpoint. LinkError leaves it interrupted too, and is raised again.
         """
         job = self.store.transition(self.job.id, "slicing")
-        self.hub.update(state="heating", error=None)
+        self.hub.update(state="heating", error=None,
+                        job=JobStatus(id=job.id, name=job.name, layer=max(job.layer, 0)))
         resume = job.resume_from is not None and job.resume_from > 0
         try:
             first = job.resume_from if resume else 0
