@@ -37,3 +37,25 @@ def test_dropped_models_print_exactly_once_in_order_and_bad_ones_fail(daemon) ->
     assert hostd.stop() == 0
     assert not (hostd.state / "hostd.sock").exists()
     assert list(hostd.jobs.glob("*.stl")) == []
+
+
+def test_a_dropped_gcode_file_is_printed_as_is(daemon, tmp_path) -> None:
+    from slicer.plan import SlicePlan
+    from slicer.settings import SliceSettings
+
+    plan = SlicePlan.from_file(DATA / "cube20_xyz.stl", SliceSettings())
+    lines = ["; made elsewhere", *plan.start_gcode()]
+    for index in range(plan.layer_count):
+        lines += plan.layer_gcode(index)
+    lines += plan.end_gcode()
+    source = tmp_path / "made.gcode"
+    source.write_text("\r\n".join(lines) + "\r\n")  # CRLF, as some slicers write
+    hostd = daemon(sim_config(time_scale=0.0))
+    hostd.drop(source, "made.gcode")
+    done = hostd.jobs / "done"
+    hostd.wait_for(lambda: (done / "made.summary.txt").exists(), 60, "the G-code job done")
+    assert (done / "made.gcode").read_bytes() == source.read_bytes()
+    executed = executed_job_lines(hostd.state / "simulator-executed.log")
+    assert executed == commands_of(source) and len(executed) > 1000
+    assert "layer 100/100, 100.0 %" in hostd.log()
+    assert hostd.stop() == 0
