@@ -34,13 +34,17 @@ class Watcher:
     Only the top level of ``folder`` is watched (``done/`` and ``failed/`` live
     inside it). A file is settled when its size and modification time were the
     same for ``settle_s`` seconds. Directories and links with job names are passed
-    on too, so that the intake can refuse them with a reason.
+    on too, so that the intake can refuse them with a reason. The folder is scanned
+    again every ``rescan_s`` seconds in case an event was missed.
     """
 
-    def __init__(self, folder: Path, settle_s: float, on_settled: OnSettled) -> None:
+    def __init__(
+        self, folder: Path, settle_s: float, on_settled: OnSettled, rescan_s: float = 10.0
+    ) -> None:
         self.folder = folder
         self.settle_s = settle_s
         self.on_settled = on_settled
+        self.rescan_s = rescan_s
         self._pending: dict[Path, _Seen] = {}
         self._wake = asyncio.Event()
 
@@ -52,6 +56,15 @@ class Watcher:
             group.create_task(self._watch(stop), name="watcher-events")
             self.scan()
             group.create_task(self._settle(stop), name="watcher-settle")
+            group.create_task(self._rescan(stop), name="watcher-rescan")
+
+    async def _rescan(self, stop: asyncio.Event) -> None:
+        """Scan again now and then: network shares and event overflows can miss changes."""
+        while not stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), timeout=self.rescan_s)
+            if not stop.is_set():
+                self.scan()
 
     def scan(self) -> None:
         """Add every job-named entry of the folder to the candidates."""
