@@ -17,7 +17,7 @@ import shapely
 
 from slicer import gcode
 from slicer.errors import ModelError
-from slicer.fields.base import LayerContext, get_field
+from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.layer import LayerRegions, Path, fill_distance, layer_paths
 from slicer.mesh import PlacedMesh, prepare, read_stl
 from slicer.outline import GapReport, OutlineTolerances, build_layers
@@ -163,17 +163,29 @@ class SlicePlan:
         return self._geo.outlines[i]
 
     # ---- per layer ------------------------------------------------------
-    def layer_toolpaths(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> list[Path]:
-        """Every toolpath of layer ``i`` in print order."""
+    @property
+    def infill_field(self) -> InfillField:
+        """The infill field strategy the settings select."""
+        return self._field
+
+    def layer_context(
+        self, i: int, excluded_bodies: frozenset[int] = frozenset()
+    ) -> LayerContext:
+        """What the infill field sees of layer ``i`` (a private copy of its domain)."""
         i = self._check(i)
-        islands = self._islands(i, excluded_bodies)
-        ctx = LayerContext(
+        return LayerContext(
             index=i,
             z=float(self._geo.tops[i]),
             domain=_private(self.outline(i, excluded_bodies)),
             bounds=self._geo.bounds,
             settings=self.settings,
         )
+
+    def layer_toolpaths(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> list[Path]:
+        """Every toolpath of layer ``i`` in print order."""
+        i = self._check(i)
+        islands = self._islands(i, excluded_bodies)
+        ctx = self.layer_context(i, excluded_bodies)
         regions = LayerRegions(
             islands=islands,
             skin=self._skins.get(i),

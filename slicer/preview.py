@@ -56,9 +56,13 @@ def render_layer(
         for hole in poly.interiors:
             draw.polygon(px(shapely.get_coordinates(hole)), fill=BACKGROUND)
     if field:
-        from slicer.fields.draw import draw_field
+        from slicer.fields.draw import paint_field
 
-        draw_field(image, plan, i, (xmin, ymin, xmax, ymax), scale)
+        ctx = plan.layer_context(i)
+        settings = plan.settings
+        inset = settings.line_width * (settings.perimeters - settings.infill_overlap)
+        region = shapely.buffer(ctx.domain, -inset) if inset > 0 else ctx.domain
+        paint_field(image, ctx, plan.infill_field, region, (xmin, ymin, xmax, ymax), scale)
         draw = ImageDraw.Draw(image)
     for poly in shapely.get_parts(outline):
         for ring in (poly.exterior, *poly.interiors):
