@@ -49,7 +49,7 @@ async def watch_for(config, seconds: float, action) -> tuple[list[str], JobStore
 
 
 def test_a_growing_file_is_taken_only_once_it_settled(tmp_path: Path) -> None:
-    config = make_config(tmp_path, settle=0.6)
+    config = make_config(tmp_path, settle=1.0)
     data = CUBE.read_bytes()
     seen_early: list[bool] = []
 
@@ -59,12 +59,12 @@ def test_a_growing_file_is_taken_only_once_it_settled(tmp_path: Path) -> None:
             for start in range(0, len(data), len(data) // 5 + 1):
                 handle.write(data[start:start + len(data) // 5 + 1])
                 handle.flush()
-                await asyncio.sleep(0.3)
+                await asyncio.sleep(0.2)
                 seen_early.append(target.exists())
-        # every chunk came 0.3 s apart, under the settle time: still in the folder
+        # every chunk came 0.2 s apart, well under the settle time: still in the folder
         assert all(seen_early)
 
-    taken, store = asyncio.run(watch_for(config, 1.5, grow))
+    taken, store = asyncio.run(watch_for(config, 2.0, grow))
     assert taken == ["slow.stl"]
     (job,) = store.jobs()
     assert job.state == "queued"
