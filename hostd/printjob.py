@@ -78,6 +78,9 @@ class PrintJob:
         except (ModelError, SettingsError, OSError) as exc:
             self.intake.fail(self.store.get(job.id), str(exc))
             return "failed"
+        except asyncio.CancelledError:
+            self._interrupted("stopped during the whole-model pass")
+            raise
         with output:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
                                     first or 0, write_preamble=not resume)
