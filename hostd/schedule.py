@@ -6,6 +6,7 @@ import threading
 from collections.abc import Mapping
 from typing import Any
 
+from slicer.gcode import fan_command
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -60,8 +61,19 @@ class LayerSchedule:
         return plan
 
     def layer_gcode(self, layer: int) -> list[str]:
-        """G-code lines of one layer (safe to call from worker threads)."""
-        return list(self.plan_at(layer).layer_gcode(layer, self.excluded_at(layer)))
+        """G-code lines of one layer (safe to call from worker threads).
+
+        On the first layer of a retune that changed a temperature or the fan, the
+        new values are set right after the ``;LAYER:`` line (the slicer sets them
+        only in the start block).
+        """
+        lines = list(self.plan_at(layer).layer_gcode(layer, self.excluded_at(layer)))
+        if layer > 0 and any(first == layer for first, _changes in self.changes):
+            extra = _retune_gcode(self.settings_at(layer - 1), self.settings_at(layer), layer)
+            if extra:
+                at = 1 if lines and lines[0].startswith(";LAYER:") else 0
+                lines[at:at] = extra
+        return lines
 
     def retune(self, first: int, changed: Mapping[str, Any]) -> SliceSettings:
         """Apply ``changed`` from layer ``first`` on; raises SettingsError when refused."""
@@ -75,3 +87,15 @@ class LayerSchedule:
     def cancel_body(self, body: int, first: int) -> None:
         """Leave body ``body`` out from layer ``first`` on."""
         self.cancelled.append((body, first))
+
+
+def _retune_gcode(before: SliceSettings, after: SliceSettings, layer: int) -> list[str]:
+    """Commands that apply a retune's temperatures and fan speed (no waiting)."""
+    lines = [";RETUNE"]
+    if after.nozzle_temp != before.nozzle_temp:
+        lines.append(f"M104 S{after.nozzle_temp:g}")
+    if after.bed_temp != before.bed_temp:
+        lines.append(f"M140 S{after.bed_temp:g}")
+    if fan_command(after, layer) != fan_command(before, layer):
+        lines.append(fan_command(after, layer))
+    return lines if len(lines) > 1 else []
