@@ -81,7 +81,7 @@ class PrintJob:
         except asyncio.CancelledError:
             self._interrupted("stopped during the whole-model pass")
             raise
-        with output:
+        try:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
                                     first or 0, write_preamble=not resume)
             link.on_ack = lambda _number, _command: self.runner.on_ack()
@@ -100,7 +100,13 @@ class PrintJob:
             finally:
                 link.on_ack = None
                 self.source.close()
-        await asyncio.to_thread(self._write_final, job)
+        finally:
+            with contextlib.suppress(OSError):  # a full disk fails the flush again
+                output.close()
+        try:
+            await asyncio.to_thread(self._write_final, job)
+        except OSError as exc:  # the print is over; only its files could not be written
+            log.error("job %s %s: G-code file or summary not written: %s", job.id, job.name, exc)
         self.intake.finish(self.store.get(job.id))
         return "done"
 
@@ -149,6 +155,8 @@ class PrintJob:
         """NAME.gcode (header from the whole file, then the body) and NAME.summary.txt."""
         if job.kind == "gcode":
             summary_text = f"job {job.id} {job.name}: printed as is\n"
+        elif self.runner.output_error is not None:
+            summary_text = f"job {job.id} {job.name}: printed; {self.runner.output_error}\n"
         else:
             summary = summarize(_lines(self.partial))
             settings = self.schedule.base_settings if self.schedule else SliceSettings()

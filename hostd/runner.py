@@ -6,10 +6,12 @@ import asyncio
 import collections
 import logging
 import os
+import sqlite3
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Protocol
+from typing import IO, Any, Protocol
 
 from drivers.protocol import strip_comment
 from hostd.api import JobStatus
@@ -87,6 +89,7 @@ class JobRunner:
         self._running = asyncio.Event()
         self._running.set()
         self._cancelled = False
+        self.output_error: str | None = None
         self._started = time.monotonic()
         self._print_started: float | None = None
         self._layers_timed = 0
@@ -138,11 +141,11 @@ class JobRunner:
         await self._stream(self.source.ending(), ENDING, write=True)
         await self.link.drain()
         self._check_marks()
-        self.output.flush()
+        self._save(self.output.flush)
 
     async def _stream(self, lines: list[str], layer: int, write: bool) -> None:
         if write and lines:
-            self.output.write("\n".join(lines) + "\n")
+            self._save(self.output.write, "\n".join(lines) + "\n")
         for line in lines:
             command = strip_comment(line)
             if not command:
@@ -155,7 +158,8 @@ class JobRunner:
             self._sent += 1
         if self._cancelled:
             raise JobCancelled(f"cancelled at layer {self.completed + 1}")
-        self._marks.append(_Mark(self._sent, layer, self.output.tell()))
+        offset = self._save(self.output.tell)
+        self._marks.append(_Mark(self._sent, layer, offset if offset is not None else -1))
         self._check_marks()
 
     def on_ack(self) -> None:
@@ -179,12 +183,18 @@ class JobRunner:
                 self._layer_complete(mark)
 
     def _layer_complete(self, mark: _Mark) -> None:
-        self.output.flush()
-        os.fsync(self.output.fileno())
+        self._save(self.output.flush)
+        self._save(lambda: os.fsync(self.output.fileno()))
         self.completed = mark.layer
         self._layers_timed += 1
         self._last_layer_at = time.monotonic()
-        self.store.checkpoint(self.job.id, mark.layer, self.lines_acked, mark.offset)
+        if self.output_error is None:
+            try:
+                self.store.checkpoint(self.job.id, mark.layer, self.lines_acked, mark.offset)
+            except (sqlite3.Error, OSError) as exc:  # printing goes on without it
+                log.error("job %s: checkpoint of layer %d not recorded: %s",
+                          self.job.id, mark.layer, exc)
+                self.hub.event("error", id=self.job.id, message=f"checkpoint not recorded: {exc}")
         status = self._publish()
         eta = "--" if status.eta_s is None else _clock(status.eta_s)
         log.info(
@@ -193,6 +203,23 @@ class JobRunner:
         )
         self.hub.event("layer", id=self.job.id, name=self.job.name, layer=mark.layer,
                        layers=self.layers)
+
+    def _save(self, action: Callable[..., Any], *args: Any) -> Any:
+        """Run one operation on the G-code file; a failure (disk full) stops the file only.
+
+        The print goes on; the job can no longer be resumed from a checkpoint and
+        its G-code file is not kept. Returns the operation's result, or None.
+        """
+        if self.output_error is not None:
+            return None
+        try:
+            return action(*args)
+        except OSError as exc:
+            self.output_error = f"the G-code file could not be written: {exc.strerror or exc}"
+            log.error("job %s %s: %s; printing goes on", self.job.id, self.job.name,
+                      self.output_error)
+            self.hub.event("error", id=self.job.id, message=self.output_error)
+            return None
 
     # -- status ---------------------------------------------------------------
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
+import contextlib
 import itertools
 import threading
 from pathlib import Path
@@ -42,7 +43,9 @@ class CountingSchedule(LayerSchedule):
         return lines
 
 
-async def print_job(tmp_path: Path, depth: int, renumber_at: int = 100_000) -> dict:
+async def print_job(
+    tmp_path: Path, depth: int, renumber_at: int = 100_000, output_path: Path | None = None
+) -> dict:
     settings = SliceSettings()
     plan = SlicePlan.from_file(MODEL, settings)
     schedule = CountingSchedule(plan, settings)
@@ -59,7 +62,7 @@ async def print_job(tmp_path: Path, depth: int, renumber_at: int = 100_000) -> d
         async with Streamer(await open_transport(path, 250000), config) as link:
             await link.connect()
             source = SlicedSource(schedule, 0, depth, executor, resume=False)
-            output = open_output(tmp_path / "out.gcode.part", 0)
+            output = open_output(output_path or tmp_path / "out.gcode.part", 0)
             runner = JobRunner(job, source, link, store, hub, output, 0, write_preamble=True)
             original_send = link.send
 
@@ -79,7 +82,8 @@ async def print_job(tmp_path: Path, depth: int, renumber_at: int = 100_000) -> d
             store.checkpoint = checkpoint  # type: ignore[method-assign]
             link.on_ack = lambda _number, _command: runner.on_ack()
             await runner.run()
-            output.close()
+            with contextlib.suppress(OSError):
+                output.close()
     finally:
         executor.shutdown()
         printer.stop()
@@ -87,6 +91,7 @@ async def print_job(tmp_path: Path, depth: int, renumber_at: int = 100_000) -> d
     seen["executed"] = list(printer.executed)
     seen["plan"] = plan
     seen["hub"] = hub.current
+    seen["output_error"] = runner.output_error
     store.close()
     return seen
 
@@ -126,3 +131,16 @@ def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> 
     seen = asyncio.run(print_job(tmp_path, depth=2, renumber_at=1000))
     assert sum(c.startswith("M110") for c in seen["executed"]) > 10  # renumbered often
     assert [c[0] for c in seen["checkpoints"]] == list(range(seen["plan"].layer_count))
+
+
+def test_a_full_disk_stops_the_gcode_file_but_not_the_print(tmp_path: Path) -> None:
+    seen = asyncio.run(print_job(tmp_path, depth=2, output_path=Path("/dev/full")))
+    plan = seen["plan"]
+    expected = [c for c in map(strip_comment, plan.start_gcode()) if c]
+    for index in range(plan.layer_count):
+        expected += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
+    expected += [c for c in map(strip_comment, plan.end_gcode()) if c]
+    housekeeping = ("M110", "M115", "M155", "M105")
+    assert [c for c in seen["executed"] if c.split()[0] not in housekeeping] == expected
+    assert "No space left on device" in seen["output_error"]
+    assert seen["hub"].job.progress == 1.0
