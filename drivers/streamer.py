@@ -62,6 +62,7 @@ class StreamerConfig:
     - ``park_gcode`` / ``unpark_gcode``: sent by ``pause()`` / ``resume()``.
     - ``resync_quiet_s``: after a reset, silence awaited before ``M110`` restores the line
       number, so that refusals of lines sent before the reset are not taken for its own.
+    - ``renumber_retry_s``: silence after an ``M110`` before it is written again.
     - ``ok_after_resend``: the firmware answers ``Error`` + ``Resend`` with an ``ok`` (Marlin
       2.1); set False for builds that send none. A wrong guess costs time, not lines.
     - ``reconnect_attempts`` / ``reconnect_delay_s``: after the port is lost.
@@ -82,6 +83,7 @@ class StreamerConfig:
     unpark_gcode: tuple[str, ...] = ()
     ok_after_resend: bool = True
     resync_quiet_s: float = 0.2
+    renumber_retry_s: float = 1.0
     reconnect_attempts: int = 0
     reconnect_delay_s: float = 1.0
 
@@ -514,10 +516,15 @@ class Streamer:
         error_line = error_before.line if error_before is not None else None
         self.stats.resends += 1
         if self._renumber is not None:
-            if self._renumber.sent:
+            # M110 skips the line-number check, so only a checksum error can refuse it; a
+            # line-number error comes from a line sent before it (before the reset)
+            refused = error_before is not None and error_before.error_kind != "line_number"
+            if self._renumber.sent and refused:
                 self._window.clear()
                 self._renumber.sent = False
                 self._wake.set()
+            else:
+                self.stats.duplicate_resends += 1
             return
         low = min([*self._window.numbers(), self._last_acked_number + 1, self._next_number])
         candidates = range(low, self._next_number + 1)
@@ -774,7 +781,7 @@ class Streamer:
         if renumber is not None and not renumber.sent:
             self._wake.set()  # a resynchronisation waits for a quiet line
         if renumber is not None and renumber.sent:
-            if now - max(self._last_rx, renumber.sent_at) >= self.config.probe_after_s:
+            if now - max(self._last_rx, renumber.sent_at) >= self.config.renumber_retry_s:
                 self._window.clear()  # M110 is idempotent: write it again
                 renumber.sent = False
                 self._probes_unanswered += 1
