@@ -16,7 +16,7 @@ from hostd.api import InterruptedJob, PrinterInfo, Snapshot, Temperature, Temps
 from hostd.config import Config
 from hostd.controller import DaemonController
 from hostd.intake import Intake
-from hostd.jobstore import JobStore
+from hostd.jobstore import Job, JobStore
 from hostd.printer import printer_link
 from hostd.printjob import PrintJob
 from hostd.status import StatusHub
@@ -109,9 +109,12 @@ class Daemon:
         )
         self._wake.set()
 
-    def _next_job(self):
-        """The next queued job; a resume comes first, and other jobs wait while one is
-        interrupted (its part is still on the bed)."""
+    def _next_job(self) -> Job | None:
+        """The next queued job: a resume first; none while a job is interrupted.
+
+        An interrupted job's part is still on the bed, so new jobs wait until it is
+        resumed or removed.
+        """
         queue = self.store.queued()
         for job in queue:
             if job.resume_from is not None or job.layer >= 0:
