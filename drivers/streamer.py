@@ -254,6 +254,8 @@ class Streamer:
         self._last_rx = loop.time()
         with contextlib.suppress(TimeoutError):
             await asyncio.wait_for(self._started.wait(), self.config.start_timeout_s)
+        with contextlib.suppress(TransportError):
+            await self._transport.write(b"\n")  # end any noise the printer has buffered
         try:
             async with asyncio.timeout(self.config.connect_timeout_s):
                 await self._handshake(reset_to=0, keep_history=False)
@@ -627,6 +629,9 @@ class Streamer:
                 continue
             self._transport = transport
             self.stats.reconnects += 1
+            with contextlib.suppress(TransportError):
+                # end whatever partial line the printer kept from before the cut
+                await transport.write(b"\n")
             self._reconnected_at = self._last_rx = asyncio.get_running_loop().time()
             self._window.clear()
             self._rewind_to = None
