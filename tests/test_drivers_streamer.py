@@ -120,6 +120,8 @@ class ScriptedPrinter:
                 self._line(raw.decode())
 
     def _line(self, text: str) -> None:
+        if not text.strip():
+            return  # blank lines are skipped, as Marlin does
         self.received.append(text)
         if not text.startswith("N"):
             self._run(text.split("*")[0], None)
