@@ -18,7 +18,7 @@ from hostd.config import Config
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
 from hostd.jobstore import Job, JobStore
-from hostd.runner import JobCancelled, JobRunner, open_output
+from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
 from hostd.status import StatusHub
@@ -83,7 +83,7 @@ class PrintJob:
             raise
         try:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
-                                    first or 0, write_preamble=not resume)
+                                    first or 0, write_preamble=not resume, park=self._park())
             link.on_ack = lambda _number, _command: self.runner.on_ack()
             verb = f"resumed at layer {first}" if resume else "started"
             log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
@@ -130,6 +130,14 @@ class PrintJob:
         )
         return SlicedSource(self.schedule, first, self.config.runner.lookahead, self.executor,
                             resume)
+
+    def _park(self) -> Park:
+        """Pause moves for a sliced job: lift up to 5 mm, staying inside the build volume."""
+        if self.schedule is None:
+            return Park()  # a G-code file: its extrusion mode is unknown
+        plan = self.schedule.base_plan
+        top = plan.layer_z(plan.layer_count - 1) if plan.layer_count else 0.0
+        return park_moves(min(5.0, self.config.printer.bed[2] - top - 1.0))
 
     async def _cancelled(self, link: Streamer, reason: str) -> None:
         with contextlib.suppress(LinkError):

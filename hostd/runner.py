@@ -33,6 +33,25 @@ class Link(Protocol):
     async def drain(self) -> None: ...
 
 
+@dataclass(frozen=True)
+class Park:
+    """Commands around a pause: lift the nozzle off the part, and put it back."""
+
+    park: tuple[str, ...] = ()
+    unpark: tuple[str, ...] = ()
+
+
+def park_moves(lift_mm: float) -> Park:
+    """A relative Z lift of ``lift_mm`` (none when 0), for jobs with relative extrusion."""
+    if lift_mm <= 0:
+        return Park()
+    lift = f"{lift_mm:.2f}"
+    return Park(
+        park=("G91", f"G1 Z{lift} F600", "G90", "M83"),
+        unpark=("G91", f"G1 Z-{lift} F600", "G90", "M83"),
+    )
+
+
 class JobCancelled(Exception):
     """The job was cancelled by a command."""
 
@@ -70,6 +89,7 @@ class JobRunner:
         output: IO[str],
         first: int,
         write_preamble: bool,
+        park: Park | None = None,
     ) -> None:
         self.job = job
         self.source = source
@@ -84,7 +104,9 @@ class JobRunner:
         self.lines_acked = job.lines_acked if first > 0 else 0
         self.state = "slicing"
         self._marks: collections.deque[_Mark] = collections.deque()
-        self._sent = 0  # job lines sent by this run
+        self._sent = 0  # lines sent by this run (job lines and park moves)
+        self._extra: collections.deque[int] = collections.deque()  # park moves, by count
+        self.park = park or Park()
         self._acked = 0  # job lines acknowledged in this run
         self._running = asyncio.Event()
         self._running.set()
@@ -151,7 +173,7 @@ class JobRunner:
             if not command:
                 continue
             if not self._running.is_set():
-                await self._running.wait()
+                await self._hold()
             if self._cancelled:
                 raise JobCancelled(f"cancelled at layer {self.completed + 1}")
             await self.link.send(command)
@@ -162,10 +184,28 @@ class JobRunner:
         self._marks.append(_Mark(self._sent, layer, offset if offset is not None else -1))
         self._check_marks()
 
+    async def _hold(self) -> None:
+        """While paused: lift the nozzle (once printing), wait, and put it back."""
+        parked = self._print_started is not None
+        if parked:
+            await self._send_extra(self.park.park)
+        await self._running.wait()
+        if parked and not self._cancelled:
+            await self._send_extra(self.park.unpark)
+
+    async def _send_extra(self, commands: tuple[str, ...]) -> None:
+        for command in commands:
+            await self.link.send(command)
+            self._sent += 1
+            self._extra.append(self._sent)
+
     def on_ack(self) -> None:
-        """The printer acknowledged the oldest job line not yet acknowledged."""
+        """The printer acknowledged the oldest line of this run not yet acknowledged."""
         self._acked += 1
-        self.lines_acked += 1
+        if self._extra and self._extra[0] == self._acked:
+            self._extra.popleft()  # a park move, not a line of the job
+        else:
+            self.lines_acked += 1
         self._check_marks()
         now = time.monotonic()
         if now - self._last_publish > 0.25:

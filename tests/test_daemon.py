@@ -146,10 +146,12 @@ def test_pause_resume_cancel_and_queue_commands(daemon, tmp_path):
     hostd.wait_for(lambda: status(socket).state == "paused", 5, "paused")
     with pytest.raises(ControlError, match="already paused"):
         command(socket, "pause")
-    time.sleep(0.5)  # the printer empties the lines already sent
+    time.sleep(0.5)  # the printer empties the lines already sent, then lifts the nozzle
     acked = status(socket).job.lines_acked
     time.sleep(0.5)
-    assert status(socket).job.lines_acked == acked  # nothing sent while paused
+    assert status(socket).job.lines_acked == acked  # nothing of the job sent while paused
+    park = ["G91", "G1 Z5.00 F600", "G90", "M83"]
+    assert executed_job_lines(hostd.state / "simulator-executed.log")[-4:] == park
     command(socket, "resume")
     hostd.wait_for(lambda: status(socket).job.lines_acked > acked, 10, "printing again")
     command(socket, "cancel")
@@ -162,6 +164,20 @@ def test_pause_resume_cancel_and_queue_commands(daemon, tmp_path):
     tail = commands_of(hostd.jobs / "done" / "c.gcode")
     assert executed[-len(tail):] == tail
     assert executed[-len(tail) - 4:-len(tail)] == ["M104 S0", "M140 S0", "M107", "M84"]
+    # the cancelled job: its own lines in order, with one lift and one return around the pause
+    first = executed[:-len(tail) - 4]
+    assert first[-1] == "M108"  # cancel first ends any heating wait
+    first = first[:-1]
+    start = first.index("G91")
+    unpark = ["G91", "G1 Z-5.00 F600", "G90", "M83"]
+    assert first[start:start + 8] == park + unpark
+    plan = SlicePlan.from_file(DATA / "dogbone_100x30x5.stl", SliceSettings())
+    reference = commands(plan.start_gcode())
+    for index in range(plan.layer_count):
+        reference += commands(plan.layer_gcode(index))
+    job_lines = first[:start] + first[start + 8:]
+    assert job_lines == reference[:len(job_lines)]
+    assert len(reference) > len(job_lines) > start
 
 
 def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
