@@ -116,4 +116,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
 
 if __name__ == "__main__":
-    sys.exit(main())
+    # run through the package module so that `UsageError` is the class commands raise
+    from hostd.cli import main as package_main
+
+    sys.exit(package_main())

@@ -78,7 +78,7 @@ def main() -> int:
         print(f"daemon log: {log}   dashboard in another terminal: .venv/bin/hostd tui")
         with open(log, "ab") as log_file:
             daemon = subprocess.Popen(
-                [sys.executable, "-m", "hostd.cli", "run", "--config", str(config_path)],
+                [sys.executable, "-m", "hostd", "run", "--config", str(config_path)],
                 stderr=log_file,
                 stdout=log_file,
                 start_new_session=True,
