@@ -189,6 +189,8 @@ class Streamer:
         self._last_error: Response | None = None  # a line error just before this line
         self._unconfirmed: tuple[int, int] = (-1, 0)
         self._emitted_through = 0
+        self._waiters: dict[int, asyncio.Future[int]] = {}
+        self._handshaking = False
         self._rewind_to: int | None = None
         self._stale = 0
         self._implausible: tuple[str, int] = ("", 0)
@@ -256,6 +258,7 @@ class Streamer:
             await asyncio.wait_for(self._started.wait(), self.config.start_timeout_s)
         with contextlib.suppress(TransportError):
             await self._transport.write(b"\n")  # end any noise the printer has buffered
+        self._handshaking = True  # from now on a `start` is a reset to recover from
         try:
             async with asyncio.timeout(self.config.connect_timeout_s):
                 await self._handshake(reset_to=0, keep_history=False)
@@ -449,7 +452,7 @@ class Streamer:
             else:
                 self.capabilities[response.name] = response.value
         elif kind == "start":
-            if self.state == CONNECTING:
+            if self.state == CONNECTING and not self._handshaking:
                 self._started.set()
             elif self.state == RECONNECTING:
                 self.state = PAUSED if self._paused else READY
@@ -484,8 +487,12 @@ class Streamer:
             self.acked += 1
             if self.on_ack is not None:
                 self.on_ack(entry.number if entry.number is not None else -1, entry.command)
-        if entry.waiter is not None and not entry.waiter.done():
-            entry.waiter.set_result(entry.number if entry.number is not None else -1)
+        waiter = entry.waiter
+        if entry.number is not None:
+            # a line replayed after a refusal or reset is a new entry: its waiter is by number
+            waiter = self._waiters.pop(entry.number, waiter)
+        if waiter is not None and not waiter.done():
+            waiter.set_result(entry.number if entry.number is not None else -1)
 
     def _finish_renumber(self) -> None:
         renumber = self._renumber
@@ -743,6 +750,8 @@ class Streamer:
             return None
         self._control.popleft()
         number = self._assign(control.command, internal=control.internal)
+        if control.waiter is not None:
+            self._waiters[number] = control.waiter
         return data, InFlight(number, control.command, len(data), internal=control.internal,
                               probe=control.probe, waiter=control.waiter)
 
@@ -859,6 +868,10 @@ class Streamer:
         for entry in self._window:
             if entry.waiter is not None and not entry.waiter.done():
                 entry.waiter.set_exception(error)
+        for waiter in self._waiters.values():
+            if not waiter.done():
+                waiter.set_exception(error)
+        self._waiters.clear()
         self._progress.set()
 
     def _report(self, text: str) -> None:
