@@ -20,8 +20,10 @@ from drivers.transport import open_transport
 
 INTERNAL = ("M110", "M115", "M155", "M105")
 
-# short timeouts so that stalls cost milliseconds with an instant printer
-FAST = StreamerConfig(probe_after_s=0.02, resync_quiet_s=0.01, start_timeout_s=0.05,
+# short timeouts so that stalls cost milliseconds with an instant printer; many probes
+# before giving up, so that a loaded machine (the simulator starved of CPU) is not "silent"
+FAST = StreamerConfig(probe_after_s=0.02, probe_retries=100, resync_quiet_s=0.01,
+                      start_timeout_s=0.05,
                       reconnect_attempts=200, reconnect_delay_s=0.005,
                       temperature_interval_s=1.0)
 
