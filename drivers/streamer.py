@@ -71,7 +71,7 @@ class StreamerConfig:
     rx_buffer: int = 127
     bufsize: int = 4
     learn_bufsize: bool = True
-    history: int = 2000
+    history: int = 10_000
     start_timeout_s: float = 2.0
     connect_timeout_s: float = 10.0
     probe_after_s: float = 5.0
