@@ -147,7 +147,7 @@ class PrintMemory:
     model: str
     faces: int
     daemon_hwm_mb: float = 0.0  # VmHWM of the daemon process
-    tree_peak_mb: float = 0.0  # highest sampled RSS of the daemon and its children together
+    tree_peak_mb: float = 0.0  # highest sampled PSS of the daemon and its children together
     print_s: float | None = None  # drop to job done
     note: str = ""
 
@@ -161,7 +161,7 @@ def print_memory(model: Path, setup: DaemonSetup, timeout: float) -> PrintMemory
         deadline = time.monotonic() + timeout
         done = daemon.jobs / "done"
         while time.monotonic() < deadline and daemon.alive():
-            result.tree_peak_mb = max(result.tree_peak_mb, proctree.tree_rss_mb(daemon.pid))
+            result.tree_peak_mb = max(result.tree_peak_mb, proctree.tree_pss_mb(daemon.pid))
             result.daemon_hwm_mb = proctree.status_kb(daemon.pid, "VmHWM") * 1024 / 1e6
             if any(done.glob(f"{model.stem}*.gcode")):
                 result.print_s = time.perf_counter() - written
@@ -258,7 +258,7 @@ def main(argv: list[str] | None = None) -> int:
         memories.append(asdict(memory))
         took = "-" if memory.print_s is None else f"{memory.print_s:.1f} s"
         print(f"printing {memory.model} ({memory.faces:,} faces, unlimited wire): daemon peak "
-              f"RSS (VmHWM) {memory.daemon_hwm_mb:.0f} MB, daemon and children together "
+              f"RSS (VmHWM) {memory.daemon_hwm_mb:.0f} MB, daemon and children together (PSS) "
               f"{memory.tree_peak_mb:.0f} MB, drop to done {took} {memory.note}")
     results["print_memory"] = memories
     args.out.mkdir(parents=True, exist_ok=True)

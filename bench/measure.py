@@ -27,7 +27,7 @@ class RunResult:
     returncode: int | None  # None when the timeout ended it
     wall_s: float  # wall time, s
     peak_rss_mb: float | None  # peak RSS of the largest process of the run, MB (10^6 bytes)
-    tree_peak_mb: float  # highest sampled RSS of all the run's processes together, MB
+    tree_peak_mb: float  # highest sampled PSS of all the run's processes together, MB
     stdout: str
     stderr: str
 
@@ -38,7 +38,8 @@ class RunResult:
 
     @property
     def rss_mb(self) -> float | None:
-        """Peak memory of the run: the larger of the largest process and the sampled sum."""
+        """Peak memory of the run: the larger of the largest process's peak RSS and the
+        sampled PSS of all its processes together (forked workers share pages)."""
         if self.peak_rss_mb is None:
             return self.tree_peak_mb or None
         return max(self.peak_rss_mb, self.tree_peak_mb)
@@ -74,7 +75,7 @@ def run_measured(
 
     Peak RSS of the largest process comes from GNU time (``%M``) when available, otherwise
     from ``getrusage(RUSAGE_CHILDREN)`` (exact only when it grows past every earlier child);
-    the summed RSS of all its processes is sampled every 0.1 s (for multi-process runs).
+    the summed PSS of all its processes is sampled every 0.1 s (for multi-process runs).
     The command runs in its own process group, which is killed on timeout.
     """
     full_env = dict(os.environ)
@@ -117,7 +118,7 @@ def run_measured(
 
 
 class _TreeSampler(threading.Thread):
-    """Samples the summed RSS of a process tree every ``interval`` s until stopped."""
+    """Samples the summed PSS of a process tree every ``interval`` s until stopped."""
 
     def __init__(self, pid: int, skip_root: bool, interval: float = 0.1) -> None:
         super().__init__(daemon=True)
@@ -129,10 +130,7 @@ class _TreeSampler(threading.Thread):
 
     def run(self) -> None:
         while not self._stop_event.wait(self.interval):
-            pids = proctree.descendants(self.pid)
-            if not self.skip_root:
-                pids.append(self.pid)
-            total = sum(proctree.status_kb(p, "VmRSS") for p in pids) * 1024 / 1e6
+            total = proctree.tree_pss_mb(self.pid, include_root=not self.skip_root)
             self.peak_mb = max(self.peak_mb, total)
 
     def stop(self) -> None:

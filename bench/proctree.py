@@ -88,13 +88,22 @@ def status_kb(pid: int, key: str) -> int:
     return 0
 
 
-def tree_rss_mb(pid: int) -> float:
-    """Resident memory of ``pid`` and its live descendants together, MB (10^6 bytes)."""
-    pids = [pid, *descendants(pid)]
-    return sum(status_kb(p, "VmRSS") for p in pids) * 1024 / 1e6
+def pss_kb(pid: int) -> int:
+    """Proportional set size of ``pid`` in kB: its resident pages, each shared page divided
+    among the processes sharing it (so forked workers are not counted twice); falls back
+    to VmRSS where /proc/PID/smaps_rollup is missing; 0 if the process is gone."""
+    try:
+        for line in Path(f"/proc/{pid}/smaps_rollup").read_text().splitlines():
+            if line.startswith("Pss:"):
+                return int(line.split()[1])
+    except FileNotFoundError:
+        return status_kb(pid, "VmRSS")
+    except OSError:
+        return 0
+    return status_kb(pid, "VmRSS")
 
 
-def tree_hwm_mb(pid: int) -> float:
-    """Sum of the peak resident memory (VmHWM) of ``pid`` and its live descendants, MB."""
-    pids = [pid, *descendants(pid)]
-    return sum(status_kb(p, "VmHWM") for p in pids) * 1024 / 1e6
+def tree_pss_mb(pid: int, include_root: bool = True) -> float:
+    """Memory of ``pid``'s process tree without double counting shared pages (PSS), MB."""
+    pids = descendants(pid) + ([pid] if include_root else [])
+    return sum(pss_kb(p) for p in pids) * 1024 / 1e6
