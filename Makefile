@@ -40,6 +40,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/slice_vs_peers.py
 	$(BIN)/python bench/stream_throughput.py
 	$(BIN)/python bench/drop_to_extrusion.py
+	$(BIN)/python bench/lead_over_printer.py
 
 clean:
 	rm -rf $(VENV) var jobs .pytest_cache
