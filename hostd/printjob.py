@@ -54,6 +54,7 @@ class PrintJob:
         self.runner: JobRunner | None = None
         self.schedule: LayerSchedule | None = None
         self.source: LayerSource | None = None
+        self.warned: list[str] = []  # the model's warnings logged so far
         stem, _suffix = split_name(job.name)
         self.home = Path(job.path).parent
         self.partial = self.home / f"{stem}.gcode.part"
@@ -103,6 +104,7 @@ class PrintJob:
         finally:
             with contextlib.suppress(OSError):  # a full disk fails the flush again
                 output.close()
+        await self._log_late_warnings(job)
         try:
             await asyncio.to_thread(self._write_final, job)
         except OSError as exc:  # the print is over; only its files could not be written
@@ -122,7 +124,9 @@ class PrintJob:
         )
         log.info("job %s %s: whole-model pass %.2f s, %d layers, %d bodies", job.id, job.name,
                  time.monotonic() - started, plan.layer_count, plan.body_count)
-        for warning in plan.warnings:
+        # outlines are cut lazily: repairs found in later layers are logged at the end
+        self.warned = plan.warnings_so_far
+        for warning in self.warned:
             log.warning("job %s %s: %s", job.id, job.name, warning)
         self.schedule = LayerSchedule(
             plan, settings, self.store.settings_changes(job.id),
@@ -130,6 +134,17 @@ class PrintJob:
         )
         return SlicedSource(self.schedule, first, self.config.runner.lookahead, self.executor,
                             resume)
+
+    async def _log_late_warnings(self, job: Job) -> None:
+        """Log the model's warnings found while slicing (every layer is cut by now)."""
+        if self.schedule is None:
+            return
+        plan = self.schedule.base_plan
+        warnings = await asyncio.to_thread(lambda: plan.warnings)
+        for warning in warnings:
+            if warning not in self.warned:
+                log.warning("job %s %s: %s", job.id, job.name, warning)
+        self.warned = warnings
 
     def _park(self) -> Park:
         """Pause moves for a sliced job: lift up to 5 mm, staying inside the build volume."""

@@ -1,15 +1,16 @@
 """SlicePlan: the whole-model pass once, then any layer's G-code on demand.
 
-The whole-model pass keeps only the layer outlines (shapely polygons with a
-body number each); every per-layer product (walls, skins, infill, support,
-G-code) is computed from the plan and the layer index alone, so layers can be
-sliced in any order, from any thread, with identical bytes.
+The whole-model pass loads, checks, repairs and places the mesh and fixes the
+layer heights; the layer outlines (shapely polygons with a body number each)
+are cut a block of layers at a time when first asked for. Every per-layer
+product (walls, skins, infill, support, G-code) is computed from the plan and
+the layer index alone, so layers can be sliced in any order, from any thread,
+with identical bytes.
 """
 
 from __future__ import annotations
 
 import os
-from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,14 +20,13 @@ from slicer import gcode
 from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.layer import LayerRegions, Path, fill_distance, layer_paths
+from slicer.lazycut import LazyOutlines
 from slicer.mesh import PlacedMesh, prepare, read_stl
-from slicer.outline import GapReport, OutlineTolerances, build_layers
-from slicer.section import cut_block, face_layer_ranges
 from slicer.settings import SettingsError, SliceSettings
 from slicer.skins import SkinCache
 
-# the whole-model pass cuts at most this many (face, layer) crossings at once
-_BLOCK_CROSSINGS = 250_000
+# layers whose outlines are cut together on first use (the skin cache's block)
+_CUT_BLOCK = 16
 _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
 
@@ -51,15 +51,24 @@ def cut_planes(tops: np.ndarray, settings: SliceSettings) -> np.ndarray:
 
 @dataclass(frozen=True)
 class _Geometry:
-    """What the whole-model pass produces, shared by plans with different settings."""
+    """What the whole-model pass produces, shared by plans with different settings.
+
+    ``outlines`` cuts blocks of layers on first use (thread-safe); ``body_map``
+    maps a mesh shell to its object number.
+    """
 
     tops: np.ndarray
-    outlines: np.ndarray  # (n,) MultiPolygon per layer
-    bodies: tuple[np.ndarray, ...]  # per layer: body number of each polygon of the outline
+    outlines: LazyOutlines  # (n,) MultiPolygon per layer, cut on demand
+    body_map: np.ndarray
     bounds: tuple[float, float, float, float]
     body_count: int
     bed: tuple[float, float, float]
-    warnings: tuple[str, ...]
+    mesh_warnings: tuple[str, ...]
+
+    def bodies(self, i: int) -> np.ndarray:
+        """Object number of each polygon of layer ``i``'s outline, (p,) int64."""
+        body = self.outlines.polygons(i)[1]
+        return self.body_map[body] if len(body) else body
 
 
 class SlicePlan:
@@ -94,8 +103,10 @@ class SlicePlan:
         settings: SliceSettings,
         bed: tuple[float, float, float] = (220.0, 220.0, 250.0),
     ) -> SlicePlan:
-        """Load, validate, repair, place on the bed and cut every layer outline.
+        """Load, validate, repair and place on the bed; fix the layer heights.
 
+        Layer outlines are cut a block of layers at a time on first use (a
+        model of several shells is cut whole here, to number its objects).
         Raises ModelError with a specific reason when the file cannot be sliced.
         """
         bed = (float(bed[0]), float(bed[1]), float(bed[2]))
@@ -116,6 +127,10 @@ class SlicePlan:
         ) == (self.settings.top_layers, self.settings.bottom_layers, fill_distance(self.settings))
         return SlicePlan(self._geo, settings, self._skins if same_skins else None)
 
+    def cut_all(self) -> None:
+        """Cut every layer outline not cut yet (e.g. before forking workers that share them)."""
+        self._geo.outlines.cut_all()
+
     # ---- facts ----------------------------------------------------------
     @property
     def layer_count(self) -> int:
@@ -133,8 +148,18 @@ class SlicePlan:
 
     @property
     def warnings(self) -> list[str]:
-        """What was repaired or worked around, one sentence each."""
-        return list(self._geo.warnings)
+        """What was repaired or worked around over the whole model, one sentence each.
+
+        Outline repairs are known once every layer is cut: reading this cuts
+        the layers not cut yet (cheap at the end of a job, which has cut them all).
+        """
+        self._geo.outlines.cut_all()
+        return self.warnings_so_far
+
+    @property
+    def warnings_so_far(self) -> list[str]:
+        """The warnings of :attr:`warnings` for the layers cut so far (cuts nothing)."""
+        return _warnings(self._geo)
 
     @property
     def body_count(self) -> int:
@@ -158,7 +183,7 @@ class SlicePlan:
         never ``shapely.prepare`` it (prepare a copy instead).
         """
         i = self._check(i)
-        if excluded_bodies and np.isin(self._geo.bodies[i], list(excluded_bodies)).any():
+        if excluded_bodies and np.isin(self._geo.bodies(i), list(excluded_bodies)).any():
             return _multi(self._islands(i, excluded_bodies))
         return self._geo.outlines[i]
 
@@ -239,7 +264,7 @@ class SlicePlan:
             return _EMPTY
         polys = shapely.get_parts(self._geo.outlines[i])
         if excluded and len(polys):
-            polys = polys[~np.isin(self._geo.bodies[i], list(excluded))]
+            polys = polys[~np.isin(self._geo.bodies(i), list(excluded))]
         return polys
 
     def _plan_support(self) -> None:
@@ -270,45 +295,46 @@ def _multi(polys: np.ndarray) -> shapely.Geometry:
 
 
 def _cut_model(
-    mesh: PlacedMesh,
-    settings: SliceSettings,
-    bed: tuple[float, float, float],
-    progress: Callable[[float], None] | None = None,
+    mesh: PlacedMesh, settings: SliceSettings, bed: tuple[float, float, float]
 ) -> _Geometry:
-    """The whole-model pass: cut all layers in blocks, nest loops, number the bodies."""
+    """The whole-model pass: layer heights, the faces of each block of layers, object numbers.
+
+    Only the top blocks are cut here (down to the highest layer with area:
+    empty layers at the top are not printed); a mesh of several shells is cut
+    whole, since overlapping shells are one object and cavities none.
+    """
     tops = layer_tops(mesh.height, settings)
     planes = cut_planes(tops, settings)
-    lo, hi = face_layer_ranges(mesh.vertices[:, 2], mesh.faces, planes)
-    tol = OutlineTolerances()
-    report = GapReport()
-    layers: dict[int, tuple[np.ndarray, np.ndarray]] = {}
-    n = len(planes)
-    first = 0
-    # crossings per layer, to size the blocks
-    crossings = np.zeros(n + 1, dtype=np.int64)
-    np.add.at(crossings, np.minimum(lo, n), 1)
-    np.add.at(crossings, np.minimum(hi, n), -1)
-    crossings = np.cumsum(crossings)[:n]
-    while first < n:
-        total = np.cumsum(crossings[first:])
-        last = first + max(1, int(np.searchsorted(total, _BLOCK_CROSSINGS, side="right")))
-        last = min(last, n)
-        chains = cut_block(mesh.vertices, mesh.faces, planes, lo, hi, first, last)
-        layers.update(build_layers(chains, mesh.face_body, np.arange(first, last), tol, report))
-        first = last
-    body_map = _merge_bodies(mesh.bodies, report.merged, layers)
-    out_layers = []
-    for i in range(n):
-        polys, body = layers.get(i, (_EMPTY, _NO_BODY))
-        out_layers.append((polys, body_map[body] if len(body) else body))
-    del layers
-    nonempty = [i for i in range(n) if len(out_layers[i][0])]
-    if not nonempty:
+    outlines = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes, _CUT_BLOCK)
+    top = outlines.last_nonempty()
+    if top < 0:
         raise ModelError("no layer has a closed outline: the mesh does not enclose a solid")
     # trailing empty layers are not printed
-    tops = tops[: nonempty[-1] + 1]
-    out_layers = out_layers[: nonempty[-1] + 1]
-    warnings = list(mesh.warnings)
+    tops = tops[: top + 1]
+    outlines.trim(top + 1)
+    if mesh.bodies <= 1:
+        body_map = np.zeros(1, dtype=np.int64)
+        body_count = 1
+    else:
+        outlines.cut_all()
+        raw = [outlines.polygons(i)[1] for i in range(top + 1)]
+        body_map = _merge_bodies(mesh.bodies, outlines.report()[0].merged, raw)
+        body_count = int(max((body_map[b].max() + 1 for b in raw if len(b)), default=0))
+    return _Geometry(
+        tops=tops,
+        outlines=outlines,
+        body_map=body_map,
+        bounds=mesh.bounds,
+        body_count=body_count,
+        bed=bed,
+        mesh_warnings=mesh.warnings,
+    )
+
+
+def _warnings(geo: _Geometry) -> list[str]:
+    """The mesh repairs, then what the outline stage fixed in the layers cut so far."""
+    report, empty = geo.outlines.report()
+    warnings = list(geo.mesh_warnings)
     if report.closed or report.dropped:
         warnings.append(
             f"open outlines in {len(report.gap_layers)} layers: closed {report.closed} gaps"
@@ -319,27 +345,15 @@ def _cut_model(
             "self-intersecting or overlapping outlines made valid in "
             f"{len(report.repaired_layers)} layers"
         )
-    empty = len(tops) - len(nonempty)
     if empty:
         warnings.append(f"{empty} layers have no area and print nothing")
-    outlines = np.empty(len(out_layers), dtype=object)
-    outlines[:] = [_multi(polys) for polys, _ in out_layers]
-    body_count = int(max((b.max() + 1 for _, b in out_layers if len(b)), default=0))
-    return _Geometry(
-        tops=tops,
-        outlines=outlines,
-        bodies=tuple(b for _, b in out_layers),
-        bounds=mesh.bounds,
-        body_count=body_count,
-        bed=bed,
-        warnings=tuple(warnings),
-    )
+    return warnings
 
 
 def _merge_bodies(
-    count: int, merged: set[tuple[int, int]], layers: dict[int, tuple[np.ndarray, np.ndarray]]
+    count: int, merged: set[tuple[int, int]], layers: list[np.ndarray]
 ) -> np.ndarray:
-    """Map mesh shells to objects 0..k-1.
+    """Map mesh shells to objects 0..k-1 (``layers``: the shell of each polygon, per layer).
 
     Overlapping shells join; shells that own no polygon (cavities) vanish.
     """
@@ -358,7 +372,7 @@ def _merge_bodies(
         while parent[r] != r:
             r = parent[r]
         roots[k] = r
-    used = sorted({int(roots[b]) for _, body in layers.values() for b in np.unique(body)})
+    used = sorted({int(roots[b]) for body in layers for b in np.unique(body)})
     rank = np.zeros(len(roots), dtype=np.int64)
     for j, r in enumerate(used):
         rank[r] = j

@@ -115,6 +115,9 @@ def iter_layer_texts(
         for code in iter_layers(plan, 1):
             yield "\n".join(code.lines) + "\n", code.filament_mm, code.time_s
         return
+    # outlines are cut lazily; cut them all once here so the workers inherit
+    # them instead of each cutting the blocks its layers and their skins need
+    plan.cut_all()
     _FORKED_PLAN = plan
     try:
         with multiprocessing.get_context("fork").Pool(workers) as pool:

@@ -1,0 +1,196 @@
+"""Layer outlines cut on demand, a block of layers at a time, each block once (thread-safe).
+
+The whole-model pass only finds which faces cross which layers and buckets
+the faces by block of layers; a block's outlines (cut, chained, nested) are
+made when one of its layers is first asked for. A layer's outline does not
+depend on which other layers are cut with it, so the bytes are the same in
+any order, from any thread or forked process.
+"""
+
+from __future__ import annotations
+
+import threading
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from slicer.outline import GapReport, OutlineTolerances, build_layers
+from slicer.section import cut_block, face_layer_ranges
+
+_EMPTY = np.empty(0, dtype=object)
+_NO_BODY = np.empty(0, dtype=np.int64)
+
+
+@dataclass(frozen=True)
+class _Block:
+    """One block's outlines: per layer (MultiPolygon, raw body per polygon), and its report."""
+
+    outlines: tuple[shapely.Geometry, ...]
+    polygons: tuple[np.ndarray, ...]
+    bodies: tuple[np.ndarray, ...]
+    report: GapReport
+
+
+class LazyOutlines:
+    """Outlines of ``len(planes)`` layers, cut in blocks of ``block`` layers on first use.
+
+    ``vertices`` (v, 3) float64 mm, ``faces`` (f, 3) int64 and ``face_body``
+    (f,) int64 of the placed mesh; ``planes`` (m,) float64 mm, where each
+    layer is cut. Indexing (``outlines[i]``, ``outlines[a:b]``) gives
+    MultiPolygons, as the array of a full cut would; ``len`` is the number of
+    layers printed (:meth:`trim` drops empty layers at the top).
+    """
+
+    def __init__(
+        self,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        face_body: np.ndarray,
+        planes: np.ndarray,
+        block: int = 16,
+    ) -> None:
+        self._vertices = vertices
+        self._faces = faces
+        self._face_body = face_body
+        self._planes = planes
+        self._block = block
+        self._count = len(planes)
+        self._tol = OutlineTolerances()
+        lo, hi = face_layer_ranges(vertices[:, 2], faces, planes)
+        self._lo, self._hi, self._members, self._offsets = _bucket(lo, hi, block, len(planes))
+        self._lock = threading.Lock()
+        self._blocks: dict[int, _Block] = {}
+        self._busy: dict[int, threading.Lock] = {}
+
+    # ---- sequence of MultiPolygons --------------------------------------
+    def __len__(self) -> int:
+        return self._count
+
+    def __getitem__(self, key: int | slice) -> shapely.Geometry | np.ndarray:
+        if isinstance(key, slice):
+            idx = range(*key.indices(self._count))
+            out = np.empty(len(idx), dtype=object)
+            out[:] = [self.outline(i) for i in idx]
+            return out
+        return self.outline(int(key))
+
+    # ---- per layer ------------------------------------------------------
+    def outline(self, i: int) -> shapely.Geometry:
+        """Layer ``i``'s outline, a MultiPolygon (empty when the layer has no area)."""
+        b = self._get(i // self._block)
+        return b.outlines[i - (i // self._block) * self._block]
+
+    def polygons(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Layer ``i``'s polygons (p,) object and the mesh shell of each (p,) int64."""
+        b = self._get(i // self._block)
+        k = i - (i // self._block) * self._block
+        return b.polygons[k], b.bodies[k]
+
+    # ---- whole model ----------------------------------------------------
+    def last_nonempty(self) -> int:
+        """Index of the highest layer with area (-1 when none), cutting from the top down."""
+        for b in range((len(self._planes) - 1) // self._block, -1, -1):
+            block = self._get(b)
+            full = [k for k, p in enumerate(block.polygons) if len(p)]
+            if full:
+                return b * self._block + full[-1]
+        return -1
+
+    def trim(self, count: int) -> None:
+        """Print only the first ``count`` layers (the ones above have no area)."""
+        self._count = count
+
+    def cut_all(self) -> None:
+        """Cut every block not cut yet."""
+        for b in range(self._block_count()):
+            self._get(b)
+
+    def complete(self) -> bool:
+        """Whether every block is cut."""
+        with self._lock:
+            return all(b in self._blocks for b in range(self._block_count()))
+
+    def report(self) -> tuple[GapReport, int]:
+        """What the blocks cut so far had to fix, and how many printed layers are empty."""
+        with self._lock:
+            blocks = dict(self._blocks)
+        total = GapReport()
+        empty = 0
+        for b, block in sorted(blocks.items()):
+            total.closed += block.report.closed
+            total.dropped += block.report.dropped
+            total.gap_layers |= block.report.gap_layers
+            total.repaired_layers |= block.report.repaired_layers
+            total.merged |= block.report.merged
+            lo = b * self._block
+            empty += sum(
+                1 for k, p in enumerate(block.polygons) if lo + k < self._count and not len(p)
+            )
+        return total, empty
+
+    # ---- internals ------------------------------------------------------
+    def _block_count(self) -> int:
+        return (self._count + self._block - 1) // self._block
+
+    def _get(self, b: int) -> _Block:
+        with self._lock:
+            done = self._blocks.get(b)
+            if done is not None:
+                return done
+            busy = self._busy.setdefault(b, threading.Lock())
+        with busy:
+            with self._lock:
+                done = self._blocks.get(b)
+            if done is None:
+                done = self._cut(b)
+                with self._lock:
+                    self._blocks[b] = done
+        return done
+
+    def _cut(self, b: int) -> _Block:
+        """Cut, chain and nest the layers of block ``b``."""
+        first = b * self._block
+        last = min(first + self._block, len(self._planes))
+        faces = self._members[self._offsets[b] : self._offsets[b + 1]]  # ascending face index
+        chains = cut_block(
+            self._vertices, self._faces[faces], self._planes,
+            self._lo[faces], self._hi[faces], first, last,
+        )  # fmt: skip
+        report = GapReport()
+        layers = build_layers(
+            chains, self._face_body[faces], np.arange(first, last), self._tol, report
+        )
+        polys = []
+        bodies = []
+        outlines = []
+        for i in range(first, last):
+            p, body = layers.get(i, (_EMPTY, _NO_BODY))
+            polys.append(p)
+            bodies.append(body)
+            outlines.append(shapely.MultiPolygon() if len(p) == 0 else shapely.multipolygons(p))
+        return _Block(tuple(outlines), tuple(polys), tuple(bodies), report)
+
+
+def _bucket(
+    lo: np.ndarray, hi: np.ndarray, block: int, n: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Faces of each block of layers: (lo, hi, members, offsets).
+
+    A face crossing planes ``[lo, hi)`` is listed in every block it reaches;
+    block ``b``'s faces are ``members[offsets[b]:offsets[b + 1]]``, ascending.
+    """
+    lo = np.minimum(lo, n)
+    hi = np.minimum(hi, n)
+    crossing = np.flatnonzero(hi > lo)
+    b0 = lo[crossing] // block
+    b1 = (hi[crossing] - 1) // block
+    span = b1 - b0 + 1
+    face = np.repeat(crossing, span)
+    starts = np.cumsum(span) - span
+    blk = np.repeat(b0, span) + (np.arange(len(face)) - np.repeat(starts, span))
+    order = np.argsort(blk, kind="stable")
+    members = face[order]
+    blocks = (n + block - 1) // block
+    offsets = np.concatenate(([0], np.cumsum(np.bincount(blk, minlength=blocks))))
+    return lo, hi, members, offsets.astype(np.int64)
