@@ -106,11 +106,6 @@ class LazyOutlines:
         for b in range(self._block_count()):
             self._get(b)
 
-    def complete(self) -> bool:
-        """Whether every block is cut."""
-        with self._lock:
-            return all(b in self._blocks for b in range(self._block_count()))
-
     def report(self) -> tuple[GapReport, int]:
         """What the blocks cut so far had to fix, and how many printed layers are empty."""
         with self._lock:
