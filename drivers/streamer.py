@@ -407,27 +407,40 @@ class Streamer:
         self._progress.set()
 
     def _acknowledged(self, entry: InFlight) -> None:
-        if entry.number is not None:
-            self._last_acked_number = max(self._last_acked_number, entry.number)
-        renumber = self._renumber
-        if renumber is not None and renumber.sent and entry.number == renumber.line \
-                and entry.command.startswith("M110"):
-            self._finish_renumber()
-        repeated = entry.number is not None and entry.number <= self._emitted_through
-        if entry.number is not None and not repeated:
-            self._emitted_through = entry.number
+        """Record one line as done, in the numbering it was written under.
+
+        An ``M110`` that completes a renumbering is recorded like any line, in the old
+        numbering, and only then starts the new one, so that the records kept by line number
+        (``_last_acked_number``, ``_emitted_through``) end as the new numbering sets them.
+        """
+        number = entry.number
+        repeated = number is not None and number <= self._emitted_through
+        if number is not None:
+            self._last_acked_number = max(self._last_acked_number, number)
+            if not repeated:
+                self._emitted_through = number
         if not entry.internal and not repeated:  # not again when replayed after a refusal
             self.acked += 1
             if self.on_ack is not None:
-                self.on_ack(entry.number if entry.number is not None else -1, entry.command)
+                self.on_ack(number if number is not None else -1, entry.command)
         waiter = entry.waiter
-        if entry.number is not None:
+        if number is not None:
             # a line replayed after a refusal or reset is a new entry: its waiter is by number
-            waiter = self._waiters.pop(entry.number, waiter)
+            waiter = self._waiters.pop(number, waiter)
         if waiter is not None and not waiter.done():
-            waiter.set_result(entry.number if entry.number is not None else -1)
+            waiter.set_result(number if number is not None else -1)
+        if self._completes_renumber(entry):
+            self._finish_renumber()
+
+    def _completes_renumber(self, entry: InFlight) -> bool:
+        """True if ``entry`` is the ``M110`` of the renumbering in progress."""
+        renumber = self._renumber
+        return (renumber is not None and renumber.sent and entry.number == renumber.line
+                and entry.command.startswith("M110"))
 
     def _finish_renumber(self) -> None:
+        """The printer took the ``M110``: continue in the numbering it set (every record
+        kept by line number is set for it here)."""
         renumber = self._renumber
         assert renumber is not None
         value, keep = renumber.value, renumber.keep_history
@@ -443,6 +456,9 @@ class Streamer:
             self._next_number = value + 1
             self._replay_next = None
             self._emitted_through = value
+            # resend requests counted against the old numbers name other lines now
+            self._unconfirmed = (-1, 0)
+            self._implausible = ("", 0)
         self._last_acked_number = value
 
     def _on_resend(self, response: Response, error_before: Response | None) -> None:
@@ -627,6 +643,10 @@ class Streamer:
             return self._next_control_line()
         if self._pending and not self._paused and not self._cancelled:
             if self._next_number >= self.config.renumber_at:
+                if len(self._window):
+                    # drain first, outside the renumbering: until the M110 is written the
+                    # printer keeps the old numbers, and a probe must recover a lost ok
+                    return None
                 self.stats.renumbers += 1
                 self._renumber = _Renumber(self._next_number, 0, keep_history=False)
                 return self._next_renumber_line()

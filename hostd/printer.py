@@ -42,10 +42,7 @@ async def printer_link(config: Config) -> AsyncIterator[Streamer]:
                  port, config.simulator.time_scale, config.simulator.baud)
     try:
         transport = await open_transport(port, baud)
-        # line numbers restart (M110) only every ten million lines: checkpoints count
-        # acknowledgements, which the streamer does not report across a renumbering yet
-        link_config = StreamerConfig(renumber_at=10_000_000)
-        async with Streamer(transport, link_config) as streamer:
+        async with Streamer(transport, StreamerConfig()) as streamer:
             await streamer.connect()
             log.info("printer connected on %s: %s", port, streamer.firmware or "unknown firmware")
             yield streamer

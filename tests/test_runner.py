@@ -9,7 +9,6 @@ import itertools
 import threading
 from pathlib import Path
 
-import pytest
 from conftest import DATA
 
 from drivers.protocol import strip_comment
@@ -125,8 +124,6 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
     assert seen["hub"].job.progress == 1.0 and seen["hub"].state == "printing"
 
 
-@pytest.mark.xfail(strict=True, reason="drivers.streamer stops calling on_ack for the lines "
-                   "after an M110 renumber (the M110's own ack resets _emitted_through)")
 def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> None:
     seen = asyncio.run(print_job(tmp_path, depth=2, renumber_at=1000))
     assert sum(c.startswith("M110") for c in seen["executed"]) > 10  # renumbered often
