@@ -19,6 +19,7 @@ from hostd.intake import Intake
 from hostd.jobstore import Job, JobStore
 from hostd.printer import printer_link
 from hostd.printjob import PrintJob
+from hostd.sources import warm_up
 from hostd.status import StatusHub
 from hostd.watcher import Watcher
 
@@ -73,6 +74,7 @@ class Daemon:
         executor = concurrent.futures.ThreadPoolExecutor(
             self.config.runner.workers, thread_name_prefix="hostd-slice"
         )
+        executor.submit(self._warm_up)
         try:
             async with asyncio.TaskGroup() as group:
                 group.create_task(self._until_stopped(), name="signals")
@@ -89,6 +91,13 @@ class Daemon:
             self._notify("STOPPING=1")
             self.store.close()
             log.info("stopped")
+
+    def _warm_up(self) -> None:
+        """Slice a small cube's first layer so that the first job does not pay first uses."""
+        try:
+            warm_up(self.config.slicing, self.config.printer.bed)
+        except Exception:  # settings a cube cannot take are the jobs' to report
+            log.debug("slicer warm-up skipped", exc_info=True)
 
     async def _until_stopped(self) -> None:
         await self._stop.wait()

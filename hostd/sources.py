@@ -5,13 +5,38 @@ from __future__ import annotations
 import asyncio
 import collections
 import concurrent.futures
+import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Protocol
 
+import numpy as np
+
 from drivers.protocol import strip_comment
 from hostd.schedule import LayerSchedule
 from slicer.errors import ModelError
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+
+# a 10 mm cube: 8 corners, 12 triangles wound outwards
+_CUBE_VERTICES = np.array(
+    [[x, y, z] for z in (0.0, 10.0) for y in (0.0, 10.0) for x in (0.0, 10.0)]
+)
+_CUBE_FACES = np.array([
+    [0, 2, 3], [0, 3, 1], [4, 5, 7], [4, 7, 6], [0, 1, 5], [0, 5, 4],
+    [2, 6, 7], [2, 7, 3], [0, 4, 6], [0, 6, 2], [1, 3, 7], [1, 7, 5],
+])
+
+
+def warm_up(settings: SliceSettings, bed: tuple[float, float, float]) -> None:
+    """Slice the first layer of a small cube, once, at start-up.
+
+    The libraries' first use costs (modules loaded on demand, caches filled)
+    are paid here, not by the first dropped job while the printer waits.
+    """
+    plan = SlicePlan.from_mesh(_CUBE_VERTICES, _CUBE_FACES, settings, bed)
+    plan.start_gcode()
+    plan.layer_gcode(0)
 
 
 class LayerSource(Protocol):
@@ -71,13 +96,35 @@ class SlicedSource:
             collections.deque()
         )
         self._next = first
+        self._closed = False
+        # until a layer with something to print is made, layers are sliced one at a
+        # time: no other layer competes with the one the printer waits for
+        self._alone = True
+        self._loop = asyncio.get_running_loop()
         self._fill()
 
     def _fill(self) -> None:
-        while len(self._futures) < self.depth and self._next < self.layer_count:
+        while not self._closed and len(self._futures) < self.depth and (
+            self._next < self.layer_count
+        ):
+            if self._alone and any(not future.done() for _index, future in self._futures):
+                return
             index = self._next
-            self._futures.append((index, self.executor.submit(self.schedule.layer_gcode, index)))
+            future = self.executor.submit(self.schedule.layer_gcode, index)
+            self._futures.append((index, future))
             self._next += 1
+            if self._alone:
+                future.add_done_callback(self._made_alone)
+
+    def _made_alone(self, future: concurrent.futures.Future[list[str]]) -> None:
+        """(Worker thread) a layer sliced alone is made: go on in the event loop."""
+        with contextlib.suppress(RuntimeError):  # the loop has closed
+            self._loop.call_soon_threadsafe(self._after_alone, future)
+
+    def _after_alone(self, future: concurrent.futures.Future[list[str]]) -> None:
+        if future.cancelled() or future.exception() is not None or len(future.result()) > 1:
+            self._alone = False  # more than its ;LAYER line: from now on, the full lookahead
+        self._fill()
 
     def preamble(self) -> list[str]:
         if self.first >= self.layer_count:
@@ -108,6 +155,7 @@ class SlicedSource:
         return self._next
 
     def close(self) -> None:
+        self._closed = True
         for _index, future in self._futures:
             future.cancel()
         self._futures.clear()

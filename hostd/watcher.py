@@ -19,12 +19,16 @@ log = logging.getLogger("hostd.watcher")
 
 OnSettled = Callable[[Path], Awaitable[None]]
 
+# how far a file's change time may lag the moment of the change: file times are taken
+# from the kernel's coarse clock, which moves in ticks of up to 10 ms
+_STAMP_GRAIN_S = 0.01
+
 
 @dataclass(frozen=True)
 class _Seen:
     """What a candidate looked like when last checked, and since when (monotonic s)."""
 
-    signature: tuple[int, int, int] | None
+    signature: tuple[int, int, int, int] | None
     since: float
 
 
@@ -99,8 +103,9 @@ class Watcher:
                     del self._pending[path]  # gone before it settled
                     continue
                 if signature != seen.signature:
-                    self._pending[path] = _Seen(signature, now)
-                    remaining = self.settle_s
+                    since = _changed_at(signature, now, self.settle_s)
+                    self._pending[path] = _Seen(signature, since)
+                    remaining = self.settle_s - (now - since)
                 else:
                     remaining = self.settle_s - (now - seen.since)
                 if remaining <= 0:
@@ -124,17 +129,32 @@ def _poll_interval(wait: float | None) -> float | None:
     """How long to sleep: until the next candidate may settle, re-checked at least 4x/s."""
     if wait is None:
         return None
-    return max(0.01, min(wait, 0.25))
+    return max(0.001, min(wait, 0.25))
+
+
+def _changed_at(signature: tuple[int, int, int, int] | None, now: float, settle_s: float) -> float:
+    """When (monotonic s) a path last changed, as its status-change time says.
+
+    The settle time then runs from the change itself rather than from the moment
+    its event was delivered and looked at. A change time in the future or older
+    than ``settle_s`` (a clock that differs, as on some network shares, or a file
+    present before it was first seen) is not trusted: the time runs from ``now``.
+    """
+    if signature is None:
+        return now
+    # file times come from a coarse clock, up to one of its ticks behind the exact time
+    age = time.time() - signature[3] / 1e9 - _STAMP_GRAIN_S
+    return now - age if 0.0 <= age <= settle_s else now
 
 
 def _mtime(seen: _Seen) -> int:
     return seen.signature[1] if seen.signature is not None else 0
 
 
-def _signature(path: Path) -> tuple[int, int, int] | None:
-    """(size, mtime ns, kind) of a path, not following links; None when it is gone."""
+def _signature(path: Path) -> tuple[int, int, int, int] | None:
+    """(size, mtime ns, kind, ctime ns) of a path, not following links; None when it is gone."""
     try:
         stat = path.lstat()
     except OSError:
         return None
-    return (stat.st_size, stat.st_mtime_ns, stat.st_mode)
+    return (stat.st_size, stat.st_mtime_ns, stat.st_mode, stat.st_ctime_ns)

@@ -115,6 +115,22 @@ class SlicePlan:
         del mesh
         return cls(geometry, settings)
 
+    @classmethod
+    def from_mesh(
+        cls,
+        vertices: np.ndarray,
+        faces: np.ndarray,
+        settings: SliceSettings,
+        bed: tuple[float, float, float] = (220.0, 220.0, 250.0),
+    ) -> SlicePlan:
+        """As :meth:`from_file`, for vertices (v, 3) mm and faces (f, 3) already in memory."""
+        bed = (float(bed[0]), float(bed[1]), float(bed[2]))
+        mesh = prepare(np.asarray(vertices, dtype=np.float64), np.asarray(faces, dtype=np.int64),
+                       bed)
+        geometry = _cut_model(mesh, settings, bed)
+        del mesh
+        return cls(geometry, settings)
+
     def with_settings(self, settings: SliceSettings) -> SlicePlan:
         """The same geometry with new per-layer settings; layer heights may not change."""
         for key in ("layer_height", "first_layer_height"):

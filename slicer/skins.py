@@ -125,9 +125,12 @@ class SkinCache:
     """Skin regions computed on demand in blocks of layers, each block once, thread-safe.
 
     A layer's skin needs its neighbours, so skins are made for ``block``
-    layers at a time (vectorised), when the first of them is asked for: the
-    first layer of a job is ready without computing the whole model, and
-    threads slicing different blocks compute them in parallel.
+    layers at a time (vectorised), when the first of them is asked for;
+    threads slicing different blocks compute them in parallel. The first
+    ``block`` layers come in growing blocks (layers 0, 1, 2-3, 4-7, 8-15 for
+    16): the first layer with something to print, the one the printer waits
+    for, needs only its few neighbours' outlines and skins. A layer's skin is
+    the same whatever block it is computed in.
     """
 
     def __init__(
@@ -140,21 +143,30 @@ class SkinCache:
         self._blocks: dict[int, np.ndarray] = {}
         self._busy: dict[int, threading.Lock] = {}
 
+    def _span(self, i: int) -> tuple[int, int, int]:
+        """(key, lo, hi): the block holding layer ``i``, layers ``lo..hi-1``."""
+        if i < self._block:
+            lo = 1 << (i.bit_length() - 1) if i > 0 else 0
+            hi = min(max(2 * lo, 1), self._block)
+            key = -1 - lo
+        else:
+            key = i // self._block
+            lo, hi = key * self._block, key * self._block + self._block
+        return key, lo, min(hi, len(self._outlines))
+
     def get(self, i: int) -> shapely.Geometry | None:
         """Skin region of layer ``i`` (None when the layer needs no skin)."""
-        b = i // self._block
+        b, lo, hi = self._span(int(i))
         with self._lock:
             done = self._blocks.get(b)
             if done is not None:
-                return done[i - b * self._block]
+                return done[i - lo]
             busy = self._busy.setdefault(b, threading.Lock())
         with busy:
             with self._lock:
                 done = self._blocks.get(b)
             if done is None:
-                lo = b * self._block
-                hi = min(lo + self._block, len(self._outlines))
                 done = skin_block(self._outlines, lo, hi, *self._args)
                 with self._lock:
                     self._blocks[b] = done
-        return done[i - b * self._block]
+        return done[i - lo]
