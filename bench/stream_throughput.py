@@ -3,12 +3,15 @@
 Run from the repository root::
 
     .venv/bin/python -m bench.stream_throughput [--lines 5000] [--bauds 115200 250000]
+        [--latencies-ms 0 1 4]
 
 The simulated printer runs in its own process (``hostd simulate``) with its wire limited
-to the baud rate, so the host's CPU time measured here is the host's alone. For each
-speed the table gives lines per second of the windowed streamer and of a send-one,
-wait-for-ok host on the same simulator, the wire's line rate (baud / 10 bytes per second
-over the mean framed line length), the ratios, and the host CPU use while streaming.
+to the baud rate and a one-way link latency (USB frames and the firmware's loop: 0 is an
+ideal link, about 1 ms a USB-serial adapter, more an FTDI one with its latency timer), so
+the host's CPU time measured here is the host's alone. For each speed and latency the
+table gives lines per second of the windowed streamer and of a send-one, wait-for-ok host
+on the same simulator, the wire's line rate (baud / 10 bytes per second over the mean
+framed line length), the ratios, and the host CPU use while streaming.
 """
 
 from __future__ import annotations
@@ -61,10 +64,10 @@ class Run:
 class SimProcess:
     """``hostd simulate`` in a subprocess; ``path`` is its pseudo-terminal."""
 
-    def __init__(self, baud: int, time_scale: float) -> None:
+    def __init__(self, baud: int, time_scale: float, latency_ms: float = 0.0) -> None:
         self.proc = subprocess.Popen(
             [sys.executable, "-m", "hostd.cli", "simulate", "--baud", str(baud),
-             "--time-scale", str(time_scale)],
+             "--time-scale", str(time_scale), "--latency-ms", str(latency_ms)],
             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
         )
         assert self.proc.stdout is not None
@@ -136,11 +139,13 @@ async def _exchange(transport: Transport, data: bytes) -> None:
             raise RuntimeError(f"baseline got {response.raw!r}: the wire must be clean here")
 
 
-def measure(baud: int, lines: list[str], time_scale: float) -> tuple[Run, Run]:
-    """Windowed and one-at-a-time runs on fresh simulators at ``baud``."""
+def measure(
+    baud: int, lines: list[str], time_scale: float, latency_ms: float = 0.0
+) -> tuple[Run, Run]:
+    """Windowed and one-at-a-time runs on fresh simulators at ``baud`` and ``latency_ms``."""
     results = []
     for method in (windowed, one_at_a_time):
-        sim = SimProcess(baud, time_scale)
+        sim = SimProcess(baud, time_scale, latency_ms)
         try:
             results.append(asyncio.run(method(sim.path, baud, lines)))
         finally:
@@ -153,24 +158,27 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--lines", type=int, default=5000)
     parser.add_argument("--bauds", type=int, nargs="+", default=[115200, 250000])
+    parser.add_argument("--latencies-ms", type=float, nargs="+", default=[0.0, 1.0, 4.0],
+                        help="one-way link latencies to measure at (milliseconds)")
     parser.add_argument("--time-scale", type=float, default=0.0,
                         help="simulated printer speed (0: moves take no time, the wire limits)")
     args = parser.parse_args(argv)
     lines = curved_perimeter(args.lines)
-    header = (f"{'baud':>7} {'wire l/s':>9} {'window l/s':>10} {'% wire':>7} "
+    header = (f"{'baud':>7} {'latency':>7} {'wire l/s':>9} {'window l/s':>10} {'% wire':>7} "
               f"{'1-at-a-time l/s':>15} {'% wire':>7} {'speedup':>7} {'host CPU':>9} "
               f"{'bytes/line':>10}")
     rows = []
-    for baud in args.bauds:
-        win, base = measure(baud, lines, args.time_scale)
+    for baud, latency in [(b, lat) for b in args.bauds for lat in args.latencies_ms]:
+        win, base = measure(baud, lines, args.time_scale, latency)
         mean_len = win.framed_bytes / win.lines
         wire = baud / 10 / mean_len
         rows.append(
-            f"{baud:>7} {wire:>9.1f} {win.rate:>10.1f} {100 * win.rate / wire:>6.1f}% "
+            f"{baud:>7} {latency:>5g}ms {wire:>9.1f} "
+            f"{win.rate:>10.1f} {100 * win.rate / wire:>6.1f}% "
             f"{base.rate:>15.1f} {100 * base.rate / wire:>6.1f}% {win.rate / base.rate:>6.2f}x "
             f"{100 * win.cpu_share:>8.1f}% {mean_len:>10.1f}"
         )
-        print(f"measured {baud} baud", file=sys.stderr)
+        print(f"measured {baud} baud, {latency:g} ms latency", file=sys.stderr)
     print(f"{args.lines} short G1 moves (0.3 mm at 200 mm/s), simulated printer "
           f"time scale {args.time_scale:g}")
     print(header)

@@ -24,7 +24,13 @@ class SimulatorConfig:
     dwells, homing, heating, keepalive interval) to give wall time: 1.0 is real time,
     0.0 is instant. ``no_timeouts_s`` > 0 makes the idle printer print ``wait`` every that
     many wall seconds (Marlin's NO_TIMEOUTS). ``baud`` limits the wire in both directions
-    to ``baud / 10`` bytes/s (8N1 framing); 0 means unlimited.
+    to ``baud / 10`` bytes/s (8N1 framing); 0 means unlimited. Every byte is delivered
+    only once its ten bits have crossed the wire, behind the bytes before it.
+    ``latency_s`` is the link's one-way delay, added to every byte in each direction on
+    top of its wire time: it stands for USB frames (about 1 ms; an FTDI adapter's latency
+    timer defaults to 16 ms) and the firmware's main loop, so a command's round trip
+    takes at least twice the latency plus the wire time of the line and its answer.
+    The default 0.0 (an ideal link) keeps protocol tests fast; timing studies set it.
 
     Fault probabilities (0..1), drawn from one seeded generator per fault kind:
 
@@ -60,6 +66,7 @@ class SimulatorConfig:
 
     time_scale: float = 1.0
     baud: int = 250000
+    latency_s: float = 0.0
     rx_buffer: int = 128
     bufsize: int = 4
     planner_blocks: int = 16
@@ -87,6 +94,7 @@ class SimulatorConfig:
     def __post_init__(self) -> None:
         _check(self.time_scale >= 0.0, "time_scale", "must be >= 0")
         _check(self.baud >= 0, "baud", "must be >= 0 (0 = unlimited)")
+        _check(0.0 <= self.latency_s <= 1.0, "latency_s", "must be in 0..1 second")
         _check(self.rx_buffer >= 1, "rx_buffer", "must be >= 1 byte")
         _check(self.bufsize >= 1, "bufsize", "must be >= 1 command")
         _check(self.planner_blocks >= 0, "planner_blocks", "must be >= 0 (0 = no planner)")

@@ -55,7 +55,8 @@ class SimulatedPrinter:
     - Opening the port resets the printer (``reset_on_open``): after ``boot_delay_s`` it
       prints ``start``; bytes sent before that are lost. A reopen is noticed when the port
       stayed closed for about 10 ms or more.
-    - Bytes arrive at ``baud / 10`` bytes/s into a receive buffer of ``rx_buffer`` bytes;
+    - Bytes cross the wire at ``baud / 10`` bytes/s, each delivered ``latency_s`` after
+      its wire time (in both directions), into a receive buffer of ``rx_buffer`` bytes;
       bytes past it are lost. The firmware moves lines from it into a queue of ``bufsize``
       commands only between commands, so while it is busy the buffer fills and overflows.
     - ``ok`` is sent when a command has been executed; a move counts as executed once it
@@ -80,6 +81,7 @@ class SimulatedPrinter:
             opened=self._on_opened,
             link_path=self.config.link_path,
             reconnect_delay_s=self.config.reconnect_delay_s,
+            latency_s=self.config.latency_s,
         )
         self._firmware = Firmware(
             self.config,

@@ -1,8 +1,11 @@
 """The simulated printer's serial line: a pseudo-terminal served by one I/O thread.
 
-The thread reads the host's bytes from the master side at the wire's speed and hands them
-to the firmware (the "UART interrupt"), writes the firmware's output at the wire's speed,
-notices when the host opens or closes the port, and can make the port vanish.
+The thread reads the host's bytes from the master side and hands them to the firmware
+(the "UART interrupt") once they have crossed the wire, writes the firmware's output to
+the host the same way, notices when the host opens or closes the port, and can make the
+port vanish. Each direction keeps a queue of ``(deliver_at, bytes)``: a byte is delivered
+after its wire time (ten bits at the baud rate, behind the bytes before it) plus the
+link's one-way latency.
 """
 
 from __future__ import annotations
@@ -15,46 +18,80 @@ import select
 import threading
 import time
 import tty
+from collections import deque
 from collections.abc import Callable
 
 _CLOSED_PROBE_S = 0.01  # how often a port nobody has open is checked for an opener
 _READ_CHUNK = 4096
+_TICK_S = 0.001  # wire time of the pieces bytes are handed over in
 
 
-class _Pacer:
-    """Token bucket of a wire direction: ``rate`` bytes/s, small bursts; 0 = unlimited."""
+class _Lane:
+    """One direction of the wire: bytes in flight, each piece with the time it is delivered.
 
-    def __init__(self, rate: float) -> None:
+    A byte takes ``1 / rate`` seconds on the wire (bytes queue behind each other), then
+    ``latency`` more (USB frames, the firmware's loop) before it reaches the other side.
+    Bytes are handed over in pieces of at most one tick of wire time, each when its last
+    byte has arrived, so no byte is ever delivered ahead of its wire time. ``rate`` 0
+    means an unlimited wire: only the latency delays the bytes.
+    """
+
+    def __init__(self, rate: float, latency: float) -> None:
         self.rate = rate
-        self.burst = max(16.0, rate * 0.004)
-        self.tokens = self.burst
-        self.stamp = time.monotonic()
+        self.latency = latency
+        self.piece = max(1, int(rate * _TICK_S)) if rate > 0.0 else _READ_CHUNK
+        self.free_at = 0.0  # when the wire has carried every byte given to it so far
+        self.queue: deque[tuple[float, bytes]] = deque()  # (deliver_at, bytes), in order
 
-    def available(self, now: float) -> int:
-        """Bytes that may cross the wire now."""
+    def put(self, data: bytes, now: float) -> None:
+        """Put ``data`` on the wire at ``now`` (behind any bytes still crossing it)."""
+        if self.rate <= 0.0:
+            self.queue.append((now + self.latency, data))
+            return
+        start = max(now, self.free_at)
+        for first in range(0, len(data), self.piece):
+            last = min(len(data), first + self.piece)
+            self.queue.append((start + last / self.rate + self.latency, data[first:last]))
+        self.free_at = start + len(data) / self.rate
+
+    def due(self) -> float | None:
+        """When the next piece is delivered; None when nothing is in flight."""
+        return self.queue[0][0] if self.queue else None
+
+    def take_due(self, now: float) -> bytes:
+        """Every byte whose delivery time has come, removed from the lane."""
+        out = bytearray()
+        while self.queue and self.queue[0][0] <= now:
+            out += self.queue.popleft()[1]
+        return bytes(out)
+
+    def put_back(self, data: bytes, now: float) -> None:
+        """Return bytes the other side could not take yet; they are due at once."""
+        self.queue.appendleft((now, data))
+
+    def read_budget(self, now: float) -> int:
+        """Bytes the wire can take now without a byte waiting more than two ticks."""
         if self.rate <= 0.0:
             return _READ_CHUNK
-        self.tokens = min(self.burst, self.tokens + (now - self.stamp) * self.rate)
-        self.stamp = now
-        return int(self.tokens)
+        room = now + 2.0 * _TICK_S - max(now, self.free_at)
+        return max(1, min(_READ_CHUNK, int(room * self.rate)))
 
-    def consume(self, count: int) -> None:
-        """Account for ``count`` bytes sent or received."""
-        if self.rate > 0.0:
-            self.tokens -= count
-
-    def delay(self) -> float:
-        """Seconds until at least one byte may cross."""
-        if self.rate <= 0.0 or self.tokens >= 1.0:
-            return 0.0
-        return (1.0 - self.tokens) / self.rate
+    def clear(self) -> None:
+        """Forget every byte in flight (the port closed)."""
+        self.queue.clear()
+        self.free_at = 0.0
 
 
 class PtyWire:
     """One pseudo-terminal and the thread that moves bytes across it.
 
-    ``receive(data)`` is called from the I/O thread with each chunk read from the host;
-    ``opened()`` each time the host opens the port (the first time included).
+    ``receive(data)`` is called from the I/O thread with each piece of the host's bytes
+    once it has crossed the wire; ``opened()`` each time the host opens the port (the
+    first time included). ``latency_s`` is added to every byte in each direction.
+
+    The thread waits with ``select`` rather than ``poll``: poll's timeout is whole
+    milliseconds, which would make deliveries up to a millisecond late, as much as the
+    latency being modelled.
     """
 
     def __init__(
@@ -64,15 +101,18 @@ class PtyWire:
         opened: Callable[[], None],
         link_path: str | None = None,
         reconnect_delay_s: float = 0.2,
+        latency_s: float = 0.0,
     ) -> None:
         self._rate = bytes_per_second
+        self._latency_s = latency_s
         self._receive = receive
         self._opened = opened
         self._link_path = link_path
         self._reconnect_delay_s = reconnect_delay_s
         self._lock = threading.Lock()
         self._tx_empty = threading.Condition(self._lock)
-        self._tx = bytearray()
+        self._rx = _Lane(bytes_per_second, latency_s)  # host -> printer: I/O thread only
+        self._tx = _Lane(bytes_per_second, latency_s)  # printer -> host: under the lock
         self._stop = threading.Event()
         self._vanish_requested = False
         self._master = -1
@@ -105,10 +145,10 @@ class PtyWire:
     def send(self, data: bytes) -> None:
         """Queue ``data`` for the host (thread-safe); dropped while nobody has the port open."""
         with self._lock:
-            if not self._connected:
+            if not self._connected or not data:
                 return
-            was_empty = not self._tx
-            self._tx += data
+            was_empty = not self._tx.queue
+            self._tx.put(data, time.monotonic())
         if was_empty:
             self._wake()
 
@@ -116,7 +156,7 @@ class PtyWire:
         """Wait until every queued byte has been written (or the port is closed)."""
         deadline = time.monotonic() + timeout
         with self._tx_empty:
-            while self._tx and not self._stop.is_set():
+            while self._tx.queue and not self._stop.is_set():
                 left = deadline - time.monotonic()
                 if left <= 0.0:
                     return False
@@ -171,18 +211,13 @@ class PtyWire:
             os.replace(tmp, self._link_path)
 
     def _close_master(self) -> None:
-        with self._lock:
-            self._connected = False
-            self._tx.clear()
-            self._tx_empty.notify_all()
+        self._hang_up()
         if self._master >= 0:
             with contextlib.suppress(OSError):
                 os.close(self._master)
             self._master = -1
 
     def _serve(self) -> None:
-        rx = _Pacer(self._rate)
-        tx = _Pacer(self._rate)
         reopen_at: float | None = None
         while not self._stop.is_set():
             if self._vanish_requested:
@@ -204,7 +239,7 @@ class PtyWire:
             if not self._connected:
                 self._wait_for_opener()
                 continue
-            self._pump(rx, tx)
+            self._pump()
 
     def _wait_wake(self, timeout: float | None) -> None:
         ready, _, _ = select.select([self._wake_r], [], [], timeout)
@@ -225,66 +260,74 @@ class PtyWire:
             self._connected = True
         self._opened()
 
-    def _pump(self, rx: _Pacer, tx: _Pacer) -> None:
+    def _pump(self) -> None:
+        """One round: deliver what is due, wait for the next event, read or write."""
         now = time.monotonic()
-        can_read = rx.available(now) >= 1
-        with self._lock:
-            pending = bool(self._tx)
-        can_write = pending and tx.available(now) >= 1
-        events = (select.POLLIN if can_read else 0) | (select.POLLOUT if can_write else 0)
-        poller = select.poll()
-        poller.register(self._wake_r, select.POLLIN)
-        poller.register(self._master, events)
-        delays = [d for d in (rx.delay() if not can_read else 0.0,
-                              tx.delay() if pending and not can_write else 0.0) if d > 0.0]
-        timeout_ms = None if not delays else max(1.0, min(delays) * 1000.0)
-        for fd, ev in poller.poll(timeout_ms):
-            if fd == self._wake_r:
-                self._drain_wake()
-                continue
-            if ev & (select.POLLHUP | select.POLLERR):
-                self._hang_up()  # the host closed the port; what it wrote last is lost
+        arrived = self._rx.take_due(now)
+        if arrived:
+            self.bytes_in += len(arrived)
+            self._receive(arrived)
+            if not self._connected:
                 return
-            if ev & select.POLLIN and can_read:
-                self._read(rx)
-            if ev & select.POLLOUT and can_write:
-                self._write(tx)
-
-    def _read(self, rx: _Pacer) -> None:
+        # read the host's bytes only when the wire is about to be free, so the host
+        # feels the wire's pace the way it would on a real port
+        can_read = self._rx.free_at - now < _TICK_S
+        with self._lock:
+            tx_due = self._tx.due()
+        can_write = tx_due is not None and tx_due <= now
+        deadlines = [t for t in (self._rx.due(), None if can_write else tx_due) if t is not None]
+        if not can_read:
+            deadlines.append(self._rx.free_at - _TICK_S)
+        timeout = max(0.0, min(deadlines) - now) if deadlines else None
+        readers = [self._wake_r, self._master] if can_read else [self._wake_r]
+        writers = [self._master] if can_write else []
         try:
-            data = os.read(self._master, min(_READ_CHUNK, rx.available(time.monotonic())))
+            readable, writable, _ = select.select(readers, writers, [], timeout)
+        except OSError:  # the descriptor went away under us
+            self._hang_up()
+            return
+        if self._wake_r in readable:
+            self._drain_wake()
+        if self._master in readable:
+            self._read()
+        if self._master in writable and self._connected:
+            self._write()
+
+    def _read(self) -> None:
+        now = time.monotonic()
+        try:
+            data = os.read(self._master, self._rx.read_budget(now))
         except BlockingIOError:
             return
         except OSError as exc:
             if exc.errno == errno.EIO:
-                self._hang_up()
+                self._hang_up()  # the host closed the port; what it wrote last is lost
                 return
             raise
         if not data:
             self._hang_up()
             return
-        rx.consume(len(data))
-        self.bytes_in += len(data)
-        self._receive(data)
+        self._rx.put(data, now)
 
-    def _write(self, tx: _Pacer) -> None:
+    def _write(self) -> None:
         with self._lock:
-            budget = min(len(self._tx), tx.available(time.monotonic()))
-            chunk = bytes(self._tx[:budget])
+            chunk = self._tx.take_due(time.monotonic())
+        if not chunk:
+            return
         try:
             written = os.write(self._master, chunk)
         except BlockingIOError:
-            return
+            written = 0
         except OSError as exc:
             if exc.errno == errno.EIO:
                 self._hang_up()
                 return
             raise
-        tx.consume(written)
         self.bytes_out += written
         with self._lock:
-            del self._tx[:written]
-            if not self._tx:
+            if written < len(chunk):
+                self._tx.put_back(chunk[written:], time.monotonic())
+            if not self._tx.queue:
                 self._tx_empty.notify_all()
 
     def _hang_up(self) -> None:
@@ -292,3 +335,4 @@ class PtyWire:
             self._connected = False
             self._tx.clear()
             self._tx_empty.notify_all()
+        self._rx.clear()

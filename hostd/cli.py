@@ -78,6 +78,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--time-scale", type=float, default=1.0, metavar="X")
     p.add_argument("--baud", type=int, default=250000, metavar="N",
                    help="wire speed to emulate (0 = unlimited)")
+    p.add_argument("--latency-ms", type=float, default=0.0, metavar="X",
+                   help="one-way link latency added to every byte in each direction"
+                        " (USB frames, firmware loop; e.g. 1, or 16 for an FTDI default)")
     p.add_argument("--log", metavar="FILE", help="append every executed line to FILE")
     p.add_argument("--advanced-ok", action="store_true", help="answer ok N.. P.. B..")
     p.add_argument("--fault", metavar="KIND=P", action="append", default=[],

@@ -35,6 +35,7 @@ def run(args: argparse.Namespace) -> int:
         config = SimulatorConfig(
             time_scale=args.time_scale,
             baud=args.baud,
+            latency_s=getattr(args, "latency_ms", 0.0) / 1000.0,
             log_path=args.log,
             advanced_ok=args.advanced_ok,
             seed=getattr(args, "seed", 0),
@@ -54,7 +55,8 @@ def run(args: argparse.Namespace) -> int:
             print(sim.path, flush=True)
             print(
                 f"simulated Marlin printer: time scale {config.time_scale:g}, "
-                f"baud {config.baud or 'unlimited'}; Ctrl-C to stop",
+                f"baud {config.baud or 'unlimited'}, "
+                f"latency {config.latency_s * 1000.0:g} ms; Ctrl-C to stop",
                 file=sys.stderr,
                 flush=True,
             )
