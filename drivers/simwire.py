@@ -113,6 +113,7 @@ class PtyWire:
         self._tx_empty = threading.Condition(self._lock)
         self._rx = _Lane(bytes_per_second, latency_s)  # host -> printer: I/O thread only
         self._tx = _Lane(bytes_per_second, latency_s)  # printer -> host: under the lock
+        self._tx_writing = False  # bytes taken from the tx lane and not yet written
         self._stop = threading.Event()
         self._vanish_requested = False
         self._master = -1
@@ -156,7 +157,7 @@ class PtyWire:
         """Wait until every queued byte has been written (or the port is closed)."""
         deadline = time.monotonic() + timeout
         with self._tx_empty:
-            while self._tx.queue and not self._stop.is_set():
+            while (self._tx.queue or self._tx_writing) and not self._stop.is_set():
                 left = deadline - time.monotonic()
                 if left <= 0.0:
                     return False
@@ -312,6 +313,7 @@ class PtyWire:
     def _write(self) -> None:
         with self._lock:
             chunk = self._tx.take_due(time.monotonic())
+            self._tx_writing = bool(chunk)
         if not chunk:
             return
         try:
@@ -325,6 +327,7 @@ class PtyWire:
             raise
         self.bytes_out += written
         with self._lock:
+            self._tx_writing = False
             if written < len(chunk):
                 self._tx.put_back(chunk[written:], time.monotonic())
             if not self._tx.queue:
@@ -334,5 +337,6 @@ class PtyWire:
         with self._lock:
             self._connected = False
             self._tx.clear()
+            self._tx_writing = False
             self._tx_empty.notify_all()
         self._rx.clear()
