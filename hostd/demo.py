@@ -47,11 +47,27 @@ def progress_line(snapshot: Snapshot, width: int = 30) -> str:
     )
 
 
+async def resume_interrupted(socket: Path) -> None:
+    """Resume every job an earlier Ctrl-C interrupted, so the queue behind it moves on."""
+    async with ControlClient(str(socket)) as client:
+        snapshot = await client.status()
+        for job in snapshot.interrupted:
+            print(f"resuming {job.name} (job {job.id}) after layer {job.layer}")
+            try:
+                await client.request("resume_job", job=job.id)
+            except ControlError as exc:
+                print(f"cannot resume {job.name}: {exc}")
+
+
 async def watch(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
     """Print a live progress line from the daemon's status until the daemon exits."""
     last_len = 0
+    resumed = False
     while daemon.poll() is None:
         try:
+            if not resumed:
+                await resume_interrupted(socket)
+                resumed = True
             async with ControlClient(str(socket)) as client:
                 async for item in client.subscribe():
                     if "status" in item:
