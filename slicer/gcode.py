@@ -170,16 +170,21 @@ def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: f
     return ~(shapely.covered_by(lines, area) | zero)
 
 
+def heat_commands(settings: SliceSettings) -> list[str]:
+    """Set both heaters, then wait for bed and nozzle; nothing when ``skip_heating``."""
+    if settings.skip_heating:
+        return []
+    return [
+        f"M140 S{settings.bed_temp:g}",
+        f"M104 S{settings.nozzle_temp:g}",
+        f"M190 S{settings.bed_temp:g}",
+        f"M109 S{settings.nozzle_temp:g}",
+    ]
+
+
 def start_block(settings: SliceSettings) -> list[str]:
     """Heat (unless ``skip_heating``), home, absolute XYZ, relative E."""
-    lines = []
-    if not settings.skip_heating:
-        lines += [
-            f"M140 S{settings.bed_temp:g}",
-            f"M104 S{settings.nozzle_temp:g}",
-            f"M190 S{settings.bed_temp:g}",
-            f"M109 S{settings.nozzle_temp:g}",
-        ]
+    lines = heat_commands(settings)
     # lift after homing so the travel to the first layer's start never drags on the bed
     lines += ["G28", "G90", "M83", "G92 E0", "G0 F600 Z5", fan_command(settings, 0)]
     return lines
@@ -210,13 +215,7 @@ def resume_block(settings: SliceSettings, index: int, below_z: float) -> list[st
     """
     lift = below_z + RESUME_LIFT
     lines = [f";RESUME:{index}", "G90", f"G92 Z{below_z:.3f}", f"G0 F600 Z{lift:.3f}"]
-    if not settings.skip_heating:
-        lines += [
-            f"M140 S{settings.bed_temp:g}",
-            f"M104 S{settings.nozzle_temp:g}",
-            f"M190 S{settings.bed_temp:g}",
-            f"M109 S{settings.nozzle_temp:g}",
-        ]
+    lines += heat_commands(settings)
     lines += ["G28 X Y", "M83", "G92 E0", fan_command(settings, index)]
     return lines
 
