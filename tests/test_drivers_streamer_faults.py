@@ -10,7 +10,7 @@ from test_drivers_streamer import FAST, job, job_lines, sim_config, stream_job
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import LinkError, StreamerConfig
 
-# A rare give-up seen under heavy load (about once in twenty loaded runs): after a
+# An intermittent give-up (seen in several full-suite runs): after a
 # replay the printer asks for a line the link no longer holds, and the link stops with
 # LinkError: the link refuses to guess and stops loudly. It is tolerated here while it
 # is investigated; any lost, repeated or reordered line in a completed run still fails
