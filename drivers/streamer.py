@@ -125,6 +125,7 @@ class Streamer:
         self._waiters: dict[int, asyncio.Future[int]] = {}
         self._handshaking = False
         self._rewind_to: int | None = None
+        self._force_replay = False  # a probe is due: replay past the window, then probe
         self._stale = 0
         self._implausible: tuple[str, int] = ("", 0)
         self._advanced_ok = False
@@ -287,6 +288,7 @@ class Streamer:
         else:
             self._control.appendleft(_Control("M112", internal=False, force=True))
             self._replay_next = None
+            self._force_replay = False
             self._wake.set()
             await asyncio.sleep(0)
             await self._writer_step()
@@ -455,6 +457,7 @@ class Streamer:
             self._history.clear()
             self._next_number = value + 1
             self._replay_next = None
+            self._force_replay = False
             self._emitted_through = value
             # resend requests counted against the old numbers name other lines now
             self._unconfirmed = (-1, 0)
@@ -571,6 +574,7 @@ class Streamer:
             value = self._last_acked_number
             self._renumber = _Renumber(value, value, keep_history=True, quiet=True)
         self._replay_next = None
+        self._force_replay = False
         self._wake.set()
 
     async def _link_lost(self, reason: str) -> bool:
@@ -593,6 +597,7 @@ class Streamer:
             self._rewind_to = None
             self._stale = 0
             self._replay_next = None
+            self._force_replay = False
             if self._renumber is not None:
                 self._renumber.sent = False
             self.state = RECONNECTING  # until `start` (the board reset) or start_timeout_s
@@ -681,7 +686,7 @@ class Streamer:
     def _next_replay_line(self) -> tuple[bytes, InFlight | None] | None:
         number = self._replay_next
         assert number is not None
-        if self._control and self._control[0].force:
+        if self._control and self._control[0].force and not self._control[0].probe:
             return self._next_control_line()
         held = self._history.get(number)
         if held is None:
@@ -689,9 +694,11 @@ class Streamer:
             return None
         command, internal = held
         data = frame(number, command)
-        if not self._window.has_room(len(data)):
+        if not self._force_replay and not self._window.has_room(len(data)):
             return None
         self._replay_next = number + 1 if number + 1 < self._next_number else None
+        if self._replay_next is None:
+            self._force_replay = False
         self.stats.lines_resent += 1
         return data, InFlight(number, command, len(data), internal=internal,
                               probe=command == "M105" and internal)
@@ -776,8 +783,23 @@ class Streamer:
         self._probe()
 
     def _probe(self) -> None:
+        """Ask ``M105`` past the window: its ``ok T:`` proves every earlier line done.
+
+        One probe at a time: one already queued is only made urgent. An earlier probe still
+        in flight is given up on (its answer is overdue), so the new one's answer resyncs.
+        During a replay the probe waits for the replay to end, numbered after it (a probe
+        numbered ahead would be refused), and the replay passes the window meanwhile.
+        """
         self._probes_unanswered += 1
         self.stats.probes += 1
+        if self._replay_next is not None:
+            self._force_replay = True
+        queued = next((c for c in self._control if c.probe), None)
+        if queued is not None:
+            queued.force = True
+            self._wake.set()
+            return
+        self._window.give_up_probes()
         self._queue_control("M105", internal=True, probe=True, force=True)
 
     def _watch_temperature(self, now: float) -> None:

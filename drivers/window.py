@@ -78,16 +78,37 @@ class SendWindow:
         return done
 
     def ack_probe(self) -> list[InFlight]:
-        """An ``ok T:...``: the oldest probe and every line before it are done."""
-        if not any(e.probe for e in self._entries):
-            return self.ack_one()
+        """An ``ok T:...`` (the answer to an ``M105``): that line and every line before it
+        are done.
+
+        The answer belongs to the oldest probe in flight; with none, to the oldest ``M105``
+        still held (a job's own, or a probe given up on by :meth:`give_up_probes`). An
+        answer that matches no ``M105`` in flight is the late answer to a probe already
+        counted as done, and acknowledges nothing.
+        """
+        target = next((e for e in self._entries if e.probe), None)
+        if target is None:
+            target = next((e for e in self._entries if _is_m105(e.command)), None)
+        if target is None:
+            return []
         done: list[InFlight] = []
         while self._entries:
             entry = self._pop()
             done.append(entry)
-            if entry.probe:
+            if entry is target:
                 break
         return done
+
+    def give_up_probes(self) -> None:
+        """Probes in flight whose answer is overdue stop being probes: a newer probe takes
+        over, so that an answer is never matched to a probe older than the one it answers
+        (the oks of lines before a lost answer would otherwise stay unmatched for good)."""
+        for entry in self._entries:
+            entry.probe = False
+
+    def has_probe(self) -> bool:
+        """True if a probe is in flight."""
+        return any(e.probe for e in self._entries)
 
     def drop_from(self, number: int) -> list[InFlight]:
         """Forget lines numbered ``number`` and later (the printer discarded them)."""
@@ -117,3 +138,7 @@ class SendWindow:
         entry = self._entries.popleft()
         self._bytes -= entry.nbytes
         return entry
+
+
+def _is_m105(command: str) -> bool:
+    return command.split(" ", 1)[0] == "M105"

@@ -285,6 +285,34 @@ def test_resend_for_a_line_never_sent_is_not_obeyed():
     assert link.stats.lines_resent == 0
 
 
+def test_lost_oks_and_a_refused_probe_are_recovered_without_a_probe_storm():
+    # the oks of four lines are lost, filling the window; the probe sent to find out is
+    # refused (corrupted on the wire), so its replay is due while the window looks full
+    lost = set()
+    probes_refused = []
+
+    def answer(number: int, command: str) -> list[str] | None:
+        if 20 <= number < 24 and number not in lost:
+            lost.add(number)
+            return ["echo:ok lost"]  # executed, its ok never arrives
+        if command == "M105" and not probes_refused:
+            probes_refused.append(number)
+            return [f"Error:checksum mismatch, Last Line: {number - 1}",
+                    f"Resend: {number}", "ok"]
+        return None
+
+    lines = [f"G1 X{i}" for i in range(60)]
+    with scripted(answer) as printer:
+        link = asyncio.run(stream_scripted(printer, lines))
+        executed = [c for c in printer.executed if c.split()[0] not in INTERNAL]
+    assert executed == lines
+    assert probes_refused and len(lost) == 4
+    # the probe's replay goes out past the full window and its answer resyncs the count;
+    # a probe numbered ahead of the replay would be refused again and again
+    assert link.stats.probes <= 4
+    assert link.acked == len(lines)
+
+
 def test_no_autoreport_means_m105_polling():
     config = StreamerConfig(**{**FAST.__dict__, "temperature_interval_s": 0.05})
     reports = []
