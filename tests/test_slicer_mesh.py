@@ -58,7 +58,7 @@ def test_face_at_a_layer_middle_belongs_to_the_layer_above(step: float) -> None:
     settings = SliceSettings()
     assert settings.layer_height == settings.first_layer_height == pytest.approx(0.2)
     plan = SlicePlan.from_mesh(vertices, np.asarray(mesh.faces), settings)
-    middle = int(round((step + 0.1) / 0.2)) - 1  # the layer whose middle is the step
+    middle = round((step + 0.1) / 0.2) - 1  # the layer whose middle is the step
     assert plan.layer_z(middle) == pytest.approx(step + 0.1)
     # the tie goes one way for every face of the step, whatever float32 made of it
     assert plan.outline(middle).area == pytest.approx(100.0, rel=1e-3)
