@@ -42,8 +42,9 @@ def layer_tops(height: float, settings: SliceSettings) -> np.ndarray:
     return tops
 
 
-# cut planes lie this far (mm) below the layer middle: a face modelled at a
-# half-layer height belongs to the layer above it, whichever way float32 rounded it
+# cut planes lie this far (mm) below the layer middle: a layer whose middle is at
+# the height of a horizontal face is cut just below that face, whichever way
+# float32 rounded it
 PLANE_TIE = 5e-5
 
 
