@@ -69,7 +69,7 @@ def layer_code(
     lines = [f";LAYER:{index}"]
     if not paths:
         return LayerCode(lines, 0.0, 0.0)
-    e_per_mm = settings.line_width * height / settings.filament_area
+    e_per_mm = height / settings.filament_area  # times each path's line width
     first_layer = index == 0
     wall_f = settings.first_layer_speed if first_layer else settings.wall_speed
     fill_f = settings.first_layer_speed if first_layer else settings.print_speed
@@ -85,7 +85,8 @@ def layer_code(
     move = np.ones(len(pts), dtype=bool)
     move[starts] = False
     seg = np.diff(pts, axis=0, prepend=pts[:1])
-    e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm
+    widths = np.array([settings.line_width if p.width is None else p.width for p in paths])
+    e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm * np.repeat(widths, ends - starts)
     filament = float(e[move].sum())
     flat = np.column_stack([pts[move], e[move]]).ravel().tolist()
     g1 = (("G1 X%.3f Y%.3f E%.5f\n" * int(move.sum())) % tuple(flat)).splitlines()

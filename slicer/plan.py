@@ -42,11 +42,26 @@ def layer_tops(height: float, settings: SliceSettings) -> np.ndarray:
     return tops
 
 
+# cut planes lie this far (mm) below the layer middle: a layer whose middle is at
+# the height of a horizontal face is cut just below that face, whichever way
+# float32 rounded it
+PLANE_TIE = 5e-5
+
+
 def cut_planes(tops: np.ndarray, settings: SliceSettings) -> np.ndarray:
-    """Where each layer is cut: the middle of the layer, mm."""
+    """Where each layer is cut: the middle of the layer less :data:`PLANE_TIE`, mm.
+
+    A horizontal face at exactly a layer's middle height is a tie between the
+    part below it and the part above it. STL stores float32 (a few 1e-6 mm of
+    rounding at printable heights), so without a rule the tie would fall either
+    way from one face to the next. Cutting ``PLANE_TIE`` (50 nm, above float32's
+    rounding up to 256 mm, far below any printable detail) below the middle
+    settles it: what starts at the middle height is cut in the layer above,
+    what ends there in this layer, as PrusaSlicer and CuraEngine settle it.
+    """
     planes = tops - settings.layer_height / 2.0
     planes[0] = settings.first_layer_height / 2.0
-    return planes
+    return planes - PLANE_TIE
 
 
 @dataclass(frozen=True)

@@ -45,6 +45,26 @@ def test_loops_close_when_planes_hit_vertices(tmp_path) -> None:
         assert shapely.Polygon(ring).area == pytest.approx(mesh.area_faces[0] * 0 + 77.65, rel=0.01)
 
 
+@pytest.mark.parametrize("step", [0.5, 12.7, 46.7])
+def test_face_at_a_layer_middle_belongs_to_the_layer_above(step: float) -> None:
+    # a 10 x 10 block up to ``step`` with a 4 x 4 block on it: the step lies at the
+    # middle of a 0.2 mm layer, stored in float32 as STL stores it (46.7 is not exact)
+    base = trimesh.creation.box(extents=(10.0, 10.0, step))
+    base.apply_translation((0, 0, step / 2.0))
+    top = trimesh.creation.box(extents=(4.0, 4.0, 2.0))
+    top.apply_translation((0, 0, step + 1.0))
+    mesh = trimesh.util.concatenate([base, top])
+    vertices = np.asarray(mesh.vertices, dtype=np.float32).astype(np.float64)
+    settings = SliceSettings()
+    assert settings.layer_height == settings.first_layer_height == pytest.approx(0.2)
+    plan = SlicePlan.from_mesh(vertices, np.asarray(mesh.faces), settings)
+    middle = round((step + 0.1) / 0.2) - 1  # the layer whose middle is the step
+    assert plan.layer_z(middle) == pytest.approx(step + 0.1)
+    # the tie goes one way for every face of the step, whatever float32 made of it
+    assert plan.outline(middle).area == pytest.approx(100.0, rel=1e-3)
+    assert plan.outline(middle + 1).area == pytest.approx(16.0, rel=1e-3)
+
+
 def test_open_bunny_slices_with_closed_gaps() -> None:
     plan = SlicePlan.from_file(DATA / "bunny.stl", SliceSettings())
     assert any("open edges" in w for w in plan.warnings)

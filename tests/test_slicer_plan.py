@@ -5,6 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 import shapely
+import trimesh
 
 from hostd.commands.slice import write_gcode
 from slicer.layer import WALL_OUTER
@@ -51,6 +52,54 @@ def test_outer_wall_is_the_outline_offset_by_half_a_line(tmp_path) -> None:
         assert len(walls) == 1
         ring = shapely.LineString(walls[0])
         assert shapely.hausdorff_distance(ring, expected.exterior) <= 0.05
+
+
+THIN = SliceSettings.from_mapping({"line_width": 0.4, "perimeters": 2})
+
+
+def _tube_plan(thickness: float) -> SlicePlan:
+    tube = trimesh.creation.annulus(r_min=5.0, r_max=5.0 + thickness, height=2.0, sections=96)
+    return SlicePlan.from_mesh(tube.vertices, tube.faces, THIN)
+
+
+def _off_level(plan: SlicePlan, ring: np.ndarray, inset: float) -> float:
+    """How far a wall ring lies from the outline's level set at ``inset`` mm, mm."""
+    level = shapely.boundary(shapely.buffer(plan.outline(5), -inset, quad_segs=12))
+    return float(shapely.distance(shapely.points(ring), level).max())
+
+
+@pytest.mark.parametrize("thickness", [1.0, 0.9, 1.08])
+def test_thin_wall_outer_lines_widen_to_meet(thickness: float) -> None:
+    # two 0.4 mm lines in a wall 0.8-1.1 mm thick would leave a gap between them:
+    # the outer wall widens to half the thickness and its two sides meet
+    plan = _tube_plan(thickness)
+    paths = plan.layer_toolpaths(5)
+    outer = [p for p in paths if p.kind == WALL_OUTER]
+    assert len(outer) == 2 and all(p.kind == WALL_OUTER for p in paths if p.kind.startswith("WALL"))
+    for p in outer:
+        assert p.width == pytest.approx(thickness / 2.0, abs=0.02)
+    for p in outer:
+        assert _off_level(plan, p.coords, thickness / 4.0) < 0.03
+
+
+def test_thin_wall_extrudes_for_its_width() -> None:
+    plan = _tube_plan(1.0)
+    paths = plan.layer_toolpaths(5)
+    assert {p.kind for p in paths} == {WALL_OUTER}  # nothing else fits in 1 mm
+    width = paths[0].width
+    length = sum(float(np.hypot(*np.diff(p.coords, axis=0).T).sum()) for p in paths)
+    code = plan.layer_code(5)
+    expected = length * width * plan.layer_height(5) / THIN.filament_area
+    assert code.filament_mm == pytest.approx(expected, rel=1e-3)
+
+
+@pytest.mark.parametrize("thickness", [0.7, 1.15, 1.3, 1.6, 3.0])
+def test_walls_keep_the_line_width_outside_the_thin_range(thickness: float) -> None:
+    plan = _tube_plan(thickness)
+    outer = [p for p in plan.layer_toolpaths(5) if p.kind == WALL_OUTER]
+    assert len(outer) == 2 and all(p.width is None for p in outer)
+    for p in outer:
+        assert _off_level(plan, p.coords, 0.2) < 0.03
 
 
 def test_cube20_outer_wall_within_005_of_offset_outline() -> None:
