@@ -101,10 +101,24 @@ class LazyOutlines:
         """Print only the first ``count`` layers (the ones above have no area)."""
         self._count = count
 
-    def cut_all(self) -> None:
-        """Cut every block not cut yet."""
-        for b in range(self._block_count()):
-            self._get(b)
+    def cut_all(self, threads: int = 1) -> None:
+        """Cut every block not cut yet, on up to ``threads`` threads.
+
+        Most of a block's cut is numpy sorting and shapely array work, which
+        release the interpreter lock, so two threads overlap well. The
+        outlines are the same however many threads cut them.
+        """
+        with self._lock:
+            todo = [b for b in range(self._block_count()) if b not in self._blocks]
+        if threads <= 1 or len(todo) < 2:
+            for b in todo:
+                self._get(b)
+            return
+        from concurrent.futures import ThreadPoolExecutor
+
+        with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="cut") as pool:
+            for _ in pool.map(self._get, todo):
+                pass
 
     def report(self) -> tuple[GapReport, int]:
         """What the blocks cut so far had to fix, and how many printed layers are empty."""

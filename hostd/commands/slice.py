@@ -117,7 +117,7 @@ def iter_layer_texts(
         return
     # outlines are cut lazily; cut them all once here so the workers inherit
     # them instead of each cutting the blocks its layers and their skins need
-    plan.cut_all()
+    plan.cut_all(threads=workers)
     _FORKED_PLAN = plan
     try:
         with multiprocessing.get_context("fork").Pool(workers) as pool:
