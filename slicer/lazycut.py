@@ -114,11 +114,28 @@ class LazyOutlines:
             for b in todo:
                 self._get(b)
             return
-        from concurrent.futures import ThreadPoolExecutor
+        queue = iter(todo)
+        take = threading.Lock()
+        failed: list[BaseException] = []
 
-        with ThreadPoolExecutor(max_workers=threads, thread_name_prefix="cut") as pool:
-            for _ in pool.map(self._get, todo):
-                pass
+        def work() -> None:
+            while not failed:
+                with take:
+                    b = next(queue, None)
+                if b is None:
+                    return
+                try:
+                    self._get(b)
+                except BaseException as exc:  # re-raised in the calling thread
+                    failed.append(exc)
+
+        pool = [threading.Thread(target=work, name=f"cut-{k}") for k in range(threads)]
+        for t in pool:
+            t.start()
+        for t in pool:
+            t.join()
+        if failed:
+            raise failed[0]
 
     def report(self) -> tuple[GapReport, int]:
         """What the blocks cut so far had to fix, and how many printed layers are empty."""
