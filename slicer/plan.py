@@ -239,7 +239,16 @@ class SlicePlan:
         """Every toolpath of layer ``i`` in print order."""
         i = self._check(i)
         islands = self._islands(i, excluded_bodies)
-        ctx = self.layer_context(i, excluded_bodies)
+        if self._reuse:  # the linear field and the walls never read the domain: no copy
+            ctx = LayerContext(
+                index=i,
+                z=float(self._geo.tops[i]),
+                domain=self.outline(i, excluded_bodies),
+                bounds=self._geo.bounds,
+                settings=self.settings,
+            )
+        else:
+            ctx = self.layer_context(i, excluded_bodies)
         regions = LayerRegions(
             islands=islands,
             skin=self._skins.get(i),
