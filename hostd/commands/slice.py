@@ -92,6 +92,8 @@ _PROBE = 8
 # below this much work (seconds in one process) forking two workers and
 # collecting their results (about 20 ms with the import) costs more than it saves
 _FORK_WORTH = 0.04
+# seconds the outline cut runs alone before the first layers are sliced beside it
+_CUT_ALONE = 0.05
 
 
 def _slice_chunk(lo: int, hi: int) -> list[tuple[str, float, float]]:
@@ -169,6 +171,9 @@ def iter_layer_texts(
     cutter = threading.Thread(target=plan.cut_all, kwargs={"threads": workers}, name="cut")
     cutter.start()
     try:
+        # a short cut is left alone: layer work here would hold the interpreter
+        # lock the cutting threads need between their array operations
+        cutter.join(_CUT_ALONE)
         while done < n and cutter.is_alive():
             yield _layer_text(plan, done)
             done += 1
