@@ -293,7 +293,7 @@ def return_freed_memory() -> None:
         return
     m_trim_threshold, m_mmap_threshold = -1, -3
     libc.mallopt(m_mmap_threshold, 1024 * 1024)
-    libc.mallopt(m_trim_threshold, 4 * 1024 * 1024)
+    libc.mallopt(m_trim_threshold, 1024 * 1024)
 
 
 def run(args) -> int:
