@@ -11,15 +11,14 @@ import shapely
 
 def ring_points(ring: np.ndarray) -> np.ndarray:
     """Points of a closed ring without the repeated closing point: (k, 2)."""
-    if len(ring) > 1 and np.array_equal(ring[0], ring[-1]):
+    if len(ring) > 1 and bool((ring[0] == ring[-1]).all()):
         return ring[:-1]
     return ring
 
 
 def start_ring_at(points: np.ndarray, index: int) -> np.ndarray:
     """The ring ``points`` (k, 2) rotated to begin at ``index`` and closed: (k + 1, 2)."""
-    rolled = np.roll(points, -index, axis=0)
-    return np.concatenate([rolled, rolled[:1]])
+    return np.concatenate([points[index:], points[:index], points[index : index + 1]])
 
 
 def rear_seam(points: np.ndarray) -> int:
