@@ -130,21 +130,26 @@ def layer_code(
         lines.append(prime)
     kind = None
     travel_word = f"G0 F{_fpm(travel_f)} X%.3f Y%.3f"
+    # plain Python numbers for the per-path loop (numpy scalars are slow to index)
+    hops = leaves.tolist()
+    travel_xy = travel_b.tolist()
+    feeds = [_fpm(v) for v in speeds.tolist()]
+    firsts, lasts = first_move.tolist(), last_move.tolist()
     for k in range(n):
         if k > 0:
-            hop = leaves[k - 1] and retract
+            hop = hops[k - 1] and retract
             if hop:
                 lines.append(retract)
-            lines.append(travel_word % (travel_b[k - 1, 0], travel_b[k - 1, 1]))
+            lines.append(travel_word % tuple(travel_xy[k - 1]))
             if hop:
                 lines.append(prime)
         path_kind = paths[k].kind
         if path_kind != kind:
             kind = path_kind
             lines.append(f";TYPE:{kind}")
-        a, b = int(first_move[k]), int(last_move[k])
+        a, b = firsts[k], lasts[k]
         if b > a:
-            lines.append(f"G1 F{_fpm(speeds[k])} {g1[a][3:]}")
+            lines.append(f"G1 F{feeds[k]} {g1[a][3:]}")
             lines.extend(g1[a + 1 : b])
     return LayerCode(lines, filament, time_s, z_line)
 
