@@ -37,11 +37,26 @@ class GcodeSummary:
 
 @dataclass(frozen=True)
 class LayerCode:
-    """One layer's G-code lines with its filament use (mm) and estimated time (s)."""
+    """One layer's G-code lines with its filament use (mm) and estimated time (s).
+
+    ``z_line`` is the index in ``lines`` of the travel that moves to the
+    layer's height (0 when the layer prints nothing): with ``lines[0]``
+    (``;LAYER:i``) the only lines that name the layer's number or height.
+    """
 
     lines: list[str]
     filament_mm: float
     time_s: float
+    z_line: int = 0
+
+    def moved_to(self, index: int, z: float) -> LayerCode:
+        """These lines as layer ``index`` at top height ``z`` mm (same paths and speeds)."""
+        lines = list(self.lines)
+        lines[0] = f";LAYER:{index}"
+        if self.z_line:
+            head, _, _ = lines[self.z_line].rpartition(" Z")
+            lines[self.z_line] = f"{head} Z{z:.3f}"
+        return LayerCode(lines, self.filament_mm, self.time_s, self.z_line)
 
 
 def fan_command(settings: SliceSettings, index: int) -> str:
@@ -110,28 +125,34 @@ def layer_code(
     if retract:
         lines.append(retract)
     x0, y0 = pts[0]
+    z_line = len(lines)
     lines.append(f"G0 F{_fpm(travel_f)} X{x0:.3f} Y{y0:.3f} Z{z:.3f}")
     if prime:
         lines.append(prime)
     kind = None
     travel_word = f"G0 F{_fpm(travel_f)} X%.3f Y%.3f"
+    # plain Python numbers for the per-path loop (numpy scalars are slow to index)
+    hops = leaves.tolist()
+    travel_xy = travel_b.tolist()
+    feeds = [_fpm(v) for v in speeds.tolist()]
+    firsts, lasts = first_move.tolist(), last_move.tolist()
     for k in range(n):
         if k > 0:
-            hop = leaves[k - 1] and retract
+            hop = hops[k - 1] and retract
             if hop:
                 lines.append(retract)
-            lines.append(travel_word % (travel_b[k - 1, 0], travel_b[k - 1, 1]))
+            lines.append(travel_word % tuple(travel_xy[k - 1]))
             if hop:
                 lines.append(prime)
         path_kind = paths[k].kind
         if path_kind != kind:
             kind = path_kind
             lines.append(f";TYPE:{kind}")
-        a, b = int(first_move[k]), int(last_move[k])
+        a, b = firsts[k], lasts[k]
         if b > a:
-            lines.append(f"G1 F{_fpm(speeds[k])} {g1[a][3:]}")
+            lines.append(f"G1 F{feeds[k]} {g1[a][3:]}")
             lines.extend(g1[a + 1 : b])
-    return LayerCode(lines, filament, time_s)
+    return LayerCode(lines, filament, time_s, z_line)
 
 
 def _fpm(speed_mm_s: float) -> int:

@@ -101,10 +101,41 @@ class LazyOutlines:
         """Print only the first ``count`` layers (the ones above have no area)."""
         self._count = count
 
-    def cut_all(self) -> None:
-        """Cut every block not cut yet."""
-        for b in range(self._block_count()):
-            self._get(b)
+    def cut_all(self, threads: int = 1) -> None:
+        """Cut every block not cut yet, on up to ``threads`` threads.
+
+        Most of a block's cut is numpy sorting and shapely array work, which
+        release the interpreter lock, so two threads overlap well. The
+        outlines are the same however many threads cut them.
+        """
+        with self._lock:
+            todo = [b for b in range(self._block_count()) if b not in self._blocks]
+        if threads <= 1 or len(todo) < 2:
+            for b in todo:
+                self._get(b)
+            return
+        queue = iter(todo)
+        take = threading.Lock()
+        failed: list[BaseException] = []
+
+        def work() -> None:
+            while not failed:
+                with take:
+                    b = next(queue, None)
+                if b is None:
+                    return
+                try:
+                    self._get(b)
+                except BaseException as exc:  # re-raised in the calling thread
+                    failed.append(exc)
+
+        pool = [threading.Thread(target=work, name=f"cut-{k}") for k in range(threads)]
+        for t in pool:
+            t.start()
+        for t in pool:
+            t.join()
+        if failed:
+            raise failed[0]
 
     def report(self) -> tuple[GapReport, int]:
         """What the blocks cut so far had to fix, and how many printed layers are empty."""

@@ -11,15 +11,14 @@ import shapely
 
 def ring_points(ring: np.ndarray) -> np.ndarray:
     """Points of a closed ring without the repeated closing point: (k, 2)."""
-    if len(ring) > 1 and np.array_equal(ring[0], ring[-1]):
+    if len(ring) > 1 and bool((ring[0] == ring[-1]).all()):
         return ring[:-1]
     return ring
 
 
 def start_ring_at(points: np.ndarray, index: int) -> np.ndarray:
     """The ring ``points`` (k, 2) rotated to begin at ``index`` and closed: (k + 1, 2)."""
-    rolled = np.roll(points, -index, axis=0)
-    return np.concatenate([rolled, rolled[:1]])
+    return np.concatenate([points[index:], points[:index], points[index : index + 1]])
 
 
 def rear_seam(points: np.ndarray) -> int:
@@ -196,24 +195,74 @@ def order_chords(
     fw = _forward(chords, d)  # each chord along d; a zigzag alternates from there
     first, last = seq[bounds[:-1]], seq[bounds[1:] - 1]
     ends = np.stack([fw[first, 0], fw[first, 1], fw[last, 0], fw[last, 1]], axis=1)  # (s, 4, 2)
-    done = np.zeros(len(heads), dtype=bool)
+    visits = _visit_stacks(ends, fw, first, last, np.diff(bounds), pos)
+    # every stack's chords, walked from the corner it is entered at, alternating
+    s_of, corner = visits[:, 0], visits[:, 1]
+    sizes = bounds[s_of + 1] - bounds[s_of]
+    stack = np.repeat(np.arange(len(visits)), sizes)
+    j = np.arange(n) - np.repeat(np.cumsum(sizes) - sizes, sizes)  # position in its stack
+    c = corner[stack]
+    src = np.where(c >= 2, bounds[s_of + 1][stack] - 1 - j, bounds[s_of][stack] + j)
+    block = fw[seq[src]]
+    flip = (j + c) % 2 == 1
+    block[flip] = block[flip][:, ::-1]
+    return list(block), block[-1, 1]
+
+
+# stacks up to this many are ordered from one precomputed table of distances
+_TABLE_STACKS = 64
+
+
+def _visit_stacks(
+    ends: np.ndarray,
+    fw: np.ndarray,
+    first: np.ndarray,
+    last: np.ndarray,
+    sizes: np.ndarray,
+    pos: np.ndarray,
+) -> np.ndarray:
+    """Greedy nearest-corner order of zigzag stacks: (s, 2) int64 rows (stack, corner).
+
+    ``ends`` (s, 4, 2) the corners a stack can be entered at; ``fw`` the
+    chords along ``d``; ``first``/``last`` each stack's bottom and top chord;
+    ``sizes`` its chord count. Entered at corner ``c``, a stack of ``L``
+    chords is left at the far end of its last chord, which is turned back
+    when ``L + c`` is even. The squared distances from every exit to every
+    corner are computed at once (small stacks counts), so the walk itself
+    only picks minima.
+    """
+    s = len(ends)
     here = np.asarray(pos, dtype=np.float64)
-    out: list[np.ndarray] = []
-    for _ in range(len(heads)):
+    out = np.empty((s, 2), dtype=np.int64)
+    if s == 1:
         dist = np.einsum("ijk,ijk->ij", ends - here, ends - here)
-        dist[done] = np.inf
-        s, corner = np.unravel_index(int(np.argmin(dist)), dist.shape)
-        done[s] = True
-        run = seq[bounds[s] : bounds[s + 1]]
-        if corner >= 2:
-            run = run[::-1]
-        block = fw[run]
-        flip = np.zeros(len(run), dtype=bool)
-        flip[(1 if corner % 2 == 0 else 0) :: 2] = True
-        block[flip] = block[flip][:, ::-1]
-        out.extend(block)
-        here = block[-1, 1]
-    return out, here
+        out[0] = 0, int(np.argmin(dist[0]))
+        return out
+    # exits[s, c]: where the nozzle is after stack s entered at corner c
+    end_chord = np.stack([fw[last], fw[last], fw[first], fw[first]], axis=1)  # (s, 4, 2, 2)
+    turned = (sizes[:, None] + np.arange(4)[None, :]) % 2 == 0
+    exits = np.where(turned[:, :, None], end_chord[:, :, 0], end_chord[:, :, 1])
+    flat_ends = ends.reshape(1, 4 * s, 2)
+    table = None
+    if s <= _TABLE_STACKS:
+        diff = flat_ends - exits.reshape(4 * s, 1, 2)  # (4s, 4s, 2)
+        table = np.einsum("aik,aik->ai", diff, diff)
+        del diff
+    exits = exits.reshape(4 * s, 2)
+    # corners of stacks already visited are ruled out by an infinite penalty
+    penalty = np.zeros(4 * s)
+    dist = np.einsum("ijk,ijk->ij", ends - here, ends - here).ravel()
+    for step in range(s):
+        pick = int(np.argmin(dist))
+        k = pick >> 2
+        out[step] = k, pick & 3
+        penalty[4 * k : 4 * k + 4] = np.inf
+        if table is not None:
+            dist = table[pick] + penalty
+        else:
+            here = exits[pick]
+            dist = np.einsum("ijk,ijk->ij", ends - here, ends - here).ravel() + penalty
+    return out
 
 
 def _forward(chords: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -11,6 +11,8 @@ with identical bytes.
 from __future__ import annotations
 
 import os
+import threading
+from collections import OrderedDict
 from dataclasses import dataclass
 
 import numpy as np
@@ -19,6 +21,7 @@ import shapely
 from slicer import gcode
 from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
+from slicer.fields.linear import LinearField
 from slicer.layer import LayerRegions, Path, fill_distance, layer_paths
 from slicer.lazycut import LazyOutlines
 from slicer.mesh import PlacedMesh, prepare, read_stl
@@ -29,6 +32,8 @@ from slicer.skins import SkinCache
 _CUT_BLOCK = 16
 _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
+# distinct layers whose G-code is kept for the identical layers that follow
+_REPEATS = 4
 
 
 def layer_tops(height: float, settings: SliceSettings) -> np.ndarray:
@@ -109,6 +114,11 @@ class SlicePlan:
         self._interface: list[shapely.Geometry] | None = None
         if settings.support_enabled:
             self._plan_support()
+        # prismatic parts repeat layers: a layer with the same outline, skin and
+        # hatch direction as one sliced lately has the same paths (see _repeat_key)
+        self._repeats: OrderedDict[bytes, gcode.LayerCode] = OrderedDict()
+        self._repeats_lock = threading.Lock()
+        self._reuse = isinstance(self._field, LinearField) and self._support is None
 
     # ---- construction -------------------------------------------------
     @classmethod
@@ -158,9 +168,12 @@ class SlicePlan:
         ) == (self.settings.top_layers, self.settings.bottom_layers, fill_distance(self.settings))
         return SlicePlan(self._geo, settings, self._skins if same_skins else None)
 
-    def cut_all(self) -> None:
-        """Cut every layer outline not cut yet (e.g. before forking workers that share them)."""
-        self._geo.outlines.cut_all()
+    def cut_all(self, threads: int = 1) -> None:
+        """Cut every layer outline not cut yet (e.g. before forking workers that share them).
+
+        ``threads`` > 1 cuts blocks of layers on that many threads at once.
+        """
+        self._geo.outlines.cut_all(threads)
 
     # ---- facts ----------------------------------------------------------
     @property
@@ -241,7 +254,16 @@ class SlicePlan:
         """Every toolpath of layer ``i`` in print order."""
         i = self._check(i)
         islands = self._islands(i, excluded_bodies)
-        ctx = self.layer_context(i, excluded_bodies)
+        if self._reuse:  # the linear field and the walls never read the domain: no copy
+            ctx = LayerContext(
+                index=i,
+                z=float(self._geo.tops[i]),
+                domain=self.outline(i, excluded_bodies),
+                bounds=self._geo.bounds,
+                settings=self.settings,
+            )
+        else:
+            ctx = self.layer_context(i, excluded_bodies)
         regions = LayerRegions(
             islands=islands,
             skin=self._skins.get(i),
@@ -256,14 +278,32 @@ class SlicePlan:
         return layer_paths(regions, ctx, self._field, support_fn)
 
     def layer_code(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> gcode.LayerCode:
-        """Layer ``i``'s G-code with its filament (mm) and time (s)."""
+        """Layer ``i``'s G-code with its filament (mm) and time (s).
+
+        A layer identical to one of the last few sliced (same outline, skin and
+        hatch direction) reuses that layer's lines with its own number and height.
+        """
+        key = self._repeat_key(self._check(i), excluded_bodies)
+        if key is not None:
+            with self._repeats_lock:
+                seen = self._repeats.get(key)
+            if seen is not None:
+                return seen.moved_to(i, self.layer_z(i))
         paths = self.layer_toolpaths(i, excluded_bodies)
         outline = self.outline(i, excluded_bodies)
         if self._support is not None and self._support[i] is not None:
             outline = shapely.union(outline, self._support[i])
-        return gcode.layer_code(
+        code = gcode.layer_code(
             i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings
         )
+        if key is not None:
+            with self._repeats_lock:
+                self._repeats[key] = gcode.LayerCode(
+                    list(code.lines), code.filament_mm, code.time_s, code.z_line
+                )
+                while len(self._repeats) > _REPEATS:
+                    self._repeats.popitem(last=False)
+        return code
 
     def layer_gcode(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> list[str]:
         """G-code lines of layer ``i`` (starting with ``;LAYER:i``); the same bytes every time."""
@@ -284,6 +324,23 @@ class SlicePlan:
         return gcode.resume_block(self.settings, i, below)
 
     # ---- internals ------------------------------------------------------
+    def _repeat_key(self, i: int, excluded: frozenset[int]) -> bytes | None:
+        """What layer ``i``'s G-code depends on besides its number and height, as bytes.
+
+        With the linear field and no support a layer's paths follow from its
+        islands, its skin and the hatch direction (the parity of ``i``) alone;
+        the first layer (own speeds and height) and the layer that starts the
+        fan differ in more, and get no key (None). Coordinates are compared
+        exactly (WKB), so a reused layer is the one slicing would give.
+        """
+        if not self._reuse or i == 0 or i == self.settings.fan_first_layer:
+            return None
+        skin = self._skins.get(i)
+        parts = [b"%d" % (i % 2), shapely.to_wkb(self.outline(i, excluded))]
+        if skin is not None:
+            parts.append(shapely.to_wkb(skin))
+        return b"|".join(parts)
+
     def _check(self, i: int) -> int:
         i = int(i)
         if not 0 <= i < self.layer_count:

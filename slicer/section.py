@@ -218,7 +218,14 @@ def _reach_min(step: np.ndarray) -> np.ndarray:
         if len(active) == 0:
             break
         hop = nxt[active]
-        low[active] = np.minimum(low[active], low[hop])
+        mine = low[active]
+        better = np.minimum(mine, low[hop])
+        if np.array_equal(better, mine):
+            # after r rounds low[i] is the minimum of the 2^r nodes from i on; when
+            # no node gains from the next 2^r, the windows from i, i + 2^r, ...
+            # already cover all i reaches, so every minimum is final
+            break
+        low[active] = better
         nxt[active] = nxt[hop]
         active = active[nxt[active] >= 0]
     return low

@@ -89,14 +89,25 @@ def skin_block(
     if hi <= lo or (top <= 0 and bottom <= 0):
         return np.full(max(hi - lo, 0), None, dtype=object)
     a, b = max(0, lo - bottom), min(n, hi + top)
-    fill = shapely.buffer(np.asarray(outlines[a:b], dtype=object), -fill_distance, quad_segs=6)
+    # prismatic parts repeat outlines: each distinct outline of the window is
+    # buffered once, and each distinct stack of neighbours solved once
+    window = np.asarray(outlines[a:b], dtype=object)
+    same = _labels(window)
+    first = np.unique(same, return_index=True)[1]
+    fill = shapely.buffer(window[first], -fill_distance, quad_segs=6)
     # skins need no finer detail than this; it halves the overlays' work on curved parts
     fill = shapely.simplify(fill, _SIMPLIFY)
     # predicates run on prepared copies private to this call: GEOS builds
     # prepared indexes lazily, so a prepared geometry must never be shared
     private = shapely.from_wkb(shapely.to_wkb(fill))
     shapely.prepare(private)
+    fill, private = fill[same], private[same]
     targets = np.arange(lo - a, hi - a)
+    # a layer's skin depends on its own domain and those of its neighbours alone
+    pad = np.concatenate((np.full(bottom, -1), same, np.full(top, -1)))
+    stacks = np.stack([pad[targets + bottom + k] for k in range(-bottom, top + 1)], axis=1)
+    _, rep, back = np.unique(stacks, axis=0, return_index=True, return_inverse=True)
+    targets = targets[rep]
     up = _exposed(fill, private, top, 1, targets)
     down = _exposed(fill, private, bottom, -1, targets)
     del private
@@ -112,7 +123,15 @@ def skin_block(
         out[both] = geom.union(up[both], down[both])
     keep = np.array([g is not None and g.area > 1e-6 for g in out], dtype=bool)
     out[~keep] = None
-    return out
+    return out[back.reshape(-1)]
+
+
+def _labels(geoms: np.ndarray) -> np.ndarray:
+    """Equal numbers for bitwise-equal geometries (same WKB), (n,) int64; None is its own."""
+    seen: dict[bytes, int] = {}
+    wkb = shapely.to_wkb(geoms)
+    return np.array([seen.setdefault(w if w is not None else b"", len(seen)) for w in wkb],
+                    dtype=np.int64)
 
 
 def skin_regions(outlines: np.ndarray, fill_distance: float, top: int, bottom: int) -> np.ndarray:

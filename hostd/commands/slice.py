@@ -2,15 +2,14 @@
 
 from __future__ import annotations
 
-import multiprocessing
 import os
 import shutil
 import sys
 import tempfile
+import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
-from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
 from typing import TextIO
 
@@ -64,6 +63,8 @@ def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCo
     with the layer count. (The daemon's way; ``hostd slice`` itself uses
     :func:`iter_layer_texts`, which also spreads the Python work over cores.)
     """
+    from concurrent.futures import ThreadPoolExecutor
+
     workers = workers or max(1, os.cpu_count() or 1)
     n = plan.layer_count
     with ThreadPoolExecutor(max_workers=workers, thread_name_prefix="slice") as pool:
@@ -84,17 +85,44 @@ def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCo
 _FORKED_PLAN: SlicePlan | None = None
 # layers per task: the skin cache's block, so each block is computed by one worker
 _CHUNK = 16
+# a model with at most this many layers has its first _PROBE layers sliced here
+# first, to judge whether forking workers pays for the rest
+_SMALL = 4 * _CHUNK
+_PROBE = 8
+# below this much work (seconds in one process) forking two workers and
+# collecting their results (about 20 ms with the import) costs more than it saves
+_FORK_WORTH = 0.04
+# seconds the outline cut runs alone before the first layers are sliced beside it
+_CUT_ALONE = 0.05
 
 
 def _slice_chunk(lo: int, hi: int) -> list[tuple[str, float, float]]:
     """In a forked worker: layers ``lo..hi-1`` as (text, filament mm, time s)."""
     plan = _FORKED_PLAN
     assert plan is not None
-    out = []
-    for i in range(lo, hi):
-        code = plan.layer_code(i)
-        out.append(("\n".join(code.lines) + "\n", code.filament_mm, code.time_s))
-    return out
+    return [_layer_text(plan, i) for i in range(lo, hi)]
+
+
+def _layer_text(plan: SlicePlan, i: int) -> tuple[str, float, float]:
+    """Layer ``i`` as (G-code text, filament mm, time s)."""
+    code = plan.layer_code(i)
+    return "\n".join(code.lines) + "\n", code.filament_mm, code.time_s
+
+
+def _chunks(lo: int, n: int) -> Iterator[tuple[int, int]]:
+    """Tasks ``[a, b)`` covering layers ``lo..n-1``: the skin cache's blocks.
+
+    The first 16 layers come as 0-3, 4-7 and 8-15 (unions of the cache's
+    growing first blocks), so both workers start at once on small tasks;
+    then one task per 16-layer block.
+    """
+    for a, b in ((0, 4), (4, 8), (8, _CHUNK)):
+        if b > lo and a < n:
+            yield max(a, lo), min(b, n)
+    if lo > _CHUNK and lo % _CHUNK:  # the rest of a block begun here
+        yield lo, min(n, lo - lo % _CHUNK + _CHUNK)
+    for a in range(max(_CHUNK, -(-lo // _CHUNK) * _CHUNK), n, _CHUNK):
+        yield a, min(n, a + _CHUNK)
 
 
 def iter_layer_texts(
@@ -106,32 +134,65 @@ def iter_layer_texts(
     so threads barely overlap; forked worker processes (which inherit the
     plan, no copy) slice blocks of layers in parallel instead, a bounded
     window ahead of the writer. Without ``fork`` or with one core the layers
-    are sliced here. The bytes are the same either way.
+    are sliced here, and so are small models: of a model with few layers the
+    first ones are sliced here and timed, and workers are forked only when
+    the rest would take longer than starting them. The bytes are the same
+    either way.
     """
     global _FORKED_PLAN
     workers = workers or max(1, os.cpu_count() or 1)
     n = plan.layer_count
-    if workers < 2 or "fork" not in multiprocessing.get_all_start_methods():
-        for code in iter_layers(plan, 1):
-            yield "\n".join(code.lines) + "\n", code.filament_mm, code.time_s
+    done = 0
+    if workers >= 2 and hasattr(os, "fork") and n <= _SMALL:
+        # the bottom layers are solid skin, slower than most: time the later half
+        started = time.perf_counter()
+        while done < min(_PROBE, n):
+            if done == _PROBE // 2:
+                started = time.perf_counter()
+            yield _layer_text(plan, done)
+            done += 1
+        timed = done - min(done, _PROBE // 2)
+        per_layer = (time.perf_counter() - started) / max(timed, 1)
+        if per_layer * (n - done) < _FORK_WORTH:
+            workers = 1
+    if workers < 2 or not hasattr(os, "fork"):
+        for i in range(done, n):
+            yield _layer_text(plan, i)
+        return
+    import multiprocessing
+
+    if "fork" not in multiprocessing.get_all_start_methods():
+        for i in range(done, n):
+            yield _layer_text(plan, i)
         return
     # outlines are cut lazily; cut them all once here so the workers inherit
-    # them instead of each cutting the blocks its layers and their skins need
-    plan.cut_all()
+    # them instead of each cutting the blocks its layers and their skins need;
+    # the first layers are sliced here meanwhile (they need the first blocks only)
+    cutter = threading.Thread(target=plan.cut_all, kwargs={"threads": workers}, name="cut")
+    cutter.start()
+    try:
+        # a short cut is left alone: layer work here would hold the interpreter
+        # lock the cutting threads need between their array operations
+        cutter.join(_CUT_ALONE)
+        while done < n and cutter.is_alive():
+            yield _layer_text(plan, done)
+            done += 1
+    finally:
+        cutter.join()
     _FORKED_PLAN = plan
     try:
         with multiprocessing.get_context("fork").Pool(workers) as pool:
             window: deque = deque()
-            starts = iter(range(0, n, _CHUNK))
-            for lo in starts:
-                window.append(pool.apply_async(_slice_chunk, (lo, min(n, lo + _CHUNK))))
+            tasks = _chunks(done, n)
+            for lo, hi in tasks:
+                window.append(pool.apply_async(_slice_chunk, (lo, hi)))
                 if len(window) >= 2 * workers:
                     break
             while window:
                 chunk = window.popleft().get()
-                lo = next(starts, None)
-                if lo is not None:
-                    window.append(pool.apply_async(_slice_chunk, (lo, min(n, lo + _CHUNK))))
+                task = next(tasks, None)
+                if task is not None:
+                    window.append(pool.apply_async(_slice_chunk, task))
                 yield from chunk
     finally:
         _FORKED_PLAN = None
@@ -218,7 +279,11 @@ def return_freed_memory() -> None:
 
     By default glibc raises its mmap threshold after the first big free, so
     later arrays come from a heap that never shrinks; pinning the thresholds
-    keeps peak RSS at what the slicer really holds. A no-op elsewhere.
+    keeps peak RSS at what the slicer really holds. The mmap threshold is
+    1 MiB, not lower: every array above it is mapped afresh and its pages
+    faulted in and zeroed on first use, which at 256 KiB cost a big model's
+    load and cut about a tenth of their time for no lower peak. A no-op
+    elsewhere.
     """
     try:
         import ctypes
@@ -227,7 +292,7 @@ def return_freed_memory() -> None:
     except OSError:
         return
     m_trim_threshold, m_mmap_threshold = -1, -3
-    libc.mallopt(m_mmap_threshold, 256 * 1024)
+    libc.mallopt(m_mmap_threshold, 1024 * 1024)
     libc.mallopt(m_trim_threshold, 1024 * 1024)
 
 
