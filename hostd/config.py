@@ -5,7 +5,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -157,7 +157,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             lookahead=runner.integer("lookahead", 4, 1, 64),
             workers=runner.integer("workers", 2, 1, 32),
         ),
-        slicing=slicing_settings(data.get("slicing", {}), None, "slicing"),
+        slicing=_anchor_files(slicing_settings(data.get("slicing", {}), None, "slicing"), cwd),
     )
     for section in (jobs, state, printer, sim, mqtt, runner):
         section.refuse_unknown()
@@ -172,6 +172,15 @@ def slicing_settings(
         return SliceSettings.from_mapping(values, base=base)
     except SettingsError as exc:
         raise ConfigError(f"{prefix}.{exc.key}" if prefix else exc.key, exc.reason) from exc
+
+
+def _anchor_files(settings: SliceSettings, cwd: Path) -> SliceSettings:
+    """A relative ``infill.file`` made absolute against ``cwd``, as the folders are, so
+    that it names the same file whatever the daemon's working directory later."""
+    if not settings.infill_file:
+        return settings
+    path = _folder(cwd, settings.infill_file)
+    return replace(settings, infill_file=str(path))
 
 
 def _folder(cwd: Path, text: str) -> Path:

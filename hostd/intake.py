@@ -105,7 +105,15 @@ class Intake:
             settings = slicing_settings(values, base, "")
         except ConfigError as exc:
             raise Rejected(f"{override.name}: {exc}") from exc
-        return settings.to_mapping()
+        mapping = settings.to_mapping()
+        field_file = str(mapping.get("infill.file") or "")
+        if field_file and field_file != base.infill_file:
+            # a file named by the job's own TOML is found beside it, in the job folder
+            path = override.parent / Path(field_file).expanduser()
+            if not path.is_file():
+                raise Rejected(f"{override.name}: infill.file: no such file: {field_file}")
+            mapping["infill.file"] = str(path.absolute())
+        return mapping
 
     def fail(
         self, job: Job, reason: str, extra: list[Path] | None = None, state: str = "failed"

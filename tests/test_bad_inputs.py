@@ -90,6 +90,7 @@ def test_malformed_corpus_fails_each_with_a_reason_and_the_next_job_prints(daemo
         "bad_override_key": "infill.densty",
         "bad_override_value": "infill.density",
         "bad_override_syntax": "not valid TOML",
+        "missing_field_file": "infill.file: no such file: nowhere.csv",
         "binary_gcode": "binary data",
         "comment_only_gcode": "no commands",
     }
@@ -116,7 +117,9 @@ def test_malformed_corpus_fails_each_with_a_reason_and_the_next_job_prints(daemo
     hostd.drop(b"solid x\n" + b" " * 1_000_001, "oversized.stl")
     for stem, text in (("bad_override_key", "infill.densty = 0.3\n"),
                        ("bad_override_value", "[infill]\ndensity = 7\n"),
-                       ("bad_override_syntax", "nozzle_temp = = 3\n")):
+                       ("bad_override_syntax", "nozzle_temp = = 3\n"),
+                       ("missing_field_file",
+                        '[infill]\nfield = "stress"\nfile = "nowhere.csv"\n')):
         hostd.drop(text.encode(), f"{stem}.toml")
         hostd.drop(DATA / "cube20_xyz.stl", f"{stem}.stl")
     hostd.drop(b"G28\nG1 X10\x00\x01\x02\nG1 Y5\n", "binary_gcode.gcode")
