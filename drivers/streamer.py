@@ -785,8 +785,7 @@ class Streamer:
     def _probe(self) -> None:
         """Ask ``M105`` past the window: its ``ok T:`` proves every earlier line done.
 
-        One probe at a time: one already queued is only made urgent. An earlier probe still
-        in flight is given up on (its answer is overdue), so the new one's answer resyncs.
+        One probe at a time: one already queued is only made urgent.
         During a replay the probe waits for the replay to end, numbered after it (a probe
         numbered ahead would be refused), and the replay passes the window meanwhile.
         """
@@ -799,7 +798,6 @@ class Streamer:
             queued.force = True
             self._wake.set()
             return
-        self._window.give_up_probes()
         self._queue_control("M105", internal=True, probe=True, force=True)
 
     def _watch_temperature(self, now: float) -> None:

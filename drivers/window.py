@@ -81,34 +81,22 @@ class SendWindow:
         """An ``ok T:...`` (the answer to an ``M105``): that line and every line before it
         are done.
 
-        The answer belongs to the oldest probe in flight; with none, to the oldest ``M105``
-        still held (a job's own, or a probe given up on by :meth:`give_up_probes`). An
-        answer that matches no ``M105`` in flight is the late answer to a probe already
-        counted as done, and acknowledges nothing.
+        The printer answers in order, so the answer is the oldest ``M105`` still held's
+        (a probe, or a job's own); probes right behind it go too (their answers, still to
+        come, then match nothing), so a window of unanswered-looking probes resyncs at
+        once. An older probe whose answer was lost has been shifted out by the plain oks
+        since. An answer that matches no ``M105`` in flight belongs to a probe already
+        counted and acknowledges nothing: it never takes a job line.
         """
-        target = next((e for e in self._entries if e.probe), None)
-        if target is None:
-            target = next((e for e in self._entries if _is_m105(e.command)), None)
-        if target is None:
+        entries = list(self._entries)
+        first = next((k for k, e in enumerate(entries) if _is_m105(e.command)), None)
+        if first is None:
             return []
-        done: list[InFlight] = []
-        while self._entries:
-            entry = self._pop()
-            done.append(entry)
-            if entry is target:
-                break
-        return done
-
-    def give_up_probes(self) -> None:
-        """Probes in flight whose answer is overdue stop being probes: a newer probe takes
-        over, so that an answer is never matched to a probe older than the one it answers
-        (the oks of lines before a lost answer would otherwise stay unmatched for good)."""
-        for entry in self._entries:
-            entry.probe = False
-
-    def has_probe(self) -> bool:
-        """True if a probe is in flight."""
-        return any(e.probe for e in self._entries)
+        last = first
+        while last + 1 < len(entries) and entries[last + 1].internal \
+                and _is_m105(entries[last + 1].command):
+            last += 1
+        return [self._pop() for _ in range(last + 1)]
 
     def drop_from(self, number: int) -> list[InFlight]:
         """Forget lines numbered ``number`` and later (the printer discarded them)."""

@@ -238,35 +238,48 @@ def test_window_probe_acknowledges_everything_before_it():
     assert window.numbers() == [5]
 
 
-def test_window_given_up_probe_lets_the_newer_probe_resync():
-    # lines 1-2 done with their oks lost; probe 3's answer lost too; probe 5 takes over
-    window = SendWindow(127, 8)
-    window.push(InFlight(1, "G1", 10))
-    window.push(InFlight(2, "G1", 10))
-    window.push(InFlight(3, "M105", 10, internal=True, probe=True))
-    window.push(InFlight(4, "G1", 10))
-    window.give_up_probes()
-    assert not window.has_probe()
-    window.push(InFlight(5, "M105", 10, internal=True, probe=True))
-    window.push(InFlight(6, "G1", 10))
-    assert [e.number for e in window.ack_probe()] == [1, 2, 3, 4, 5]
-    assert window.numbers() == [6]
-
-
-def test_window_late_probe_answer_matches_a_given_up_probe_or_nothing():
+def test_window_late_probe_answer_never_takes_job_lines_sent_after_it():
+    # probe 1's answer is slow; probe 4 goes out; probe 1's answer is probe 1's alone
     window = SendWindow(127, 8)
     window.push(InFlight(1, "M105", 10, internal=True, probe=True))
-    window.give_up_probes()
-    window.push(InFlight(2, "M105", 10, internal=True, probe=True))
+    window.push(InFlight(2, "G1", 10))
     window.push(InFlight(3, "G1", 10))
-    # the late answer to probe 1 is taken as probe 2's: only internal lines are over-counted
-    assert [e.number for e in window.ack_probe()] == [1, 2]
-    # probe 2's own answer then matches no M105 in flight: it acknowledges no job line
-    assert window.ack_probe() == []
-    assert window.numbers() == [3]
-    # a job's own M105 is still answered by its ok T:
-    window.push(InFlight(4, "M105", 10))
+    window.push(InFlight(4, "M105", 10, internal=True, probe=True))
+    assert [e.number for e in window.ack_probe()] == [1]
+    assert [e.number for e in window.ack_one()] == [2]
+    assert [e.number for e in window.ack_one()] == [3]
+    assert [e.number for e in window.ack_probe()] == [4]
+    assert window.ack_probe() == []  # an answer matching no M105 takes nothing
+
+
+def test_window_lost_probe_answer_is_shifted_out_then_the_next_probe_resyncs():
+    # probe 1's answer is lost: the oks of 2 and 3 shift it out, probe 4 ends exact
+    window = SendWindow(127, 8)
+    window.push(InFlight(1, "M105", 10, internal=True, probe=True))
+    window.push(InFlight(2, "G1", 10))
+    window.push(InFlight(3, "G1", 10))
+    window.push(InFlight(4, "M105", 10, internal=True, probe=True))
+    window.push(InFlight(5, "G1", 10))
+    assert [e.number for e in window.ack_one()] == [1]  # ok of 2
+    assert [e.number for e in window.ack_one()] == [2]  # ok of 3
     assert [e.number for e in window.ack_probe()] == [3, 4]
+    assert window.numbers() == [5]
+
+
+def test_window_of_stale_probes_resyncs_on_one_answer():
+    # every probe answered but the answers miscounted: one answer clears the run of
+    # probes (internal lines only), never the job line behind it
+    window = SendWindow(127, 8)
+    for n in range(1, 5):
+        window.push(InFlight(n, "M105", 10, internal=True, probe=True))
+    window.push(InFlight(5, "G1", 10))
+    assert [e.number for e in window.ack_probe()] == [1, 2, 3, 4]
+    assert window.ack_probe() == []
+    # a job's own M105 is answered by its ok T: and stops the run
+    window.push(InFlight(6, "M105", 10))
+    window.push(InFlight(7, "M105", 10))
+    assert [e.number for e in window.ack_probe()] == [5, 6]
+    assert window.numbers() == [7]
 
 
 def test_window_drop_from_and_ack_through():
