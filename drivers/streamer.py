@@ -48,6 +48,9 @@ __all__ = [
 ]
 
 
+# most oks awaited for an M110 written several times
+_MAX_LATE_OKS = 8
+
 # an unknown-command echo of one of our framed lines whose leading "N" was garbled
 _MANGLED_LINE = re.compile(r"\d+ .*\*\d+\"?\s*$")
 
@@ -62,6 +65,14 @@ class _Renumber:
     sent: bool = False
     sent_at: float = 0.0
     quiet: bool = False
+    writes: int = 0  # times the M110 was written
+    refusals: int = 0  # resend requests while it was out (each may stand for a write)
+
+    def late_oks(self) -> int:
+        """Oks still to come for the writes the completing ok did not answer: every write
+        is answered once, by an ok or by a refusal (counted generously, so that a line of
+        the new numbering is never taken for one)."""
+        return max(0, self.writes - 1 - self.refusals)
 
 
 @dataclass
@@ -126,6 +137,7 @@ class Streamer:
         self._handshaking = False
         self._rewind_to: int | None = None
         self._force_replay = False  # a probe is due: replay past the window, then probe
+        self._late_oks = 0  # oks of M110s written again, still to come and not counted
         self._stale = 0
         self._implausible: tuple[str, int] = ("", 0)
         self._advanced_ok = False
@@ -396,6 +408,11 @@ class Streamer:
                 self._on_reset()
 
     def _on_ok(self, response: Response) -> None:
+        if response.has_temperatures:
+            self._late_oks = 0  # a probe's answer: any late ok came before it
+        elif self._late_oks:
+            self._late_oks -= 1
+            return
         if response.queue_free is not None:
             self._advanced_ok = True
             if self.config.learn_bufsize:
@@ -463,6 +480,9 @@ class Streamer:
             self._unconfirmed = (-1, 0)
             self._implausible = ("", 0)
         self._last_acked_number = value
+        # an M110 written again after silence may have its first ok still to come, before
+        # any ok of the lines that follow: those oks are not counted for them
+        self._late_oks = min(renumber.late_oks(), _MAX_LATE_OKS)
 
     def _on_resend(self, response: Response, error_before: Response | None) -> None:
         """``Resend: N``: replay from N, when the request is sane.
@@ -477,6 +497,8 @@ class Streamer:
         error_line = error_before.line if error_before is not None else None
         self.stats.resends += 1
         if self._renumber is not None:
+            if self._renumber.writes:
+                self._renumber.refusals += 1
             # M110 skips the line-number check, so only a checksum error can refuse it; a
             # line-number error comes from a line sent before it (before the reset)
             refused = error_before is not None and error_before.error_kind != "line_number"
@@ -568,13 +590,18 @@ class Streamer:
         self._window.clear()
         self._rewind_to = None
         self._stale = 0
+        # requests seen before the reboot confirm nothing after it
+        self._unconfirmed = (-1, 0)
+        self._implausible = ("", 0)
         if self._renumber is not None:
             self._renumber.sent = False
+            self._renumber.writes = self._renumber.refusals = 0  # lost with the board
         else:
             value = self._last_acked_number
             self._renumber = _Renumber(value, value, keep_history=True, quiet=True)
         self._replay_next = None
         self._force_replay = False
+        self._late_oks = 0
         self._wake.set()
 
     async def _link_lost(self, reason: str) -> bool:
@@ -598,8 +625,10 @@ class Streamer:
             self._stale = 0
             self._replay_next = None
             self._force_replay = False
+            self._late_oks = 0
             if self._renumber is not None:
                 self._renumber.sent = False
+                self._renumber.writes = self._renumber.refusals = 0  # lost with the board
             self.state = RECONNECTING  # until `start` (the board reset) or start_timeout_s
             return True
         self._fail(f"link lost: {reason}")
@@ -680,6 +709,7 @@ class Streamer:
         command = f"M110 N{renumber.value}"
         data = frame(renumber.line, command)
         renumber.sent = True
+        renumber.writes += 1
         renumber.sent_at = asyncio.get_running_loop().time()
         return data, InFlight(renumber.line, command, len(data), internal=True)
 

@@ -313,6 +313,59 @@ def test_lost_oks_and_a_refused_probe_are_recovered_without_a_probe_storm():
     assert link.acked == len(lines)
 
 
+class SlowRenumber(ScriptedPrinter):
+    """Answers the ``M110`` that renumbers mid-stream late, then pauses again before it
+    reads on: the link writes the M110 again, and sees both oks with a line between."""
+
+    def __init__(self, pause_s: float) -> None:
+        self.pause_s = pause_s
+        self.m110s = 0
+        super().__init__()
+
+    def _line(self, text: str) -> None:
+        if "M110" in text:
+            self.m110s += 1
+            if self.m110s == 2:  # the first is the handshake's
+                threading.Event().wait(self.pause_s)
+                super()._line(text)
+                threading.Event().wait(self.pause_s / 2)
+                return
+        super()._line(text)
+
+
+def test_a_late_ok_for_a_rewritten_m110_never_acknowledges_a_job_line():
+    # the M110 is written again after renumber_retry_s of silence; every ok then comes,
+    # and none may be counted for a line of the new numbering
+    config = StreamerConfig(**{**FAST.__dict__, "renumber_retry_s": 0.1, "renumber_at": 1000})
+    lines = [f"G1 X{i}" for i in range(1100)]
+    printer = SlowRenumber(pause_s=0.4)
+    early: list[str] = []
+
+    async def run() -> Streamer:
+        async with Streamer(await open_transport(printer.path, 115200), config) as link:
+            def on_ack(number: int, command: str) -> None:
+                if command not in printer.executed:  # acknowledged before it ran
+                    early.append(command)
+
+            link.on_ack = on_ack
+            await link.connect()
+            for line in lines:
+                await link.send(line)
+            await link.drain()
+        return link
+
+    try:
+        link = asyncio.run(run())
+        executed = [c for c in printer.executed if c.split()[0] not in INTERNAL]
+        m110s = printer.m110s
+    finally:
+        printer.close()
+    assert m110s >= 3  # handshake, renumber, and the renumber written again
+    assert executed == lines
+    assert early == []
+    assert link.acked == len(lines)
+
+
 def test_no_autoreport_means_m105_polling():
     config = StreamerConfig(**{**FAST.__dict__, "temperature_interval_s": 0.05})
     reports = []
