@@ -587,22 +587,27 @@ class Streamer:
     def _on_reset(self) -> None:
         """``start`` mid-stream: the printer rebooted and lost its buffers and line number."""
         self.stats.resets += 1
-        self._window.clear()
-        self._rewind_to = None
-        self._stale = 0
         # requests seen before the reboot confirm nothing after it
         self._unconfirmed = (-1, 0)
         self._implausible = ("", 0)
-        if self._renumber is not None:
-            self._renumber.sent = False
-            self._renumber.writes = self._renumber.refusals = 0  # lost with the board
-        else:
+        if self._renumber is None:
             value = self._last_acked_number
             self._renumber = _Renumber(value, value, keep_history=True, quiet=True)
+        self._forget_in_flight()
+        self._wake.set()
+
+    def _forget_in_flight(self) -> None:
+        """Whatever was on the wire or in the printer's buffers is gone (reset or cut):
+        nothing in flight, no replay under way, an ``M110`` in progress to be written anew."""
+        self._window.clear()
+        self._rewind_to = None
+        self._stale = 0
         self._replay_next = None
         self._force_replay = False
         self._late_oks = 0
-        self._wake.set()
+        if self._renumber is not None:
+            self._renumber.sent = False
+            self._renumber.writes = self._renumber.refusals = 0
 
     async def _link_lost(self, reason: str) -> bool:
         """The port failed: report, then try to reopen. True if the link is back."""
@@ -620,15 +625,7 @@ class Streamer:
                 # end whatever partial line the printer kept from before the cut
                 await transport.write(b"\n")
             self._reconnected_at = self._last_rx = asyncio.get_running_loop().time()
-            self._window.clear()
-            self._rewind_to = None
-            self._stale = 0
-            self._replay_next = None
-            self._force_replay = False
-            self._late_oks = 0
-            if self._renumber is not None:
-                self._renumber.sent = False
-                self._renumber.writes = self._renumber.refusals = 0  # lost with the board
+            self._forget_in_flight()
             self.state = RECONNECTING  # until `start` (the board reset) or start_timeout_s
             return True
         self._fail(f"link lost: {reason}")

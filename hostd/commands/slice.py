@@ -155,13 +155,12 @@ def iter_layer_texts(
         per_layer = (time.perf_counter() - started) / max(timed, 1)
         if per_layer * (n - done) < _FORK_WORTH:
             workers = 1
-    if workers < 2 or not hasattr(os, "fork"):
-        for i in range(done, n):
-            yield _layer_text(plan, i)
-        return
-    import multiprocessing
+    if workers >= 2 and hasattr(os, "fork"):
+        import multiprocessing
 
-    if "fork" not in multiprocessing.get_all_start_methods():
+        if "fork" not in multiprocessing.get_all_start_methods():
+            workers = 1
+    if workers < 2 or not hasattr(os, "fork"):
         for i in range(done, n):
             yield _layer_text(plan, i)
         return
