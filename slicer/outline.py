@@ -28,12 +28,14 @@ class OutlineTolerances:
     ``simplify``: largest deviation allowed when thinning cut loops;
     ``stitch_gap``: open chains whose ends are this close are joined first;
     ``max_gap``: an open chain left over is closed on itself across at most
-    this gap (wider ones are dropped).
+    this gap (wider ones are dropped); ``hole_gap``: the widest gap across
+    which a chain may close as a hole (clockwise).
     """
 
     simplify: float = 0.02
     stitch_gap: float = 2.0
     max_gap: float = 60.0
+    hole_gap: float = 10.0
 
 
 @dataclass
@@ -53,7 +55,7 @@ class GapReport:
 
 
 def close_open_chains(
-    coords: list[np.ndarray], stitch_gap: float, max_gap: float
+    coords: list[np.ndarray], stitch_gap: float, max_gap: float, hole_gap: float | None = None
 ) -> tuple[list[np.ndarray], int, int]:
     """Close the open chains of one layer into loops, as CuraEngine does.
 
@@ -63,9 +65,13 @@ def close_open_chains(
     chain's own start closes it); then every chain left is closed on itself
     when its ends are at most ``max_gap`` apart: an outer boundary closes
     counter-clockwise (solid), a pocket seen through the opening clockwise (a
-    hole). Returns the loops, the number of gaps bridged and the number of
-    chains dropped.
+    hole). A hole is only closed across at most ``hole_gap`` (default
+    ``max_gap``): across a wider opening the mesh does not say where the hole
+    ends, so the chain is dropped and the region stays solid, as PrusaSlicer
+    and CuraEngine leave it (the bunny's open underside). Returns the loops,
+    the number of gaps bridged and the number of chains dropped.
     """
+    hole_gap = max_gap if hole_gap is None else hole_gap
     chains = [c for c in coords if len(c) >= 2]
     loops: list[np.ndarray] = []
     gaps = 0
@@ -86,12 +92,19 @@ def close_open_chains(
         chains.append(joined)
     dropped = 0
     for c in chains:
-        if len(c) >= 3 and np.linalg.norm(c[-1] - c[0]) <= max_gap:
+        gap = np.linalg.norm(c[-1] - c[0]) if len(c) >= 3 else np.inf
+        if gap <= max_gap and (gap <= hole_gap or _signed_area(c) > 0.0):
             loops.append(c)
             gaps += 1
         else:
             dropped += 1
     return loops, gaps, dropped
+
+
+def _signed_area(ring: np.ndarray) -> float:
+    """Shoelace area of a ring (k, 2) closed on itself: positive when counter-clockwise."""
+    x, y = ring[:, 0], ring[:, 1]
+    return 0.5 * float(np.dot(x, np.roll(y, -1)) - np.dot(np.roll(x, -1), y))
 
 
 def build_layers(
@@ -167,7 +180,9 @@ def _close_gaps(
     for lay in np.unique(chains.layer[open_idx]):
         members = open_idx[chains.layer[open_idx] == lay]
         pieces = [chains.coords[chains.offsets[k] : chains.offsets[k + 1]] for k in members]
-        loops, gaps, dropped = close_open_chains(pieces, tol.stitch_gap, tol.max_gap)
+        loops, gaps, dropped = close_open_chains(
+            pieces, tol.stitch_gap, tol.max_gap, tol.hole_gap
+        )
         report.closed += gaps
         report.dropped += dropped
         report.gap_layers.add(int(lay))

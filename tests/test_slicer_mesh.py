@@ -8,6 +8,7 @@ import shapely
 import trimesh
 
 from slicer.mesh import merge_corners, read_stl
+from slicer.outline import close_open_chains
 from slicer.plan import SlicePlan
 from slicer.section import cut_block, face_layer_ranges
 from slicer.settings import SliceSettings
@@ -74,8 +75,30 @@ def test_open_bunny_slices_with_closed_gaps() -> None:
     areas = [plan.outline(i).area for i in range(1, 52)]
     assert min(areas[2:]) > 500.0, areas
     assert all(plan.layer_gcode(i)[1:] for i in range(1, 52))
+    # the pocket under the belly, open across 25 mm, is not cut out as a hole
+    assert not any(r.area > 100.0 for p in shapely.get_parts(plan.outline(5))
+                   for r in map(shapely.Polygon, p.interiors))
     # a closed layer just above the opening is unaffected
     assert plan.outline(60).area > 1000.0
+
+
+def _arc(cx: float, cy: float, r: float, start: float, stop: float) -> np.ndarray:
+    """Points (k, 2) on a circle from angle ``start`` to ``stop`` (radians)."""
+    t = np.linspace(start, stop, 60)
+    return np.column_stack((cx + r * np.cos(t), cy + r * np.sin(t)))
+
+
+def test_wide_gaps_close_as_solid_but_never_as_holes() -> None:
+    # open arcs missing a quarter (a gap of 14 mm on a radius of 10 mm)
+    solid = _arc(0, 0, 10, 0.0, 1.5 * np.pi)  # counter-clockwise: an outer boundary
+    pocket = _arc(50, 0, 10, 1.5 * np.pi, 0.0)  # clockwise: a pocket seen through the opening
+    loops, closed, dropped = close_open_chains([solid, pocket], 2.0, 60.0, hole_gap=10.0)
+    assert (closed, dropped) == (1, 1)
+    assert len(loops) == 1 and loops[0][0] == pytest.approx(solid[0])
+    # a narrow opening closes either way
+    narrow = _arc(50, 0, 10, 1.9 * np.pi, 0.1 * np.pi)
+    loops, closed, dropped = close_open_chains([narrow], 2.0, 60.0, hole_gap=10.0)
+    assert (len(loops), closed, dropped) == (1, 1, 0)
 
 
 def test_stray_face_and_duplicates_are_repaired(tmp_path) -> None:
