@@ -18,6 +18,10 @@ OUTER_WALL_CONTINUATIONS = frozenset({"Overhang perimeter"})
 
 Z_KEY_SCALE = 100.0  # layers are matched by Z rounded to 0.01 mm
 _MIN_XY_MOVE = 1e-6  # mm: shorter moves count as extruding in place (priming)
+# mm²: a layer whose outer-wall loops enclose less than one square of a 0.4 mm line prints a
+# dot, not an outline (PrusaSlicer lays 0.07 mm triangles where a mesh ends in a point);
+# IoU means nothing at that size, so such a layer counts as having no outer wall
+MIN_WALL_AREA = 0.4 * 0.4
 # a move in XY that feeds filament (relative E > 0), optionally numbered with a checksum
 _EXTRUDING_LINE = re.compile(r"^(?:N\d+\s+)?G[01]\s(?=[^;*]*[XY]-?\.?\d)[^;*]*\bE(\d*\.?\d+)")
 
@@ -194,6 +198,7 @@ def outer_wall_regions(
     names: Iterable[str] = OUTER_WALL_TYPES,
     continuations: Iterable[str] = OUTER_WALL_CONTINUATIONS,
     close_tol: float = 1.0,
+    min_area: float = MIN_WALL_AREA,
 ) -> dict[int, shapely.Geometry]:
     """Per layer, the region enclosed by the outer-wall loops, even-odd (holes stay holes).
 
@@ -202,7 +207,7 @@ def outer_wall_regions(
     ``close_tol`` mm (open walls) are left out, the others are closed. Loops made of
     continuation moves alone count only as the outermost loop of an island apart from the
     other walls (PrusaSlicer marks every wall of an island printed over air as overhang).
-    Keys are Z in units of 0.01 mm (``round(z * 100)``).
+    Layers whose region is smaller than ``min_area`` mm² are left out. Keys are Z in units of 0.01 mm (``round(z * 100)``).
     """
     names, continuations = frozenset(names), frozenset(continuations)
     primary = moves.extruding & moves.type_mask(names)
@@ -244,7 +249,7 @@ def outer_wall_regions(
         islands = _outermost(polys[on_layer & ~is_primary], outside=region)
         if islands.size:
             region = shapely.union(region, _even_odd(islands))
-        if not region.is_empty:
+        if not region.is_empty and region.area >= min_area:
             regions[int(key)] = region
     return regions
 

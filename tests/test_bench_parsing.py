@@ -121,6 +121,15 @@ def test_layer_missing_in_one_file_counts_as_zero() -> None:
     assert agreement.mean_iou_common == pytest.approx(1.0)
 
 
+def test_a_dot_smaller_than_one_line_square_is_no_outer_wall() -> None:
+    # a slicer that ends a pointed mesh with a 0.1 mm loop prints a dot, not an outline
+    a = g.parse_moves(["M83", *loop(0, 0, 10, 0.2), *loop(0, 0, 0.1, 0.4)])
+    b = g.parse_moves(["M83", *loop(0, 0, 10, 0.2)])
+    assert list(g.outer_wall_regions(a)) == [20]
+    assert g.outer_wall_regions(a, min_area=0.0)[40].area == pytest.approx(0.01)
+    assert g.wall_agreement(a, b, align=False).mean_iou == pytest.approx(1.0)
+
+
 def test_read_moves_from_file(tmp_path: Path) -> None:
     path = tmp_path / "t.gcode"
     path.write_text("\n".join(["M83", *loop(0, 0, 10, 0.2)]) + "\n")
