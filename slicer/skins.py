@@ -9,10 +9,31 @@ walls of nearby layers pass over this layer's infill, there is solid fill, so
 the outer surface is closed and as thick as the walls whatever the sparse
 field (PrusaSlicer's "ensure vertical shell thickness").
 
-Since ``F - (F_1 ∩ ... ∩ F_k) = F - ∩{F_j : F_j does not contain F}``, a
-cheap vectorised ``contains`` test on prepared domains rules out most
-neighbours, and overlays are computed only where a surface really is near.
-Everything runs as shapely array operations over all layers at once.
+With the window intersections ``W(j, k) = F_j ∩ ... ∩ F_{j+k-1}``, the cover
+from above is ``U_i = W(i+1, top)``, the cover from below ``D_i = W(i-bottom,
+bottom)``, and the skin ``(F_i - U_i) ∪ (F_i - D_i) = F_i - (U_i ∩ D_i)``: one
+difference per layer and no union. When ``top == bottom = k`` the windows are
+shared, ``D_i = U_{i-k-1}``, so a layer costs at most one window (``k - 1``
+intersections), one intersection ``U_i ∩ D_i`` and one difference, against
+``2 (k - 1)`` intersections, two differences and a union when each side is
+found apart.
+Windows are cached by their first layer and size, whatever block asks for
+them, and so are the infill domains; both are forgotten once every block that
+uses them is solved. Bitwise-equal domains (prismatic parts; recognised by
+their outlines' WKB) take part in a window once, so a window of equal layers
+costs nothing; when one window's distinct domains are among the other's, the
+cover is the window with more of them, as it is; a layer covered by domains
+equal to its own alone has no skin, without any overlay.
+
+Every result is a function of the outlines of the layer and its neighbours
+alone (a window's domains are intersected in the order of its layers), so a
+layer's skin is the same bitwise whatever block computes it. Where
+neighbours share edges with ``F_i`` the overlays can leave hair-thin slivers
+in ``F_i`` minus the cover; parts thinner on average than ``_SLIVER`` (a
+fortieth of a 0.4 mm line) are dropped. The domains are simplified by plain
+Douglas-Peucker, the topology-preserving kind only where that lost a part or
+a hole. Everything runs as shapely array operations over the layers of a
+block at once.
 """
 
 from __future__ import annotations
@@ -26,104 +47,14 @@ from slicer import geom
 
 # largest deviation of the domains used to find skins, mm
 _SIMPLIFY = 0.1
-
-
-def _exposed(
-    fill: np.ndarray, cover_by: np.ndarray, count: int, direction: int, targets: np.ndarray
-) -> np.ndarray:
-    """Part of the fill domain of each layer in ``targets`` not covered by all ``count``
-    layers in ``direction`` (+1 up, -1 down); (len(targets),) object array.
-
-    ``fill`` (n,) the layers' infill domains; ``cover_by`` (n,) what a
-    neighbour covers with (prepared copies of the same domains); a neighbour
-    beyond either end of the arrays is air.
-    """
-    n = len(fill)
-    m = len(targets)
-    result = np.full(m, None, dtype=object)
-    if count <= 0 or m == 0:
-        return result
-    here = fill[targets]
-    live = np.array([f is not None and not f.is_empty for f in here], dtype=bool)
-    bare = np.zeros(m, dtype=bool)  # a neighbour is missing: the whole domain is skin
-    cover = np.full(m, None, dtype=object)
-    for k in range(1, count + 1):
-        j = targets + direction * k
-        inside_range = (j >= 0) & (j < n)
-        other = np.full(m, None, dtype=object)
-        other[inside_range] = cover_by[j[inside_range]]
-        missing = np.array([o is None or o.is_empty for o in other], dtype=bool)
-        bare |= missing & live
-        todo = np.flatnonzero(live & ~bare)
-        if len(todo) == 0:
-            break
-        covered = shapely.contains(other[todo], here[todo])
-        todo = todo[~covered]
-        if len(todo) == 0:
-            continue
-        first = np.array([cover[t] is None for t in todo], dtype=bool)
-        cover[todo[first]] = other[todo[first]]
-        rest = todo[~first]
-        if len(rest):
-            cover[rest] = geom.intersection(cover[rest], other[rest])
-    result[bare] = here[bare]
-    idx = np.flatnonzero(~bare & np.array([c is not None for c in cover], dtype=bool))
-    if len(idx):
-        result[idx] = geom.difference(here[idx], cover[idx])
-    return result
-
-
-def skin_block(
-    outlines: np.ndarray, lo: int, hi: int, fill_distance: float, top: int, bottom: int
-) -> np.ndarray:
-    """Skin regions of layers ``lo..hi-1``: (hi - lo,) object array of (Multi)Polygons or None.
-
-    ``outlines`` (n,) every layer's (Multi)Polygon, bottom layer first;
-    ``fill_distance`` mm from the outline to the infill domain; ``top`` and
-    ``bottom`` the numbers of solid layers. Only the layers of the block and
-    their neighbours are buffered; the prepared copies it makes are its own,
-    so blocks may run on several threads at once. The result lies inside each
-    layer's infill domain.
-    """
-    n = len(outlines)
-    if hi <= lo or (top <= 0 and bottom <= 0):
-        return np.full(max(hi - lo, 0), None, dtype=object)
-    a, b = max(0, lo - bottom), min(n, hi + top)
-    # prismatic parts repeat outlines: each distinct outline of the window is
-    # buffered once, and each distinct stack of neighbours solved once
-    window = np.asarray(outlines[a:b], dtype=object)
-    same = _labels(window)
-    first = np.unique(same, return_index=True)[1]
-    fill = shapely.buffer(window[first], -fill_distance, quad_segs=6)
-    # skins need no finer detail than this; it halves the overlays' work on curved parts
-    fill = shapely.simplify(fill, _SIMPLIFY)
-    # predicates run on prepared copies private to this call: GEOS builds
-    # prepared indexes lazily, so a prepared geometry must never be shared
-    private = shapely.from_wkb(shapely.to_wkb(fill))
-    shapely.prepare(private)
-    fill, private = fill[same], private[same]
-    targets = np.arange(lo - a, hi - a)
-    # a layer's skin depends on its own domain and those of its neighbours alone
-    pad = np.concatenate((np.full(bottom, -1), same, np.full(top, -1)))
-    stacks = np.stack([pad[targets + bottom + k] for k in range(-bottom, top + 1)], axis=1)
-    _, rep, back = np.unique(stacks, axis=0, return_index=True, return_inverse=True)
-    targets = targets[rep]
-    up = _exposed(fill, private, top, 1, targets)
-    down = _exposed(fill, private, bottom, -1, targets)
-    del private
-    # a neighbour outside [a, b) lies beyond the model's ends only, which _exposed
-    # treats as air; inside the model the window always reaches far enough
-    has_a = np.array([g is not None and not g.is_empty for g in up], dtype=bool)
-    has_b = np.array([g is not None and not g.is_empty for g in down], dtype=bool)
-    out = np.full(len(targets), None, dtype=object)
-    out[has_a] = up[has_a]
-    out[has_b & ~has_a] = down[has_b & ~has_a]
-    both = has_a & has_b
-    if both.any():
-        out[both] = geom.union(up[both], down[both])
-    keep = np.array([g is not None and g.area > 1e-6 for g in out], dtype=bool)
-    out[~keep] = None
-    return out[back.reshape(-1)]
+# skin parts thinner than this on average (2 area / perimeter) are overlay noise, mm
+_SLIVER = 0.01
+# a layer's skin smaller than this is none, mm^2
+_MIN_AREA = 1e-6
+# label of a layer that is air (beyond the model's ends, or empty)
+_AIR = -1
+# a domain not made yet
+_MISSING = object()
 
 
 def _labels(geoms: np.ndarray) -> np.ndarray:
@@ -134,10 +65,81 @@ def _labels(geoms: np.ndarray) -> np.ndarray:
                     dtype=np.int64)
 
 
-def skin_regions(outlines: np.ndarray, fill_distance: float, top: int, bottom: int) -> np.ndarray:
-    """Skin region of every layer (one block spanning the model); see :func:`skin_block`."""
-    outlines = np.asarray(outlines, dtype=object)
-    return skin_block(outlines, 0, len(outlines), fill_distance, top, bottom)
+def _domains(outlines: np.ndarray, fill_distance: float) -> np.ndarray:
+    """Infill domains used to find skins, (n,) object array: each outline of ``outlines``
+    (n,) buffered inward by ``fill_distance`` and simplified by ``_SIMPLIFY``.
+
+    Skins need no finer detail than this, and it halves the overlays' work on
+    curved parts. Plain Douglas-Peucker is several times faster than the
+    topology-preserving kind; the latter is used only where the former lost
+    a part or a hole, or made an invalid polygon.
+    """
+    fill = shapely.buffer(outlines, -fill_distance, quad_segs=6)
+    fast = shapely.simplify(fill, _SIMPLIFY, preserve_topology=False)
+    lost = (_rings(fast) != _rings(fill)) | ~shapely.is_valid(fast)
+    if lost.any():
+        fast[lost] = shapely.simplify(fill[lost], _SIMPLIFY)
+    return fast
+
+
+def _rings(polygons: np.ndarray) -> np.ndarray:
+    """Number of rings (shells and holes) of each (Multi)Polygon of ``polygons`` (n,),
+    (n,) int64; 0 for None or empty."""
+    parts, owner = shapely.get_parts(polygons, return_index=True)
+    per_part = shapely.get_num_interior_rings(parts) + 1
+    return np.bincount(owner, weights=per_part, minlength=len(polygons)).astype(np.int64)
+
+
+def _distinct(labels: np.ndarray) -> tuple[int, ...]:
+    """The distinct labels of a window (k,) in order of first appearance; () when a
+    layer of the window is air."""
+    if (labels == _AIR).any():
+        return ()
+    return tuple(dict.fromkeys(labels.tolist()))
+
+
+def _fold(fill: np.ndarray, windows: list[tuple[int, ...]]) -> np.ndarray:
+    """Intersection of each window's domains, (len(windows),) object array.
+
+    ``fill`` (m,) the distinct domains by label; each window a non-empty tuple
+    of distinct labels, intersected left to right (the layers' order), all
+    windows one step at a time.
+    """
+    out = np.array([fill[w[0]] for w in windows], dtype=object)
+    sizes = np.array([len(w) for w in windows], dtype=np.int64)
+    for step in range(1, int(sizes.max(initial=1))):
+        rows = np.flatnonzero(sizes > step)
+        other = np.array([fill[windows[r][step]] for r in rows], dtype=object)
+        out[rows] = geom.intersection(out[rows], other)
+    return out
+
+
+def _drop_slivers(regions: np.ndarray) -> np.ndarray:
+    """``regions`` (m,) without their sliver parts (and lines or points), (m,) object array;
+    None where nothing is left. Regions that lose nothing are returned as they are."""
+    out = regions.copy()
+    parts, owner = shapely.get_parts(regions, return_index=True)
+    if len(parts) == 0:
+        return np.full(len(regions), None, dtype=object)
+    area = shapely.area(parts)
+    keep = 2.0 * area > _SLIVER * shapely.length(parts)
+    kept = np.bincount(owner[keep], minlength=len(regions))
+    total = np.bincount(owner, minlength=len(regions))
+    changed = np.flatnonzero(kept < total)
+    out[changed] = None
+    mask = keep & np.isin(owner, changed)
+    if mask.any():
+        left = parts[mask]
+        rows, first, inverse, count = np.unique(
+            owner[mask], return_index=True, return_inverse=True, return_counts=True
+        )
+        multi = shapely.multipolygons(left, indices=inverse)
+        single = count == 1
+        out[rows[single]] = left[first[single]]
+        out[rows[~single]] = multi[~single]
+    area_left = shapely.area(out)
+    out[~(area_left > _MIN_AREA)] = None
+    return out
 
 
 class SkinCache:
@@ -150,17 +152,25 @@ class SkinCache:
     16): the first layer with something to print, the one the printer waits
     for, needs only its few neighbours' outlines and skins. A layer's skin is
     the same whatever block it is computed in.
+
+    Infill domains and window intersections are kept for the blocks around
+    (they are never prepared, so threads may share them); two threads making
+    the same one at once make the same geometry.
     """
 
     def __init__(
         self, outlines: np.ndarray, fill_distance: float, top: int, bottom: int, block: int = 16
     ) -> None:
         self._outlines = outlines
-        self._args = (fill_distance, top, bottom)
+        self._fill_distance = fill_distance
+        self._top = max(int(top), 0)
+        self._bottom = max(int(bottom), 0)
         self._block = block
         self._lock = threading.Lock()
         self._blocks: dict[int, np.ndarray] = {}
         self._busy: dict[int, threading.Lock] = {}
+        self._fill: dict[int, shapely.Geometry | None] = {}  # layer -> infill domain
+        self._cover: dict[tuple[int, int], shapely.Geometry] = {}  # (first, size) -> W
 
     def _span(self, i: int) -> tuple[int, int, int]:
         """(key, lo, hi): the block holding layer ``i``, layers ``lo..hi-1``."""
@@ -185,7 +195,172 @@ class SkinCache:
             with self._lock:
                 done = self._blocks.get(b)
             if done is None:
-                done = skin_block(self._outlines, lo, hi, *self._args)
+                done = self.solve(lo, hi)
                 with self._lock:
                     self._blocks[b] = done
+                    self._prune()
         return done[i - lo]
+
+    def _prune(self) -> None:
+        """Forget the domains and windows that no block left to solve needs (lock held)."""
+        n = len(self._outlines)
+        top, bottom = self._top, self._bottom
+
+        def needed(first: int, last: int) -> bool:
+            """Whether a layer in ``first..last`` belongs to a block not solved yet."""
+            layers = range(max(first, 0), min(last, n - 1) + 1)
+            return any(self._span(i)[0] not in self._blocks for i in layers)
+
+        for j in [j for j in self._fill if not needed(j - top, j + bottom)]:
+            del self._fill[j]
+        for key in [k for k in self._cover if not needed(*self._users(*k))]:
+            del self._cover[key]
+
+    def _users(self, first: int, size: int) -> tuple[int, int]:
+        """The first and last layer whose skin uses the window ``W(first, size)``."""
+        users = [first - 1] if size == self._top else []
+        if size == self._bottom:
+            users.append(first + self._bottom)
+        return min(users), max(users)
+
+    def solve(self, lo: int, hi: int) -> np.ndarray:
+        """Skin regions of layers ``lo..hi-1``: (hi - lo,) object array of (Multi)Polygons
+        or None, each inside its layer's infill domain (not kept by the cache)."""
+        n = len(self._outlines)
+        top, bottom = self._top, self._bottom
+        if hi <= lo or (top == 0 and bottom == 0):
+            return np.full(max(hi - lo, 0), None, dtype=object)
+        # a neighbour outside [a, b) lies beyond the model's ends, and is air
+        a, b = max(0, lo - bottom), min(n, hi + top)
+        window = np.asarray(self._outlines[a:b], dtype=object)
+        same = _labels(window)
+        fill = self._distinct_domains(window, same, a)
+        live = ~shapely.is_empty(fill) & np.array([f is not None for f in fill], dtype=bool)
+        same = np.where(live[same], same, _AIR)
+        targets = np.arange(lo, hi)
+        # a layer's skin depends on its own domain and those of its neighbours alone:
+        # layers with the same stack of labels have the same skin
+        pad = np.concatenate((np.full(bottom, _AIR), same, np.full(top, _AIR)))
+        at = targets - a + bottom
+        stacks = np.stack([pad[at + k] for k in range(-bottom, top + 1)], axis=1)
+        _, rep, back = np.unique(stacks, axis=0, return_index=True, return_inverse=True)
+        out = self._skins(fill, stacks[rep], targets[rep])
+        return out[back.reshape(-1)]
+
+    def _distinct_domains(self, window: np.ndarray, same: np.ndarray, a: int) -> np.ndarray:
+        """Infill domain by label, (same.max() + 1,) object array, for the outlines
+        ``window`` (w,) of layers ``a..`` labelled ``same`` (w,); each made once
+        per model (kept by layer) and once per block (equal outlines)."""
+        first = np.unique(same, return_index=True)[1]
+        with self._lock:
+            known = [self._fill.get(a + int(f), _MISSING) for f in first]
+        fill = np.empty(len(first), dtype=object)
+        fill[:] = known
+        todo = np.array([k is _MISSING for k in known], dtype=bool)
+        if todo.any():
+            fill[todo] = _domains(window[first[todo]], self._fill_distance)
+        with self._lock:
+            for label, layer in enumerate(first):
+                self._fill.setdefault(a + int(layer), fill[label])
+        return fill
+
+    def _windows(
+        self, fill: np.ndarray, stacks: np.ndarray, targets: np.ndarray, size: int, offset: int
+    ) -> tuple[np.ndarray, list[tuple[int, ...]]]:
+        """The window intersection ``W(i + offset, size)`` of each target ``i``.
+
+        ``fill`` (m,) domains by label; ``stacks`` (t, bottom + 1 + top) the
+        labels of each target's layers ``i - bottom .. i + top``; ``targets``
+        (t,) layer numbers. Returns (t,) object array (None where the window
+        holds air) and each window's distinct labels (() for air).
+        """
+        at = self._bottom + offset
+        labels = [_distinct(row) for row in stacks[:, at : at + size]]
+        covers = np.full(len(targets), None, dtype=object)
+        keys = [(int(i) + offset, size) for i in targets]
+        with self._lock:
+            known = [self._cover.get(k) for k in keys]
+        todo: dict[tuple[int, ...], list[int]] = {}
+        for r, (got, lab) in enumerate(zip(known, labels, strict=True)):
+            if got is not None:
+                covers[r] = got
+            elif lab:
+                todo.setdefault(lab, []).append(r)
+        if todo:
+            made = _fold(fill, list(todo))
+            for cover, rows in zip(made, todo.values(), strict=True):
+                covers[rows] = cover
+            with self._lock:
+                for rows in todo.values():
+                    for r in rows:
+                        self._cover.setdefault(keys[r], covers[r])
+        return covers, labels
+
+    def _skins(self, fill: np.ndarray, stacks: np.ndarray, targets: np.ndarray) -> np.ndarray:
+        """Skin of each target ``F_i - (U_i ∩ D_i)``, (t,) object array or None.
+
+        ``fill`` (m,) domains by label; ``stacks`` (t, bottom + 1 + top) the
+        labels of the layers ``i - bottom .. i + top`` of each target ``i``
+        of ``targets`` (t,).
+        """
+        top, bottom = self._top, self._bottom
+        own = stacks[:, bottom]
+        here = np.array([fill[k] if k != _AIR else None for k in own], dtype=object)
+        out = np.full(len(targets), None, dtype=object)
+        live = own != _AIR
+        air = np.zeros(len(targets), dtype=bool)  # a covering window holds air: all is skin
+        sides: list[tuple[np.ndarray, list[frozenset[int]]]] = []
+        for size, offset in ((top, 1), (bottom, -bottom)):
+            if size == 0:
+                continue
+            covers, labels = self._windows(fill, stacks, targets, size, offset)
+            air |= np.array([not lab for lab in labels], dtype=bool)
+            sides.append((covers, [frozenset(lab) for lab in labels]))
+        out[live & air] = here[live & air]
+        todo = np.flatnonzero(live & ~air)
+        # solve() asks for no skins at all when both counts are 0
+        cover = _meet(sides[0], sides[1], todo) if len(sides) == 2 else sides[0][0]
+        # covered by domains equal to its own alone: no skin
+        sets = [frozenset().union(*(side[1][r] for side in sides)) for r in todo]
+        solid = np.array([s != {int(own[r])} for s, r in zip(sets, todo, strict=True)], dtype=bool)
+        todo = todo[solid]
+        if len(todo):
+            out[todo] = _drop_slivers(geom.difference(here[todo], cover[todo]))
+        small = np.array([g is not None and not g.area > _MIN_AREA for g in out], dtype=bool)
+        out[small] = None
+        return out
+
+
+def _meet(
+    up: tuple[np.ndarray, list[frozenset[int]]],
+    down: tuple[np.ndarray, list[frozenset[int]]],
+    rows: np.ndarray,
+) -> np.ndarray:
+    """``U ∩ D`` at ``rows`` of the covers from above and below, (t,) object array.
+
+    ``up`` and ``down`` are each (covers (t,), distinct labels of each
+    window); when one window's domains are among the other's, the cover is
+    the window with more domains, as it is.
+    """
+    (u, u_set), (d, d_set) = up, down
+    cover = u.copy()
+    need = np.zeros(len(u), dtype=bool)
+    for r in rows:
+        if d_set[r] <= u_set[r]:  # U ⊆ D
+            continue
+        if u_set[r] <= d_set[r]:
+            cover[r] = d[r]
+        else:
+            need[r] = True
+    if need.any():
+        cover[need] = geom.intersection(u[need], d[need])
+    return cover
+
+
+def skin_regions(outlines: np.ndarray, fill_distance: float, top: int, bottom: int) -> np.ndarray:
+    """Skin region of every layer, (n,) object array of (Multi)Polygons or None, for the
+    layers' outlines ``outlines`` (n,), bottom layer first; ``fill_distance`` mm
+    from the outline to the infill domain, ``top`` and ``bottom`` the numbers of
+    solid layers (one block spanning the model)."""
+    outlines = np.asarray(outlines, dtype=object)
+    return SkinCache(outlines, fill_distance, top, bottom).solve(0, len(outlines))

@@ -1,0 +1,114 @@
+"""Skin regions: what they mean, the same bits whatever block makes them, no slivers."""
+
+from __future__ import annotations
+
+import random
+
+import numpy as np
+import pytest
+import shapely
+
+from slicer.skins import SkinCache, _domains, skin_regions
+
+FILL = 0.8  # mm from an outline to its infill domain
+
+
+def _stack() -> np.ndarray:
+    """Outlines of a stepped part with holes coming and going, (40,) object array.
+
+    A 40 mm plate (layers 0-9), a hole through layers 4-13, a 20 mm tower
+    on it (layers 10-29) with a hole in layers 18-23, an empty layer 30, and a
+    slowly turning square (layers 31-39).
+    """
+    plate = shapely.box(0, 0, 40, 40)
+    tower = shapely.box(10, 10, 30, 30)
+    out = []
+    for i in range(40):
+        if i < 10:
+            g = plate
+        elif i < 30:
+            g = tower
+        elif i == 30:
+            g = shapely.Polygon()
+        else:
+            g = shapely.affinity.rotate(shapely.box(5, 5, 25, 25), 2.0 * (i - 31))
+        if 4 <= i < 14:
+            g = g.difference(shapely.Point(20, 20).buffer(3, quad_segs=8))
+        if 18 <= i < 24:
+            g = g.difference(shapely.box(14, 14, 18, 26))
+        out.append(g)
+    return np.array(out, dtype=object)
+
+
+def _reference(outlines: np.ndarray, top: int, bottom: int) -> list[shapely.Geometry]:
+    """Skins by the definition, one layer and one neighbour at a time."""
+    fill = _domains(outlines, FILL)
+    n = len(fill)
+    out = []
+    for i in range(n):
+        skin = shapely.Polygon()
+        for count, step in ((top, 1), (bottom, -1)):
+            if count == 0:
+                continue
+            nbrs = [i + step * k for k in range(1, count + 1)]
+            if any(j < 0 or j >= n or fill[j].is_empty for j in nbrs):
+                skin = skin.union(fill[i])
+                continue
+            cover = fill[nbrs[0]]
+            for j in nbrs[1:]:
+                cover = cover.intersection(fill[j])
+            skin = skin.union(fill[i].difference(cover))
+        out.append(skin)
+    return out
+
+
+def _wkb(g: shapely.Geometry | None) -> bytes | None:
+    return None if g is None else g.wkb
+
+
+@pytest.mark.parametrize(("top", "bottom"), [(3, 3), (2, 4), (0, 3), (3, 0), (1, 1)])
+def test_skins_mean_the_definition(top: int, bottom: int) -> None:
+    outlines = _stack()
+    got = skin_regions(outlines, FILL, top, bottom)
+    want = _reference(outlines, top, bottom)
+    for i, (g, w) in enumerate(zip(got, want, strict=True)):
+        g = shapely.Polygon() if g is None else g
+        assert shapely.is_valid(g), i
+        assert g.symmetric_difference(w).area < 1e-3, i
+
+
+@pytest.mark.parametrize(("top", "bottom"), [(3, 3), (2, 5), (4, 0)])
+def test_same_bits_whatever_block_and_order(top: int, bottom: int) -> None:
+    outlines = _stack()
+    whole = skin_regions(outlines, FILL, top, bottom)
+    order = list(range(len(outlines)))
+    random.Random(7).shuffle(order)
+    for block in (16, 4):
+        cache = SkinCache(outlines, FILL, top, bottom, block=block)
+        assert {i: _wkb(cache.get(i)) for i in order} == {i: _wkb(g) for i, g in enumerate(whole)}
+    for i in order[:10]:  # each layer alone
+        assert _wkb(SkinCache(outlines, FILL, top, bottom).get(i)) == _wkb(whole[i])
+
+
+def test_cache_forgets_what_no_block_needs() -> None:
+    outlines = _stack()
+    cache = SkinCache(outlines, FILL, 3, 3, block=8)
+    for i in range(len(outlines)):
+        cache.get(i)
+    assert not cache._fill and not cache._cover
+
+
+def test_no_slivers_between_nearly_equal_layers() -> None:
+    # a column whose layers differ by a tenth of a micron has skin at its ends only
+    base = shapely.Point(0, 0).buffer(10, quad_segs=16).difference(shapely.box(-2, -2, 2, 2))
+    outlines = np.array(
+        [shapely.affinity.translate(base, 1e-4 * (i % 3), -1e-4 * (i % 2)) for i in range(20)],
+        dtype=object,
+    )
+    skins = skin_regions(outlines, FILL, 3, 3)
+    assert all(g is not None for g in skins[:3]) and all(g is not None for g in skins[-3:])
+    assert all(g is None for g in skins[3:-3])
+
+
+def test_no_skins_without_solid_layers() -> None:
+    assert all(g is None for g in skin_regions(_stack(), FILL, 0, 0))
