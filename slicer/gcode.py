@@ -22,6 +22,8 @@ from slicer.settings import SliceSettings
 _MIN_STEP = 0.005
 # lift used when a print ends or resumes, mm
 END_LIFT = 10.0
+# shapely type ids of the part outlines
+_POLYGON, _MULTIPOLYGON = 3, 6
 RESUME_LIFT = 0.6
 
 
@@ -103,8 +105,7 @@ def layer_code(
     widths = np.array([settings.line_width if p.width is None else p.width for p in paths])
     e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm * np.repeat(widths, ends - starts)
     filament = float(e[move].sum())
-    flat = np.column_stack([pts[move], e[move]]).ravel().tolist()
-    g1 = (("G1 X%.3f Y%.3f E%.5f\n" * int(move.sum())) % tuple(flat)).splitlines()
+    g1 = format_moves(pts[move], e[move])
     # each path's moves in g1: [first_move, last_move)
     last_move = np.cumsum(ends - starts - 1)
     first_move = last_move - (ends - starts - 1)
@@ -155,6 +156,69 @@ def layer_code(
     return LayerCode(lines, filament, time_s, z_line)
 
 
+# Extrusion moves are formatted as bytes by table lookups (a Python ``%`` per
+# number dominated a layer's time). Each number becomes fixed-size 4-byte
+# words padded with NUL bytes, which are deleted from the finished text.
+_WORD = np.dtype(np.uint32)
+
+
+def _words(texts: list[str]) -> np.ndarray:
+    """Each text (at most 4 ASCII characters) as one NUL-padded 4-byte word: (k,) uint32."""
+    return np.frombuffer(b"".join(t.encode("ascii").ljust(4, b"\0") for t in texts), _WORD)
+
+
+# whole part with its sign: _WHOLE[1, q] is "-q"; digits after the point, 3 then 2
+_WHOLE = _words([f"{s}{q}" for s in ("", "-") for q in range(1000)]).reshape(2, 1000)
+_FRAC3 = _words([f".{r:03d}" for r in range(1000)])
+_DIGITS2 = _words([f"{r:02d}" for r in range(100)])
+_LITERALS = _words(["G1 X", " Y", " E", "\n"])
+
+
+def format_moves(xy: np.ndarray, e: np.ndarray) -> list[str]:
+    """The lines ``"G1 X%.3f Y%.3f E%.5f" % (x, y, e)`` of many moves, byte for byte.
+
+    ``xy`` (m, 2) mm, ``e`` (m,) mm. Falls back to Python formatting when a
+    value is not finite or has more than three whole digits once rounded.
+    """
+    x, y, ex = _rounded(xy[:, 0], 3), _rounded(xy[:, 1], 3), _rounded(e, 5)
+    if x is None or y is None or ex is None:
+        flat = np.column_stack([xy, e]).ravel().tolist()
+        return (("G1 X%.3f Y%.3f E%.5f\n" * len(e)) % tuple(flat)).splitlines()
+    words = np.empty((len(e), 11), dtype=_WORD)
+    g1_x, space_y, space_e, newline = _LITERALS
+    words[:, 0] = g1_x
+    words[:, 1] = _WHOLE[x[0], x[1] // 1000]
+    words[:, 2] = _FRAC3[x[1] % 1000]
+    words[:, 3] = space_y
+    words[:, 4] = _WHOLE[y[0], y[1] // 1000]
+    words[:, 5] = _FRAC3[y[1] % 1000]
+    words[:, 6] = space_e
+    words[:, 7] = _WHOLE[ex[0], ex[1] // 100000]
+    words[:, 8] = _FRAC3[ex[1] % 100000 // 100]
+    words[:, 9] = _DIGITS2[ex[1] % 100]
+    words[:, 10] = newline
+    return words.tobytes().translate(None, b"\0").decode("ascii").splitlines()
+
+
+def _rounded(v: np.ndarray, decimals: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Sign (1 where negative, -0.0 included) and ``abs(v)`` in units of ``10**-decimals``
+    rounded exactly as ``"%.{decimals}f"`` rounds: two (m,) int64 arrays.
+
+    The float product ``abs(v) * 10**decimals`` is within half an ulp of the
+    exact one, so only values whose product lies near a half unit may round
+    otherwise: those few are rounded by Python's formatting itself. None when
+    a value is not finite or has more than three whole digits.
+    """
+    scaled = np.abs(v) * 10.0**decimals
+    # also rules out NaN and infinities; rint of anything below stays below 1000
+    if not (scaled < 1000 * 10**decimals - 0.5).all():
+        return None
+    units = np.rint(scaled).astype(np.int64)
+    for i in np.flatnonzero(np.abs(scaled - np.floor(scaled) - 0.5) < 1e-6):
+        units[i] = int(f"{abs(v[i]):.{decimals}f}".replace(".", ""))
+    return np.signbit(v).astype(np.int64), units
+
+
 def _fpm(speed_mm_s: float) -> int:
     """Feedrate word value: mm/min, whole."""
     return round(speed_mm_s * 60.0)
@@ -181,7 +245,12 @@ def _pack(paths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: float) -> np.ndarray:
-    """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave the part (retraction needed)."""
+    """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave the part (retraction needed).
+
+    A travel that starts inside the part and meets none of its edges stays
+    inside: two cheap indexed tests settle most travels, and only those that
+    start off the interior or touch an edge are decided by ``covered_by``.
+    """
     if len(a) == 0:
         return np.zeros(0, dtype=bool)
     lines = shapely.linestrings(np.stack([a, b], axis=1))
@@ -189,7 +258,14 @@ def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: f
     # a private, prepared copy: the outline may be shared with other threads
     area = shapely.from_wkb(shapely.to_wkb(outline))
     shapely.prepare(area)
-    return ~(shapely.covered_by(lines, area) | zero)
+    covered = np.zeros(len(a), dtype=bool)
+    if shapely.get_type_id(area) in (_POLYGON, _MULTIPOLYGON):
+        edges = shapely.boundary(area)
+        shapely.prepare(edges)
+        covered = shapely.contains_xy(area, a[:, 0], a[:, 1]) & ~shapely.intersects(edges, lines)
+    rest = np.flatnonzero(~covered)
+    covered[rest] = shapely.covered_by(lines[rest], area)
+    return ~(covered | zero)
 
 
 def heat_commands(settings: SliceSettings) -> list[str]:
