@@ -96,8 +96,11 @@ def join_paths(
     """
     if len(paths) < 2:
         return paths
-    a = np.array([p[-1] for p in paths[:-1]])
-    b = np.array([p[0] for p in paths[1:]])
+    sizes = np.array([len(p) for p in paths])
+    ends = np.cumsum(sizes)
+    pts = np.concatenate(paths)
+    a = pts[ends[:-1] - 1]  # each path's last point, but the last path's
+    b = pts[ends[:-1]]  # each path's first point, but the first path's
     gap = np.linalg.norm(b - a, axis=1)
     near = gap <= max_gap
     if not near.any():
@@ -106,16 +109,9 @@ def join_paths(
     middle = shapely.points((a[idx] + b[idx]) / 2.0)
     ok = np.zeros(len(near), dtype=bool)
     ok[idx] = shapely.distance(region, middle) <= slack
-    out: list[np.ndarray] = []
-    current = [paths[0]]
-    for i in range(1, len(paths)):
-        if ok[i - 1]:
-            current.append(paths[i])
-        else:
-            out.append(np.concatenate(current) if len(current) > 1 else current[0])
-            current = [paths[i]]
-    out.append(np.concatenate(current) if len(current) > 1 else current[0])
-    return out
+    # a joined run is the stretch of the concatenated points between two refused joints
+    cuts = ends[:-1][~ok]
+    return np.split(pts, cuts)
 
 
 def chord_levels(
@@ -233,11 +229,9 @@ def _visit_stacks(
     """
     s = len(ends)
     here = np.asarray(pos, dtype=np.float64)
-    out = np.empty((s, 2), dtype=np.int64)
     if s == 1:
         dist = np.einsum("ijk,ijk->ij", ends - here, ends - here)
-        out[0] = 0, int(np.argmin(dist[0]))
-        return out
+        return np.array([[0, int(dist[0].argmin())]], dtype=np.int64)
     # exits[s, c]: where the nozzle is after stack s entered at corner c
     end_chord = np.stack([fw[last], fw[last], fw[first], fw[first]], axis=1)  # (s, 4, 2, 2)
     turned = (sizes[:, None] + np.arange(4)[None, :]) % 2 == 0
@@ -249,20 +243,23 @@ def _visit_stacks(
         table = np.einsum("aik,aik->ai", diff, diff)
         del diff
     exits = exits.reshape(4 * s, 2)
-    # corners of stacks already visited are ruled out by an infinite penalty
     penalty = np.zeros(4 * s)
     dist = np.einsum("ijk,ijk->ij", ends - here, ends - here).ravel()
-    for step in range(s):
-        pick = int(np.argmin(dist))
+    picks = []
+    for _ in range(s):
+        pick = int(dist.argmin())
+        picks.append(pick)
+        # the corners of a visited stack are ruled out by an infinite distance
         k = pick >> 2
-        out[step] = k, pick & 3
-        penalty[4 * k : 4 * k + 4] = np.inf
         if table is not None:
-            dist = table[pick] + penalty
+            table[:, 4 * k : 4 * k + 4] = np.inf
+            dist = table[pick]
         else:
+            penalty[4 * k : 4 * k + 4] = np.inf
             here = exits[pick]
             dist = np.einsum("ijk,ijk->ij", ends - here, ends - here).ravel() + penalty
-    return out
+    flat = np.array(picks, dtype=np.int64)
+    return np.stack([flat >> 2, flat & 3], axis=1)
 
 
 def _forward(chords: np.ndarray, d: np.ndarray) -> np.ndarray:
