@@ -105,7 +105,7 @@ def layer_code(
     widths = np.array([settings.line_width if p.width is None else p.width for p in paths])
     e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm * np.repeat(widths, ends - starts)
     filament = float(e[move].sum())
-    g1 = format_moves(pts[move], e[move])
+    g1 = format_moves("G1 ", pts[move], e[move])
     # each path's moves in g1: [first_move, last_move)
     last_move = np.cumsum(ends - starts - 1)
     first_move = last_move - (ends - starts - 1)
@@ -131,18 +131,18 @@ def layer_code(
     if prime:
         lines.append(prime)
     kind = None
-    travel_word = f"G0 F{_fpm(travel_f)} X%.3f Y%.3f"
-    # plain Python numbers for the per-path loop (numpy scalars are slow to index)
+    travels = format_moves(f"G0 F{_fpm(travel_f)} ", travel_b)
+    # plain Python values for the per-path loop (numpy scalars are slow to index)
     hops = leaves.tolist()
-    travel_xy = travel_b.tolist()
-    feeds = [_fpm(v) for v in speeds.tolist()]
+    feed_of = {v: _fpm(v) for v in (wall_f, fill_f)}
+    feeds = [feed_of[v] for v in speeds.tolist()]
     firsts, lasts = first_move.tolist(), last_move.tolist()
     for k in range(n):
         if k > 0:
             hop = hops[k - 1] and retract
             if hop:
                 lines.append(retract)
-            lines.append(travel_word % tuple(travel_xy[k - 1]))
+            lines.append(travels[k - 1])
             if hop:
                 lines.append(prime)
         path_kind = paths[k].kind
@@ -156,9 +156,9 @@ def layer_code(
     return LayerCode(lines, filament, time_s, z_line)
 
 
-# Extrusion moves are formatted as bytes by table lookups (a Python ``%`` per
-# number dominated a layer's time). Each number becomes fixed-size 4-byte
-# words padded with NUL bytes, which are deleted from the finished text.
+# Moves are formatted as bytes by table lookups (a Python ``%`` per number
+# dominated a layer's time). Each number becomes fixed-size 4-byte words
+# padded with NUL bytes, which are deleted from the finished text.
 _WORD = np.dtype(np.uint32)
 
 
@@ -171,52 +171,85 @@ def _words(texts: list[str]) -> np.ndarray:
 _WHOLE = _words([f"{s}{q}" for s in ("", "-") for q in range(1000)]).reshape(2, 1000)
 _FRAC3 = _words([f".{r:03d}" for r in range(1000)])
 _DIGITS2 = _words([f"{r:02d}" for r in range(100)])
-_LITERALS = _words(["G1 X", " Y", " E", "\n"])
+_SPACE_Y, _SPACE_E, _NEWLINE = _words([" Y", " E", "\n"])
 
 
-def format_moves(xy: np.ndarray, e: np.ndarray) -> list[str]:
-    """The lines ``"G1 X%.3f Y%.3f E%.5f" % (x, y, e)`` of many moves, byte for byte.
+def format_moves(head: str, xy: np.ndarray, e: np.ndarray | None = None) -> list[str]:
+    """The lines ``head + "X%.3f Y%.3f" % (x, y)``, with ``" E%.5f" % e`` when ``e`` is
+    given, of many moves, byte for byte.
 
-    ``xy`` (m, 2) mm, ``e`` (m,) mm. Falls back to Python formatting when a
-    value is not finite or has more than three whole digits once rounded.
+    ``head`` ASCII text (e.g. ``"G1 "``); ``xy`` (m, 2) mm, ``e`` (m,) mm. Falls
+    back to Python formatting when a value is not finite or has more than
+    three whole digits once rounded.
     """
-    x, y, ex = _rounded(xy[:, 0], 3), _rounded(xy[:, 1], 3), _rounded(e, 5)
-    if x is None or y is None or ex is None:
-        flat = np.column_stack([xy, e]).ravel().tolist()
-        return (("G1 X%.3f Y%.3f E%.5f\n" * len(e)) % tuple(flat)).splitlines()
-    words = np.empty((len(e), 11), dtype=_WORD)
-    g1_x, space_y, space_e, newline = _LITERALS
-    words[:, 0] = g1_x
-    words[:, 1] = _WHOLE[x[0], x[1] // 1000]
-    words[:, 2] = _FRAC3[x[1] % 1000]
-    words[:, 3] = space_y
-    words[:, 4] = _WHOLE[y[0], y[1] // 1000]
-    words[:, 5] = _FRAC3[y[1] % 1000]
-    words[:, 6] = space_e
-    words[:, 7] = _WHOLE[ex[0], ex[1] // 100000]
-    words[:, 8] = _FRAC3[ex[1] % 100000 // 100]
-    words[:, 9] = _DIGITS2[ex[1] % 100]
-    words[:, 10] = newline
+    xy_units = _rounded(xy, 3)
+    e_units = _rounded(e, 5) if e is not None else None
+    if xy_units is None or (e is not None and e_units is None):
+        template = head + "X%.3f Y%.3f" + (" E%.5f" if e is not None else "") + "\n"
+        columns = [xy] if e is None else [xy, e]
+        flat = np.column_stack(columns).ravel().tolist()
+        return ((template * len(xy)) % tuple(flat)).splitlines()
+    text = head + "X"
+    lead = _words([text[i : i + 4] for i in range(0, len(text), 4)])
+    h = len(lead)
+    # head, X and Y (whole and fraction each, " Y" between), E (" E" and three), newline
+    width = h + 5 + (4 if e is not None else 0) + 1
+    words = np.empty((len(xy), width), dtype=_WORD)
+    words[:, :h] = lead
+    sign, units = xy_units
+    words[:, h] = _WHOLE[sign[:, 0], units[:, 0] // 1000]
+    words[:, h + 1] = _FRAC3[units[:, 0] % 1000]
+    words[:, h + 2] = _SPACE_Y
+    words[:, h + 3] = _WHOLE[sign[:, 1], units[:, 1] // 1000]
+    words[:, h + 4] = _FRAC3[units[:, 1] % 1000]
+    if e_units is not None:
+        sign, units = e_units
+        words[:, h + 5] = _SPACE_E
+        words[:, h + 6] = _WHOLE[sign, units // 100000]
+        words[:, h + 7] = _FRAC3[units % 100000 // 100]
+        words[:, h + 8] = _DIGITS2[units % 100]
+    words[:, -1] = _NEWLINE
     return words.tobytes().translate(None, b"\0").decode("ascii").splitlines()
 
 
 def _rounded(v: np.ndarray, decimals: int) -> tuple[np.ndarray, np.ndarray] | None:
     """Sign (1 where negative, -0.0 included) and ``abs(v)`` in units of ``10**-decimals``
-    rounded exactly as ``"%.{decimals}f"`` rounds: two (m,) int64 arrays.
+    rounded exactly as ``"%.{decimals}f"`` rounds: two int64 arrays shaped as ``v``.
 
-    The float product ``abs(v) * 10**decimals`` is within half an ulp of the
-    exact one, so only values whose product lies near a half unit may round
-    otherwise: those few are rounded by Python's formatting itself. None when
-    a value is not finite or has more than three whole digits.
+    ``%`` rounds the exact value of the double, ties to even. The float product
+    ``abs(v) * 10**decimals`` is within half an ulp of the exact one, so ``rint``
+    of it is right except where it lies near a half unit: those products are
+    settled exactly by :func:`_round_near_half`. None when a value is not
+    finite or has more than three whole digits.
     """
-    scaled = np.abs(v) * 10.0**decimals
+    scale = 10.0**decimals
+    scaled = np.abs(v) * scale
     # also rules out NaN and infinities; rint of anything below stays below 1000
-    if not (scaled < 1000 * 10**decimals - 0.5).all():
+    if not (scaled < 1000 * scale - 0.5).all():
         return None
-    units = np.rint(scaled).astype(np.int64)
-    for i in np.flatnonzero(np.abs(scaled - np.floor(scaled) - 0.5) < 1e-6):
-        units[i] = int(f"{abs(v[i]):.{decimals}f}".replace(".", ""))
-    return np.signbit(v).astype(np.int64), units
+    units = np.rint(scaled)
+    near = np.abs(scaled - np.floor(scaled) - 0.5) < 1e-6
+    if near.any():
+        units[near] = _round_near_half(np.abs(v[near]), scale)
+    return np.signbit(v).astype(np.int64), units.astype(np.int64)
+
+
+def _round_near_half(a: np.ndarray, scale: float) -> np.ndarray:
+    """``a * scale`` rounded to a whole number, ties to even, for products within
+    1e-6 of a half: (k,) float64 whole numbers.
+
+    The sign of ``a * scale - half`` is found exactly: ``a`` is split into a
+    high part of 26 significant bits and the rest (Veltkamp's split), each
+    times ``scale`` (a power of ten up to 10**11 has at most 26 significant
+    bits) is exact, the high product minus the half is exact (the two are
+    within a factor of two: Sterbenz), and one rounded addition keeps the
+    sign of the exact sum (zero only when it is zero: a true tie).
+    """
+    low = np.floor(a * scale)
+    split = a * 134217729.0  # 2**27 + 1
+    high = split - (split - a)
+    side = (high * scale - (low + 0.5)) + (a - high) * scale
+    return low + ((side > 0) | ((side == 0) & (low % 2 == 1)))
 
 
 def _fpm(speed_mm_s: float) -> int:

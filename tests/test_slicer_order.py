@@ -11,6 +11,10 @@ def _python_lines(xy: np.ndarray, e: np.ndarray) -> list[str]:
     return [f"G1 X{x:.3f} Y{y:.3f} E{v:.5f}" for (x, y), v in rows]
 
 
+def _python_travels(xy: np.ndarray) -> list[str]:
+    return [f"G0 F9000 X{x:.3f} Y{y:.3f}" for x, y in xy.tolist()]
+
+
 def test_format_moves_matches_python_formatting():
     rng = np.random.default_rng(7)
     m = 20000
@@ -21,15 +25,21 @@ def test_format_moves_matches_python_formatting():
     e[:100] = np.round(e[:100], 5) + 0.000005
     xy[100:110, 0] = [0.0625, -0.0625, 1.0625, 0.0005, -0.0005, -0.0, 0.0, 999.9994, 2.5e-4, -1e-9]
     e[100:104] = [0.0, 0.000005, 0.0000125, 999.99999]
-    assert format_moves(xy, e) == _python_lines(xy, e)
+    # exact binary ties: odd sixteenths are half a thousandth, odd 64ths half of 10**-5
+    xy[200:1200] = rng.integers(-15000, 15000, (1000, 2)) * 2 + 1
+    xy[200:1200] /= 16.0
+    e[200:1200] = (rng.integers(0, 20000, 1000) * 2 + 1) / 64.0
+    assert format_moves("G1 ", xy, e) == _python_lines(xy, e)
+    assert format_moves("G0 F9000 ", xy) == _python_travels(xy)
 
 
 def test_format_moves_falls_back_outside_three_whole_digits():
     for bad in (1000.0, 999.9996, -1234.5, np.nan, np.inf):
         xy = np.array([[bad, 1.0], [2.0, 3.0]])
         e = np.array([0.1, 0.2])
-        assert format_moves(xy, e) == _python_lines(xy, e)
-    assert format_moves(np.zeros((0, 2)), np.zeros(0)) == []
+        assert format_moves("G1 ", xy, e) == _python_lines(xy, e)
+        assert format_moves("G0 F9000 ", xy) == _python_travels(xy)
+    assert format_moves("G1 ", np.zeros((0, 2)), np.zeros(0)) == []
 
 
 def test_travels_leave_matches_covered_by():
