@@ -34,8 +34,8 @@ def rear_seam(points: np.ndarray) -> int:
 
 def nearest_vertex(points: np.ndarray, pos: np.ndarray) -> int:
     """Index of the vertex of ``points`` (k, 2) nearest to ``pos`` (2,)."""
-    d = np.einsum("ij,ij->i", points - pos, points - pos)
-    return int(np.argmin(d))
+    dx, dy = points[:, 0] - pos[0], points[:, 1] - pos[1]
+    return int((dx * dx + dy * dy).argmin())
 
 
 def order_open_paths(
@@ -92,7 +92,8 @@ def join_paths(
     The connecting segment is extruded, so it is joined only when it stays
     near ``region`` (the fill region): its middle within ``slack`` mm of it
     (its ends lie on the region's edge), checked for all joints in one
-    vectorised call.
+    vectorised call. ``region`` is prepared in place for that check, so it
+    must be the caller's own geometry (not one shared with other threads).
     """
     if len(paths) < 2:
         return paths
@@ -108,7 +109,10 @@ def join_paths(
     idx = np.flatnonzero(near)
     middle = shapely.points((a[idx] + b[idx]) / 2.0)
     ok = np.zeros(len(near), dtype=bool)
-    ok[idx] = shapely.distance(region, middle) <= slack
+    # distance <= slack; a prepared region answers inside points without
+    # measuring and indexes its edges for the others
+    shapely.prepare(region)
+    ok[idx] = shapely.dwithin(region, middle, slack)
     # a joined run is the stretch of the concatenated points between two refused joints
     cuts = ends[:-1][~ok]
     return np.split(pts, cuts)
@@ -236,13 +240,15 @@ def _visit_stacks(
     end_chord = np.stack([fw[last], fw[last], fw[first], fw[first]], axis=1)  # (s, 4, 2, 2)
     turned = (sizes[:, None] + np.arange(4)[None, :]) % 2 == 0
     exits = np.where(turned[:, :, None], end_chord[:, :, 0], end_chord[:, :, 1])
-    flat_ends = ends.reshape(1, 4 * s, 2)
+    exits = exits.reshape(4 * s, 2)
     table = None
     if s <= _TABLE_STACKS:
-        diff = flat_ends - exits.reshape(4 * s, 1, 2)  # (4s, 4s, 2)
-        table = np.einsum("aik,aik->ai", diff, diff)
-        del diff
-    exits = exits.reshape(4 * s, 2)
+        # table[a, i]: exit a to corner i, (4s, 4s); x and y apart, as einsum is
+        # slow on a last axis of two (the sums are the same to the bit)
+        corners = ends.reshape(4 * s, 2)
+        dx = corners[None, :, 0] - exits[:, None, 0]
+        dy = corners[None, :, 1] - exits[:, None, 1]
+        table = dx * dx + dy * dy
     penalty = np.zeros(4 * s)
     dist = np.einsum("ijk,ijk->ij", ends - here, ends - here).ravel()
     picks = []
