@@ -243,11 +243,12 @@ def _visit_stacks(
     exits = exits.reshape(4 * s, 2)
     table = None
     if s <= _TABLE_STACKS:
-        # table[a, i]: exit a to corner i, (4s, 4s); x and y apart, as einsum is
-        # slow on a last axis of two (the sums are the same to the bit)
+        # table[i, a]: corner i from exit a, (4s, 4s), so that a visited stack's
+        # corners are contiguous rows; x and y apart, as einsum is slow on a
+        # last axis of two (the sums are the same to the bit)
         corners = ends.reshape(4 * s, 2)
-        dx = corners[None, :, 0] - exits[:, None, 0]
-        dy = corners[None, :, 1] - exits[:, None, 1]
+        dx = corners[:, None, 0] - exits[None, :, 0]
+        dy = corners[:, None, 1] - exits[None, :, 1]
         table = dx * dx + dy * dy
     penalty = np.zeros(4 * s)
     dist = np.einsum("ijk,ijk->ij", ends - here, ends - here).ravel()
@@ -258,8 +259,8 @@ def _visit_stacks(
         # the corners of a visited stack are ruled out by an infinite distance
         k = pick >> 2
         if table is not None:
-            table[:, 4 * k : 4 * k + 4] = np.inf
-            dist = table[pick]
+            table[4 * k : 4 * k + 4] = np.inf
+            dist = table[:, pick]
         else:
             penalty[4 * k : 4 * k + 4] = np.inf
             here = exits[pick]
