@@ -22,9 +22,9 @@ from slicer.settings import SliceSettings
 _MIN_STEP = 0.005
 # lift used when a print ends or resumes, mm
 END_LIFT = 10.0
+RESUME_LIFT = 0.6
 # shapely type ids of the part outlines
 _POLYGON, _MULTIPOLYGON = 3, 6
-RESUME_LIFT = 0.6
 
 
 @dataclass(frozen=True)
