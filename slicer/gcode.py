@@ -23,6 +23,8 @@ _MIN_STEP = 0.005
 # lift used when a print ends or resumes, mm
 END_LIFT = 10.0
 RESUME_LIFT = 0.6
+# shapely type ids of the part outlines
+_POLYGON, _MULTIPOLYGON = 3, 6
 
 
 @dataclass(frozen=True)
@@ -103,8 +105,7 @@ def layer_code(
     widths = np.array([settings.line_width if p.width is None else p.width for p in paths])
     e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm * np.repeat(widths, ends - starts)
     filament = float(e[move].sum())
-    flat = np.column_stack([pts[move], e[move]]).ravel().tolist()
-    g1 = (("G1 X%.3f Y%.3f E%.5f\n" * int(move.sum())) % tuple(flat)).splitlines()
+    g1 = format_moves("G1 ", pts[move], e[move])
     # each path's moves in g1: [first_move, last_move)
     last_move = np.cumsum(ends - starts - 1)
     first_move = last_move - (ends - starts - 1)
@@ -130,18 +131,18 @@ def layer_code(
     if prime:
         lines.append(prime)
     kind = None
-    travel_word = f"G0 F{_fpm(travel_f)} X%.3f Y%.3f"
-    # plain Python numbers for the per-path loop (numpy scalars are slow to index)
+    travels = format_moves(f"G0 F{_fpm(travel_f)} ", travel_b)
+    # plain Python values for the per-path loop (numpy scalars are slow to index)
     hops = leaves.tolist()
-    travel_xy = travel_b.tolist()
-    feeds = [_fpm(v) for v in speeds.tolist()]
+    feed_of = {v: _fpm(v) for v in (wall_f, fill_f)}
+    feeds = [feed_of[v] for v in speeds.tolist()]
     firsts, lasts = first_move.tolist(), last_move.tolist()
     for k in range(n):
         if k > 0:
             hop = hops[k - 1] and retract
             if hop:
                 lines.append(retract)
-            lines.append(travel_word % tuple(travel_xy[k - 1]))
+            lines.append(travels[k - 1])
             if hop:
                 lines.append(prime)
         path_kind = paths[k].kind
@@ -153,6 +154,102 @@ def layer_code(
             lines.append(f"G1 F{feeds[k]} {g1[a][3:]}")
             lines.extend(g1[a + 1 : b])
     return LayerCode(lines, filament, time_s, z_line)
+
+
+# Moves are formatted as bytes by table lookups (a Python ``%`` per number
+# dominated a layer's time). Each number becomes fixed-size 4-byte words
+# padded with NUL bytes, which are deleted from the finished text.
+_WORD = np.dtype(np.uint32)
+
+
+def _words(texts: list[str]) -> np.ndarray:
+    """Each text (at most 4 ASCII characters) as one NUL-padded 4-byte word: (k,) uint32."""
+    return np.frombuffer(b"".join(t.encode("ascii").ljust(4, b"\0") for t in texts), _WORD)
+
+
+# whole part with its sign: _WHOLE[1, q] is "-q"; digits after the point, 3 then 2
+_WHOLE = _words([f"{s}{q}" for s in ("", "-") for q in range(1000)]).reshape(2, 1000)
+_FRAC3 = _words([f".{r:03d}" for r in range(1000)])
+_DIGITS2 = _words([f"{r:02d}" for r in range(100)])
+_SPACE_Y, _SPACE_E, _NEWLINE = _words([" Y", " E", "\n"])
+
+
+def format_moves(head: str, xy: np.ndarray, e: np.ndarray | None = None) -> list[str]:
+    """The lines ``head + "X%.3f Y%.3f" % (x, y)``, with ``" E%.5f" % e`` when ``e`` is
+    given, of many moves, byte for byte.
+
+    ``head`` ASCII text (e.g. ``"G1 "``); ``xy`` (m, 2) mm, ``e`` (m,) mm. Falls
+    back to Python formatting when a value is not finite or has more than
+    three whole digits once rounded.
+    """
+    xy_units = _rounded(xy, 3)
+    e_units = _rounded(e, 5) if e is not None else None
+    if xy_units is None or (e is not None and e_units is None):
+        template = head + "X%.3f Y%.3f" + (" E%.5f" if e is not None else "") + "\n"
+        columns = [xy] if e is None else [xy, e]
+        flat = np.column_stack(columns).ravel().tolist()
+        return ((template * len(xy)) % tuple(flat)).splitlines()
+    text = head + "X"
+    lead = _words([text[i : i + 4] for i in range(0, len(text), 4)])
+    h = len(lead)
+    # head, X and Y (whole and fraction each, " Y" between), E (" E" and three), newline
+    width = h + 5 + (4 if e is not None else 0) + 1
+    words = np.empty((len(xy), width), dtype=_WORD)
+    words[:, :h] = lead
+    sign, units = xy_units
+    words[:, h] = _WHOLE[sign[:, 0], units[:, 0] // 1000]
+    words[:, h + 1] = _FRAC3[units[:, 0] % 1000]
+    words[:, h + 2] = _SPACE_Y
+    words[:, h + 3] = _WHOLE[sign[:, 1], units[:, 1] // 1000]
+    words[:, h + 4] = _FRAC3[units[:, 1] % 1000]
+    if e_units is not None:
+        sign, units = e_units
+        words[:, h + 5] = _SPACE_E
+        words[:, h + 6] = _WHOLE[sign, units // 100000]
+        words[:, h + 7] = _FRAC3[units % 100000 // 100]
+        words[:, h + 8] = _DIGITS2[units % 100]
+    words[:, -1] = _NEWLINE
+    return words.tobytes().translate(None, b"\0").decode("ascii").splitlines()
+
+
+def _rounded(v: np.ndarray, decimals: int) -> tuple[np.ndarray, np.ndarray] | None:
+    """Sign (1 where negative, -0.0 included) and ``abs(v)`` in units of ``10**-decimals``
+    rounded exactly as ``"%.{decimals}f"`` rounds: two int64 arrays shaped as ``v``.
+
+    ``%`` rounds the exact value of the double, ties to even. The float product
+    ``abs(v) * 10**decimals`` is within half an ulp of the exact one, so ``rint``
+    of it is right except where it lies near a half unit: those products are
+    settled exactly by :func:`_round_near_half`. None when a value is not
+    finite or has more than three whole digits.
+    """
+    scale = 10.0**decimals
+    scaled = np.abs(v) * scale
+    # also rules out NaN and infinities; rint of anything below stays below 1000
+    if not (scaled < 1000 * scale - 0.5).all():
+        return None
+    units = np.rint(scaled)
+    near = np.abs(scaled - np.floor(scaled) - 0.5) < 1e-6
+    if near.any():
+        units[near] = _round_near_half(np.abs(v[near]), scale)
+    return np.signbit(v).astype(np.int64), units.astype(np.int64)
+
+
+def _round_near_half(a: np.ndarray, scale: float) -> np.ndarray:
+    """``a * scale`` rounded to a whole number, ties to even, for products within
+    1e-6 of a half: (k,) float64 whole numbers.
+
+    The sign of ``a * scale - half`` is found exactly: ``a`` is split into a
+    high part of 26 significant bits and the rest (Veltkamp's split), each
+    times ``scale`` (a power of ten up to 10**11 has at most 26 significant
+    bits) is exact, the high product minus the half is exact (the two are
+    within a factor of two: Sterbenz), and one rounded addition keeps the
+    sign of the exact sum (zero only when it is zero: a true tie).
+    """
+    low = np.floor(a * scale)
+    split = a * 134217729.0  # 2**27 + 1
+    high = split - (split - a)
+    side = (high * scale - (low + 0.5)) + (a - high) * scale
+    return low + ((side > 0) | ((side == 0) & (low % 2 == 1)))
 
 
 def _fpm(speed_mm_s: float) -> int:
@@ -181,7 +278,12 @@ def _pack(paths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 
 def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: float) -> np.ndarray:
-    """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave the part (retraction needed)."""
+    """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave the part (retraction needed).
+
+    A travel that starts inside the part and meets none of its edges stays
+    inside: two cheap indexed tests settle most travels, and only those that
+    start off the interior or touch an edge are decided by ``covered_by``.
+    """
     if len(a) == 0:
         return np.zeros(0, dtype=bool)
     lines = shapely.linestrings(np.stack([a, b], axis=1))
@@ -189,7 +291,14 @@ def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: f
     # a private, prepared copy: the outline may be shared with other threads
     area = shapely.from_wkb(shapely.to_wkb(outline))
     shapely.prepare(area)
-    return ~(shapely.covered_by(lines, area) | zero)
+    covered = np.zeros(len(a), dtype=bool)
+    if shapely.get_type_id(area) in (_POLYGON, _MULTIPOLYGON):
+        edges = shapely.boundary(area)
+        shapely.prepare(edges)
+        covered = shapely.contains_xy(area, a[:, 0], a[:, 1]) & ~shapely.intersects(edges, lines)
+    rest = np.flatnonzero(~covered)
+    covered[rest] = shapely.covered_by(lines[rest], area)
+    return ~(covered | zero)
 
 
 def heat_commands(settings: SliceSettings) -> list[str]:

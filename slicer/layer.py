@@ -299,7 +299,7 @@ def _order_loops(
     out = []
     here = np.asarray(pos, dtype=np.float64)
     for kind, rings in levels:
-        pts_all = np.concatenate(rings)
+        pts_x, pts_y = np.concatenate(rings).T
         sizes = np.array([len(r) for r in rings])
         starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
         done = np.zeros(len(rings), dtype=bool)
@@ -307,10 +307,10 @@ def _order_loops(
             if len(rings) == 1:
                 j = 0
             else:
-                diff = pts_all - here
-                dist = np.minimum.reduceat(np.einsum("ij,ij->i", diff, diff), starts)
+                dx, dy = pts_x - here[0], pts_y - here[1]
+                dist = np.minimum.reduceat(dx * dx + dy * dy, starts)
                 dist[done] = np.inf
-                j = int(np.argmin(dist))
+                j = int(dist.argmin())
             done[j] = True
             pts = rings[j]
             start = order.rear_seam(pts) if kind == WALL_OUTER else order.nearest_vertex(pts, here)

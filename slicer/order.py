@@ -34,8 +34,8 @@ def rear_seam(points: np.ndarray) -> int:
 
 def nearest_vertex(points: np.ndarray, pos: np.ndarray) -> int:
     """Index of the vertex of ``points`` (k, 2) nearest to ``pos`` (2,)."""
-    d = np.einsum("ij,ij->i", points - pos, points - pos)
-    return int(np.argmin(d))
+    dx, dy = points[:, 0] - pos[0], points[:, 1] - pos[1]
+    return int((dx * dx + dy * dy).argmin())
 
 
 def order_open_paths(
@@ -92,12 +92,16 @@ def join_paths(
     The connecting segment is extruded, so it is joined only when it stays
     near ``region`` (the fill region): its middle within ``slack`` mm of it
     (its ends lie on the region's edge), checked for all joints in one
-    vectorised call.
+    vectorised call. ``region`` is prepared in place for that check, so it
+    must be the caller's own geometry (not one shared with other threads).
     """
     if len(paths) < 2:
         return paths
-    a = np.array([p[-1] for p in paths[:-1]])
-    b = np.array([p[0] for p in paths[1:]])
+    sizes = np.array([len(p) for p in paths])
+    ends = np.cumsum(sizes)
+    pts = np.concatenate(paths)
+    a = pts[ends[:-1] - 1]  # each path's last point, but the last path's
+    b = pts[ends[:-1]]  # each path's first point, but the first path's
     gap = np.linalg.norm(b - a, axis=1)
     near = gap <= max_gap
     if not near.any():
@@ -105,17 +109,13 @@ def join_paths(
     idx = np.flatnonzero(near)
     middle = shapely.points((a[idx] + b[idx]) / 2.0)
     ok = np.zeros(len(near), dtype=bool)
-    ok[idx] = shapely.distance(region, middle) <= slack
-    out: list[np.ndarray] = []
-    current = [paths[0]]
-    for i in range(1, len(paths)):
-        if ok[i - 1]:
-            current.append(paths[i])
-        else:
-            out.append(np.concatenate(current) if len(current) > 1 else current[0])
-            current = [paths[i]]
-    out.append(np.concatenate(current) if len(current) > 1 else current[0])
-    return out
+    # distance <= slack; a prepared region answers inside points without
+    # measuring and indexes its edges for the others
+    shapely.prepare(region)
+    ok[idx] = shapely.dwithin(region, middle, slack)
+    # a joined run is the stretch of the concatenated points between two refused joints
+    cuts = ends[:-1][~ok]
+    return np.split(pts, cuts)
 
 
 def chord_levels(
@@ -233,36 +233,40 @@ def _visit_stacks(
     """
     s = len(ends)
     here = np.asarray(pos, dtype=np.float64)
-    out = np.empty((s, 2), dtype=np.int64)
     if s == 1:
         dist = np.einsum("ijk,ijk->ij", ends - here, ends - here)
-        out[0] = 0, int(np.argmin(dist[0]))
-        return out
+        return np.array([[0, int(dist[0].argmin())]], dtype=np.int64)
     # exits[s, c]: where the nozzle is after stack s entered at corner c
     end_chord = np.stack([fw[last], fw[last], fw[first], fw[first]], axis=1)  # (s, 4, 2, 2)
     turned = (sizes[:, None] + np.arange(4)[None, :]) % 2 == 0
     exits = np.where(turned[:, :, None], end_chord[:, :, 0], end_chord[:, :, 1])
-    flat_ends = ends.reshape(1, 4 * s, 2)
+    exits = exits.reshape(4 * s, 2)
     table = None
     if s <= _TABLE_STACKS:
-        diff = flat_ends - exits.reshape(4 * s, 1, 2)  # (4s, 4s, 2)
-        table = np.einsum("aik,aik->ai", diff, diff)
-        del diff
-    exits = exits.reshape(4 * s, 2)
-    # corners of stacks already visited are ruled out by an infinite penalty
+        # table[i, a]: corner i from exit a, (4s, 4s), so that a visited stack's
+        # corners are contiguous rows; x and y apart, as einsum is slow on a
+        # last axis of two (the sums are the same to the bit)
+        corners = ends.reshape(4 * s, 2)
+        dx = corners[:, None, 0] - exits[None, :, 0]
+        dy = corners[:, None, 1] - exits[None, :, 1]
+        table = dx * dx + dy * dy
     penalty = np.zeros(4 * s)
     dist = np.einsum("ijk,ijk->ij", ends - here, ends - here).ravel()
-    for step in range(s):
-        pick = int(np.argmin(dist))
+    picks = []
+    for _ in range(s):
+        pick = int(dist.argmin())
+        picks.append(pick)
+        # the corners of a visited stack are ruled out by an infinite distance
         k = pick >> 2
-        out[step] = k, pick & 3
-        penalty[4 * k : 4 * k + 4] = np.inf
         if table is not None:
-            dist = table[pick] + penalty
+            table[4 * k : 4 * k + 4] = np.inf
+            dist = table[:, pick]
         else:
+            penalty[4 * k : 4 * k + 4] = np.inf
             here = exits[pick]
             dist = np.einsum("ijk,ijk->ij", ends - here, ends - here).ravel() + penalty
-    return out
+    flat = np.array(picks, dtype=np.int64)
+    return np.stack([flat >> 2, flat & 3], axis=1)
 
 
 def _forward(chords: np.ndarray, d: np.ndarray) -> np.ndarray:
