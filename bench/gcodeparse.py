@@ -207,7 +207,8 @@ def outer_wall_regions(
     ``close_tol`` mm (open walls) are left out, the others are closed. Loops made of
     continuation moves alone count only as the outermost loop of an island apart from the
     other walls (PrusaSlicer marks every wall of an island printed over air as overhang).
-    Layers whose region is smaller than ``min_area`` mm² are left out. Keys are Z in units of 0.01 mm (``round(z * 100)``).
+    Layers whose region is smaller than ``min_area`` mm² are left out. Keys are Z in
+    units of 0.01 mm (``round(z * 100)``).
     """
     names, continuations = frozenset(names), frozenset(continuations)
     primary = moves.extruding & moves.type_mask(names)
