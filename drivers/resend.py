@@ -56,13 +56,26 @@ def resolve_resend(
     return best
 
 
+# Marlin's messages for a refused line, as they start the text after ``Error:``
+_LINE_ERRORS = (
+    "checksum mismatch",
+    "Line Number is not Last Line Number+1",
+    "No Checksum with line number",
+    "No Line Number with checksum",
+)
+
+
 def recover(response: Response) -> Response:
     """A line garbled by noise, read as what it most likely was.
 
-    Only ``other`` lines are touched: ``ok``, ``Error:``, ``Resend:`` and ``start`` with one
-    character changed are recognised (a lost ``ok`` stalls the window, a lost ``Error:``
-    makes its ``ok`` count for a line). Anything less certain stays ``other``.
+    ``ok``, ``Error:``, ``Resend:`` and ``start`` with one character changed are
+    recognised, and so is an ``Error:`` whose message for a refused line has one
+    character changed (a lost ``ok`` stalls the window; an error not known for a line
+    error leaves the ``Resend`` after it unannounced, and the ``ok`` after that would
+    count for a line). Anything less certain is left as it is.
     """
+    if response.kind == "error" and response.error_kind == "other":
+        return _recover_line_error(response)
     if response.kind != "other":
         return response
     raw = response.raw
@@ -79,4 +92,15 @@ def recover(response: Response) -> Response:
                 return fixed
     if len(raw) == 5 and edit_distance(raw.lower(), "start") == 1:
         return parse_response("start")
+    return response
+
+
+def _recover_line_error(response: Response) -> Response:
+    """An ``Error:`` line whose text differs from a line-error message in one character,
+    read as that message; any other error as it is."""
+    body = response.text
+    for message in _LINE_ERRORS:
+        head = body[: len(message)]
+        if len(head) == len(message) and edit_distance(head.lower(), message.lower()) == 1:
+            return parse_response("Error:" + message + body[len(message):])
     return response

@@ -372,6 +372,8 @@ class Streamer:
 
     def _handle(self, response: Response) -> None:
         kind = response.kind
+        if kind == "other":
+            return  # unreadable noise (a Resend garbled beyond repair): keep what came before
         after_resend = self._expect_resend_ok
         self._expect_resend_ok = False
         error_before = self._last_error
@@ -381,6 +383,8 @@ class Streamer:
                 self._emit_temperature(response)
             if after_resend:
                 return  # the ok Marlin 2.1 sends after every Resend
+            if error_before is not None and self.config.ok_after_resend:
+                return  # the same ok, after an Error whose Resend line was lost to noise
             self._on_ok(response)
         elif kind == "resend":
             self._on_resend(response, error_before)

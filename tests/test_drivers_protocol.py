@@ -213,6 +213,25 @@ def test_recover_garbled_replies():
     assert recover(parse_response("hello")).kind == "other"
 
 
+@pytest.mark.parametrize("garbled, kind", [
+    ("Error:Line Numbes is not Last Line Number+1, Last Line: 39", "line_number"),
+    ("Error:checksum mismatah, Last Line: 7", "checksum"),
+    ("Error:No Checksum with lijne number, Last Line: 7", "no_checksum"),
+    ("Error:No Line Number with checksup, Last Line: 7", "no_line_number"),
+])
+def test_a_garbled_line_error_message_is_still_a_line_error(garbled, kind):
+    # otherwise the Resend after it looks unannounced and its ok counts for a line
+    response = recover(parse_response(garbled))
+    assert response.error_kind == kind
+    assert response.line == int(garbled.rsplit(" ", 1)[1])
+
+
+def test_other_errors_are_left_as_they_are():
+    response = recover(parse_response("Error:MINTEMP triggered, system stopped! Heater_ID: 0"))
+    assert response.error_kind == "stopped"
+    assert recover(parse_response("Error:Heating failed")).error_kind == "other"
+
+
 # -- window ----------------------------------------------------------------------------------
 
 def test_window_bounds_bytes_and_lines():

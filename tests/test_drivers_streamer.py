@@ -366,6 +366,53 @@ def test_a_late_ok_for_a_rewritten_m110_never_acknowledges_a_job_line():
     assert link.acked == len(lines)
 
 
+class ResetAfterRefusal(ScriptedPrinter):
+    """Refuses line 30 once with ``refusal`` (noise has garbled part of it), then reboots
+    on the next numbered line it reads: ``start``, line numbers forgotten."""
+
+    def __init__(self, refusal: list[str]) -> None:
+        self.refusal = refusal
+        self.refused = False
+        self.reset_next = False
+        super().__init__(self._answer)
+
+    def _answer(self, number: int, command: str) -> list[str] | None:
+        if number == 30 and not self.refused:
+            self.refused = self.reset_next = True
+            return self.refusal
+        return None
+
+    def _line(self, text: str) -> None:
+        if self.reset_next and text.startswith("N"):
+            self.reset_next = False
+            self.received.append(text)
+            self.last_n = 0
+            self._send(["start"])
+            return
+        super()._line(text)
+
+
+@pytest.mark.parametrize("refusal", [
+    # one character of the message changed: still the error of a refused line
+    ["Error:Line Numbes is not Last Line Number+1, Last Line: 29", "Resend: 30", "ok"],
+    # the Resend line lost to noise: the ok right after the error is still its ok
+    ["Error:checksum mismatch, Last Line: 29", "Resent 3o", "ok"],
+])
+def test_the_ok_after_a_garbled_refusal_never_counts_for_a_line(refusal):
+    # counted for a line, that ok would make the link take the refused line as done,
+    # and a reboot before anything else corrected the count would lose it for good
+    lines = [f"G1 X{i}" for i in range(60)]
+    printer = ResetAfterRefusal(refusal)
+    try:
+        link = asyncio.run(stream_scripted(printer, lines))
+        executed = [c for c in printer.executed if c.split()[0] not in INTERNAL]
+    finally:
+        printer.close()
+    assert printer.refused
+    assert executed == lines
+    assert link.acked == len(lines)
+
+
 def test_no_autoreport_means_m105_polling():
     config = StreamerConfig(**{**FAST.__dict__, "temperature_interval_s": 0.05})
     reports = []
