@@ -52,7 +52,9 @@ __all__ = [
 _MAX_LATE_OKS = 8
 
 # an unknown-command echo of one of our framed lines whose leading "N" was garbled
-_MANGLED_LINE = re.compile(r"\d+ .*\*\d+\"?\s*$")
+# the echo of one of our framed lines whose leading N noise turned into another character:
+# Marlin ran it as an unknown command (without its checksum, which it strips)
+_GARBLED_N = re.compile(r'unknown command:\s*"?[^\d\s"](\d+) ', re.IGNORECASE)
 
 @dataclass
 class _Renumber:
@@ -393,9 +395,10 @@ class Streamer:
         elif kind == "temperature":
             self._emit_temperature(response)
         elif kind == "echo":
-            if _MANGLED_LINE.search(response.text) and response.text.lower().startswith("unknown"):
-                # a framed line whose leading N was garbled runs as an unknown command;
-                # its ok belongs to no line of ours
+            garbled = _GARBLED_N.match(response.text)
+            if garbled and int(garbled.group(1)) in self._history:
+                # a line of ours whose leading N was garbled ran as an unknown command;
+                # its ok belongs to no line of ours (the line is refused by number later)
                 self._expect_resend_ok = True
         elif kind == "capability":
             if response.name == "FIRMWARE_NAME":

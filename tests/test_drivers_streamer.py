@@ -367,37 +367,46 @@ def test_a_late_ok_for_a_rewritten_m110_never_acknowledges_a_job_line():
 
 
 class ResetAfterRefusal(ScriptedPrinter):
-    """Refuses line 30 once with ``refusal`` (noise has garbled part of it), then reboots
-    on the next numbered line it reads: ``start``, line numbers forgotten."""
+    """Refuses line 30 once, answering ``refusal(text)`` (noise has garbled part of the
+    exchange), then reboots on the next numbered line it reads: ``start``, line numbers
+    forgotten."""
 
-    def __init__(self, refusal: list[str]) -> None:
+    def __init__(self, refusal: Callable[[str], list[str]]) -> None:
         self.refusal = refusal
         self.refused = False
         self.reset_next = False
-        super().__init__(self._answer)
-
-    def _answer(self, number: int, command: str) -> list[str] | None:
-        if number == 30 and not self.refused:
-            self.refused = self.reset_next = True
-            return self.refusal
-        return None
+        super().__init__()
 
     def _line(self, text: str) -> None:
-        if self.reset_next and text.startswith("N"):
+        if not text.startswith("N"):
+            super()._line(text)
+        elif self.reset_next:
             self.reset_next = False
             self.received.append(text)
             self.last_n = 0
             self._send(["start"])
-            return
-        super()._line(text)
+        elif text.startswith("N30 ") and not self.refused:
+            self.refused = self.reset_next = True
+            self.received.append(text)
+            self._send(self.refusal(text))
+        else:
+            super()._line(text)
+
+
+def _unknown_command(text: str) -> list[str]:
+    """The reply to a framed line whose leading ``N`` noise turned into ``O`` (one bit): run
+    as an unknown command, without its checksum, and answered ``ok``."""
+    return [f'echo:Unknown command: "O{text[1:].rsplit("*", 1)[0]}"', "ok"]
 
 
 @pytest.mark.parametrize("refusal", [
     # one character of the message changed: still the error of a refused line
-    ["Error:Line Numbes is not Last Line Number+1, Last Line: 29", "Resend: 30", "ok"],
+    lambda _: ["Error:Line Numbes is not Last Line Number+1, Last Line: 29", "Resend: 30", "ok"],
     # the Resend line lost to noise: the ok right after the error is still its ok
-    ["Error:checksum mismatch, Last Line: 29", "Resent 3o", "ok"],
-])
+    lambda _: ["Error:checksum mismatch, Last Line: 29", "Resent 3o", "ok"],
+    # the line's N garbled: the printer runs it as an unknown command
+    _unknown_command,
+], ids=["garbled-error", "lost-resend", "garbled-n"])
 def test_the_ok_after_a_garbled_refusal_never_counts_for_a_line(refusal):
     # counted for a line, that ok would make the link take the refused line as done,
     # and a reboot before anything else corrected the count would lose it for good
