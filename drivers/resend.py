@@ -81,9 +81,11 @@ def recover(response: Response) -> Response:
     raw = response.raw
     if len(raw) == 2 and edit_distance(raw.lower(), "ok") == 1:
         return parse_response("ok")
-    if len(raw) > 3 and raw[2] == " " and edit_distance(raw[:2].lower(), "ok") == 1 \
-            and raw[3:4] in ("N", "T", "P", "B"):
-        return parse_response("ok" + raw[2:])
+    if len(raw) > 3 and raw[3:4] in ("N", "T", "P", "B"):
+        # "ok" or the space after it changed ("oj T:20.0 ...", "ok!T:20.0 ...")
+        changed = edit_distance(raw[:2].lower(), "ok") + (raw[2] != " ")
+        if changed == 1:
+            return parse_response("ok " + raw[3:])
     for word in ("Error:", "Resend:"):
         head = raw[: len(word)]
         if len(raw) > len(word) and edit_distance(head.lower(), word.lower()) == 1:

@@ -396,9 +396,12 @@ class Streamer:
             self._emit_temperature(response)
         elif kind == "echo":
             garbled = _GARBLED_N.match(response.text)
-            if garbled and int(garbled.group(1)) in self._history:
+            if garbled and int(garbled.group(1)) in self._history \
+                    and not response.text[garbled.end():].startswith("M110"):
                 # a line of ours whose leading N was garbled ran as an unknown command;
-                # its ok belongs to no line of ours (the line is refused by number later)
+                # its ok belongs to no line of ours (the line is refused by number later).
+                # An M110 is left alone: renumbering counts one ok per write of it, and
+                # one that did not take shows as refused lines, which renumber again
                 self._expect_resend_ok = True
         elif kind == "capability":
             if response.name == "FIRMWARE_NAME":

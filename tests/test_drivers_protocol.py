@@ -207,6 +207,10 @@ def test_edit_distance():
 
 def test_recover_garbled_replies():
     assert recover(parse_response("oj")).kind == "ok"
+    # a probe's answer with the space after "ok" changed still answers the probe
+    probe = recover(parse_response("ok!T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"))
+    assert probe.kind == "ok" and probe.has_temperatures
+    assert recover(parse_response("oj T:20.00 /0.00 B:20.00 /0.00")).has_temperatures
     assert recover(parse_response("Resgnd: 12")).line == 12
     assert recover(parse_response("Erbor:checksum mismatch, Last Line: 7")).error_kind == "checksum"
     assert recover(parse_response("stavt")).kind == "start"
