@@ -51,10 +51,10 @@ __all__ = [
 # most oks awaited for an M110 written several times
 _MAX_LATE_OKS = 8
 
-# an unknown-command echo of one of our framed lines whose leading "N" was garbled
 # the echo of one of our framed lines whose leading N noise turned into another character:
 # Marlin ran it as an unknown command (without its checksum, which it strips)
 _GARBLED_N = re.compile(r'unknown command:\s*"?[^\d\s"](\d+) ', re.IGNORECASE)
+
 
 @dataclass
 class _Renumber:
