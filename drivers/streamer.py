@@ -52,7 +52,7 @@ __all__ = [
 _MAX_LATE_OKS = 8
 
 # the echo of one of our framed lines whose leading N noise turned into another character:
-# Marlin ran it as an unknown command (without its checksum, which it strips)
+# the printer ran it as an unknown command (its checksum may be stripped from the echo)
 _GARBLED_N = re.compile(r'unknown command:\s*"?[^\d\s"](\d+) ', re.IGNORECASE)
 
 
