@@ -386,7 +386,8 @@ class Streamer:
             if after_resend:
                 return  # the ok Marlin 2.1 sends after every Resend
             if error_before is not None and self.config.ok_after_resend:
-                return  # the same ok, after an Error whose Resend line was lost to noise
+                self._on_lost_resend(error_before)  # this is the ok after it
+                return
             self._on_ok(response)
         elif kind == "resend":
             self._on_resend(response, error_before)
@@ -550,6 +551,16 @@ class Streamer:
         self._stale = max(0, len(dropped) - 1)
         self._replay_next = number
         self._wake.set()
+
+    def _on_lost_resend(self, error: Response) -> None:
+        """An ``Error`` then its ``ok``, the ``Resend`` between them lost to noise: act on
+        the request the error implies (the line after its ``Last Line``), so that a refused
+        ``M110`` counts as refused and a refused line is replayed."""
+        digits = str(error.line + 1) if error.line is not None else ""
+        implied = Response("resend", f"Resend: {digits}", line=error.line + 1 if digits else None,
+                           digits=digits)
+        self._on_resend(implied, error)
+        self._expect_resend_ok = False  # its ok is the one being read
 
     def _confirm_unannounced(self, number: int) -> bool:
         """Marlin announces every resend with an ``Error:`` line. A request without one (the
