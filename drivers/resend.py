@@ -31,7 +31,8 @@ def resolve_resend(
     numbers the printer can legitimately ask for (sent and unacknowledged, plus the next
     line to send); ``error_last_line`` is the ``Last Line`` of the error just before, when
     one was received. A request that names a candidate exactly (without a leading zero) is
-    taken as is; otherwise the ``Last Line`` of the error decides if it is a candidate;
+    taken as is, unless the ``Last Line`` of the error names another candidate (then
+    neither is trusted); otherwise the ``Last Line`` of the error decides if it is a candidate;
     otherwise the candidate whose digits differ least (at most ``max_distance`` edits, and
     a unique best) is taken. Noise can drop or change digits, so a request is never obeyed
     blindly.
@@ -43,7 +44,10 @@ def resolve_resend(
     clean = not (len(digits) > 1 and digits.startswith("0"))
     if error_last_line is not None and error_last_line + 1 in pool:
         if clean and requested in pool and requested != error_last_line + 1:
-            return min(requested, error_last_line + 1)
+            # one of the two was garbled: a replay from too early would drop lines the
+            # printer holds (their oks still to come), from too late skip one; the next
+            # refusal, of the next line on the wire or of a probe, will say
+            return None
         return error_last_line + 1
     if clean and requested in pool:
         return requested

@@ -189,8 +189,12 @@ def test_resend_for_a_line_not_sent_is_refused():
 
 def test_resend_exact_and_confirmed_by_last_line():
     assert resolve_resend("102", range(100, 105)) == 102
-    # the error said Last Line 100, the request was garbled to another plausible number
-    assert resolve_resend("103", range(100, 105), error_last_line=100) == 101
+    # the error said Last Line 100 and the request names another plausible line: one of
+    # them was garbled, and neither is obeyed (the next refusal says which)
+    assert resolve_resend("103", range(100, 105), error_last_line=100) is None
+    assert resolve_resend("100", range(100, 105), error_last_line=100) is None
+    # the request garbled to a line that cannot be asked for: the error's Last Line decides
+    assert resolve_resend("999", range(100, 105), error_last_line=100) == 101
     # a Last Line outside the window does not override a plausible request
     assert resolve_resend("103", range(100, 105), error_last_line=5) == 103
 
