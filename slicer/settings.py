@@ -18,6 +18,8 @@ INFILL_FIELDS = (
     "expression",
 )
 WALL_ORDERS = ("outer_first", "inner_first")
+STRESS_VARIANTS = ("A", "B")  # Eq. 14 with sigma(x, y, z), or sigma along the long axis
+MASS_MATCHES = ("", "linear")
 
 
 class SettingsError(ValueError):
@@ -64,6 +66,13 @@ class SliceSettings:
     infill_expression: str = ""
     infill_scale: float = 10.0
     infill_solid_below_area: float = 70.0
+    infill_stress: str = "A"
+    infill_load: str = ""
+    infill_match_mass_of: str = ""
+    infill_target_mass_g: float = 0.0
+    fea_mesh_size: float = 0.0
+    fea_youngs_modulus_mpa: float = 2200.0
+    fea_poisson_ratio: float = 0.35
     support_enabled: bool = False
     support_angle: float = 50.0
     support_clearance: float = 0.2
@@ -183,6 +192,13 @@ _SPECS: dict[str, _Spec] = {
     "infill.expression": _Spec(str),
     "infill.scale": _Spec(float, 0.5, 200.0),
     "infill.solid_below_area": _Spec(float, 0.0, 10000.0),
+    "infill.stress": _Spec(str, choices=STRESS_VARIANTS),
+    "infill.load": _Spec(str),
+    "infill.match_mass_of": _Spec(str, choices=MASS_MATCHES),
+    "infill.target_mass_g": _Spec(float, 0.0, 100000.0),
+    "fea.mesh_size": _Spec(float, 0.0, 50.0),
+    "fea.youngs_modulus_mpa": _Spec(float, 1.0, 1e6),
+    "fea.poisson_ratio": _Spec(float, 0.0, 0.49),
     "support.enabled": _Spec(bool),
     "support.angle": _Spec(float, 0.0, 90.0),
     "support.clearance": _Spec(float, 0.0, 5.0),

@@ -10,12 +10,13 @@ from scipy.interpolate import RegularGridInterpolator
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre
 from slicer.fields.grid import GridField
-from slicer.fields.stress_data import KEY, load_stress
+from slicer.fields.stress_data import KEY, StressData, load_stress
 from slicer.settings import SettingsError, SliceSettings
 
 SLAB_CELL = 2.0  # line widths between the nodes the samples are first interpolated to
 SLAB_NODES = 40_000  # at most this many such nodes per layer
 FLOOR = 0.05  # least modulation, as a fraction of the peak, so unloaded areas keep sparse lines
+AXIS_SAMPLES = 1024  # stations along the long axis where variant B reads the field
 
 
 @register("stress")
@@ -40,6 +41,7 @@ class StressField(GridField):
             raise SettingsError(KEY, "the stress field needs a file of x,y,z,value samples")
         self.data = load_stress(settings.infill_file)
         self.peak = float(np.max(np.abs(self.data.values))) or 1.0
+        self.profile = axis_profile(self.data) if settings.infill_stress == "B" else None
 
     def stress(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Interpolated field from the file at points (n,) mm on this layer -> (n,) float64.
@@ -52,6 +54,12 @@ class StressField(GridField):
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
         corner = self.data.lower_corner
+        if self.profile is not None:
+            xmin, ymin = ctx.bounds[:2]
+            mid = max(ctx.z - 0.5 * self.settings.layer_height, 0.0) + corner[2]
+            frame = (x - xmin + corner[0], y - ymin + corner[1], np.full(x.shape, mid))
+            axis, stations, values = self.profile
+            return np.interp(frame[axis], stations, values)
         mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0)
         xmin, ymin, xmax, ymax = ctx.bounds
         cell = SLAB_CELL * self.settings.line_width
@@ -78,3 +86,25 @@ class StressField(GridField):
         mirror = -1.0 if ctx.index % 2 else 1.0
         linear = (x - cx) * math.sin(t) + (y - cy) * math.cos(t) * mirror
         return (sigma.reshape(x.shape) * linear).reshape(x.shape)
+
+
+def axis_profile(data: StressData) -> tuple[int, np.ndarray, np.ndarray]:
+    """Variant B's field: ``sigma`` along the long axis of the samples' box through its
+    centre (the paper's ``sigma_vm(x, 0, 0)`` for a specimen along x).
+
+    The long axis is the samples' box's longest side (x, y or z; the first of
+    equal ones); the line runs through the middle of the other two sides. Returns
+    (axis 0..2, stations (m,) mm along it, values (m,)) in the data's own frame;
+    the field at any point is the profile's value at the point's station.
+    """
+    lo = data.points.min(axis=0)
+    hi = data.points.max(axis=0)
+    axis = int(np.argmax(hi - lo))
+    stations = np.linspace(lo[axis], hi[axis], AXIS_SAMPLES)
+    line = np.tile((lo + hi) / 2.0, (AXIS_SAMPLES, 1))
+    line[:, axis] = stations
+    if data.flat or axis != 2:  # one height: one look-up of the whole line
+        values = data.at(line[:, 0], line[:, 1], float(line[0, 2]))
+    else:  # a vertical line: one look-up per height (once per job)
+        values = np.concatenate([data.at(p[0:1], p[1:2], float(p[2])) for p in line])
+    return axis, stations, values

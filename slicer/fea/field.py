@@ -1,0 +1,149 @@
+"""The analysis of a model file as a stress field file the slicer reads, cached by its inputs."""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+from scipy import ndimage
+
+from slicer.fea.hexmesh import CORNERS, hex_mesh
+from slicer.fea.loadcase import (
+    ABS_POISSON,
+    ABS_YOUNGS_MPA,
+    LoadCase,
+    LoadCaseError,
+    read_load_case,
+)
+from slicer.fea.solve import Solution, analyse
+from slicer.fea.voxel import default_cell, mesh_volume, voxelize
+
+FIELD_VERSION = "1"  # bump when the analysis changes what it writes
+
+
+@dataclass(frozen=True)
+class FieldFile:
+    """A stress field written for the slicer: ``path`` (NPZ with ``points`` (n, 3) and
+    ``values`` (n,), von Mises MPa on the lattice of the mesh's nodes); ``cached``
+    True when it was found ready; ``peak_mpa`` the largest element von Mises stress;
+    ``cell`` (3,) mm the mesh's box edges; ``elements`` their count; ``seconds``
+    the analysis took (0 when cached)."""
+
+    path: Path
+    cached: bool
+    peak_mpa: float
+    cell: tuple[float, float, float]
+    elements: int
+    seconds: float
+
+
+def nodal_lattice(solution: Solution, values: np.ndarray | None = None) -> np.ndarray:
+    """Element values (e,) (default: von Mises) averaged to the lattice's nodes:
+    (nx+1, ny+1, nz+1) float64. Nodes of no solid element take the nearest
+    node's value, so the field is defined on the whole box."""
+    mesh = solution.mesh
+    values = solution.von_mises if values is None else np.asarray(values, dtype=float)
+    shape = np.array(mesh.grid.solid.shape) + 1
+    total = np.zeros(int(np.prod(shape)))
+    count = np.zeros(int(np.prod(shape)))
+    for offset in CORNERS:
+        flat = np.ravel_multi_index(tuple((mesh.cells + offset).T), shape)
+        total += np.bincount(flat, weights=values, minlength=len(total))
+        count += np.bincount(flat, minlength=len(count))
+    known = (count > 0).reshape(shape)
+    lattice = np.where(count > 0, total / np.maximum(count, 1), 0.0).reshape(shape)
+    if not known.all():
+        index = ndimage.distance_transform_edt(~known, return_distances=False, return_indices=True)
+        lattice = lattice[tuple(index)]
+    return lattice
+
+
+def lattice_points(solution: Solution) -> np.ndarray:
+    """Positions (n, 3) float64 mm of every lattice node, in the order of
+    ``nodal_lattice(...).ravel()``, in the model's own frame."""
+    grid = solution.mesh.grid
+    axes = [grid.origin[k] + grid.cell[k] * np.arange(grid.solid.shape[k] + 1) for k in range(3)]
+    mesh = np.meshgrid(*axes, indexing="ij")
+    return np.column_stack([m.ravel() for m in mesh])
+
+
+def analyse_arrays(
+    vertices: np.ndarray, faces: np.ndarray, case: LoadCase, size: float = 0.0
+) -> Solution:
+    """Voxelise the mesh (``size`` mm boxes, 0 for the default) and solve the case."""
+    size = size or default_cell(mesh_volume(vertices, faces))
+    try:
+        grid = voxelize(vertices, faces, size)
+    except ValueError as exc:
+        raise LoadCaseError(f"{case.source}: {exc}") from exc
+    if not grid.solid.any():
+        raise LoadCaseError(f"{case.source}: the model has no inside at a {size:g} mm mesh")
+    return analyse(hex_mesh(grid), case)
+
+
+def field_key(model_bytes: bytes, case: LoadCase, size: float) -> str:
+    """The cache key of an analysis: the model's bytes, the load case, material and size."""
+    digest = hashlib.sha256()
+    digest.update(FIELD_VERSION.encode())
+    digest.update(hashlib.sha256(model_bytes).digest())
+    digest.update(case.key().encode())
+    digest.update(repr(float(size)).encode())
+    return digest.hexdigest()[:32]
+
+
+def write_field(path: Path, solution: Solution) -> None:
+    """Write the nodal von Mises lattice as an NPZ the stress field reads (atomically)."""
+    path.parent.mkdir(parents=True, exist_ok=True)
+    fd, tmp = tempfile.mkstemp(prefix=".fea-", suffix=".npz", dir=path.parent)
+    try:
+        with os.fdopen(fd, "wb") as handle:
+            np.savez(
+                handle,
+                points=lattice_points(solution),
+                values=nodal_lattice(solution).ravel(),
+                peak=np.float64(solution.von_mises.max()),
+                cell=solution.mesh.grid.cell,
+                elements=np.int64(len(solution.mesh.cells)),
+            )
+        os.replace(tmp, path)
+    except BaseException:
+        if os.path.exists(tmp):
+            os.unlink(tmp)
+        raise
+
+
+def stress_field_file(
+    model: str | os.PathLike[str],
+    load: str | os.PathLike[str],
+    cache_dir: str | os.PathLike[str],
+    size: float = 0.0,
+    youngs: float = ABS_YOUNGS_MPA,
+    poisson: float = ABS_POISSON,
+) -> FieldFile:
+    """The von Mises field of ``model`` (STL) under the load case file ``load``, as a
+    field file in ``cache_dir`` named by :func:`field_key`; analysed only when no
+    such file exists yet. ``youngs`` (MPa) and ``poisson`` are the material unless
+    the case names its own. Raises LoadCaseError (bad case, model missing) or
+    slicer.errors.ModelError (unreadable STL)."""
+    from slicer.mesh import read_stl
+
+    model, load = Path(model), Path(load)
+    if not model.is_file():
+        raise LoadCaseError(f"{load.name}: its model {model.name} is missing")
+    case = read_load_case(load, youngs, poisson)
+    vertices, faces = read_stl(model)
+    size = size or default_cell(mesh_volume(vertices, faces))
+    path = Path(cache_dir) / f"stress-{field_key(model.read_bytes(), case, size)}.npz"
+    if path.is_file():
+        with np.load(path) as data:
+            return FieldFile(path, True, float(data["peak"]), tuple(data["cell"]),
+                             int(data["elements"]), 0.0)
+    solution = analyse_arrays(vertices, faces, case, size)
+    write_field(path, solution)
+    return FieldFile(path, False, float(solution.von_mises.max()),
+                     tuple(float(c) for c in solution.mesh.grid.cell),
+                     len(solution.mesh.cells), solution.seconds)

@@ -1,0 +1,228 @@
+"""Linear elastic analysis of a voxel mesh under a load case: loads, supports, solve, stress."""
+
+from __future__ import annotations
+
+import math
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from slicer.fea.hexmesh import (
+    Faces,
+    HexMesh,
+    boundary_faces,
+    elasticity_matrix,
+    element_matrix,
+    strain_matrix,
+)
+from slicer.fea.loadcase import NORMAL_CONE_DEG, LoadCase, LoadCaseError, Region
+
+RTOL = 1e-8  # relative residual at which the conjugate gradients stop
+MAX_ITERATIONS = 20_000
+
+
+@dataclass(frozen=True)
+class Solution:
+    """The analysis' result.
+
+    ``displacement`` (n, 3) float64 mm at the mesh's nodes; ``stress`` (e, 6)
+    float64 MPa at element centres (xx, yy, zz, yz, xz, xy); ``von_mises`` (e,)
+    float64 MPa; ``iterations`` of the solver; ``seconds`` it took.
+    """
+
+    mesh: HexMesh
+    displacement: np.ndarray
+    stress: np.ndarray
+    von_mises: np.ndarray
+    iterations: int
+    seconds: float
+
+
+def select(faces: Faces, region: Region, cell: np.ndarray) -> np.ndarray:
+    """Indices of the boundary faces a region selects: centre inside the box grown by
+    half a cell along the face's own normal (the voxel surface lies within that of
+    the model's surface), and with the surface's outward normal within 30 degrees
+    of the region's ``normal`` if given."""
+    grow = 0.5 * np.abs(faces.axis_normal) * np.asarray(cell)[None, :]
+    lo, hi = region.box[0] - grow, region.box[1] + grow
+    inside = np.all((faces.centre >= lo) & (faces.centre <= hi), axis=1)
+    if region.normal is not None:
+        cone = math.cos(math.radians(NORMAL_CONE_DEG))
+        inside &= faces.smooth_normal @ region.normal >= cone
+    return np.flatnonzero(inside)
+
+
+def _describe_extent(points: np.ndarray) -> str:
+    lo, hi = points.min(axis=0), points.max(axis=0)
+    return ", ".join(f"{a} {lo[k]:g}..{hi[k]:g}" for k, a in enumerate("xyz"))
+
+
+def _selected(faces: Faces, region: Region, mesh: HexMesh, case: LoadCase) -> np.ndarray:
+    chosen = select(faces, region, mesh.grid.cell)
+    if chosen.size == 0:
+        box = region.box
+        where = f"[[{box[0][0]:g}, {box[0][1]:g}, {box[0][2]:g}], " \
+                f"[{box[1][0]:g}, {box[1][1]:g}, {box[1][2]:g}]]"
+        facing = "" if region.normal is None else " facing its normal"
+        raise LoadCaseError(
+            f"{case.source}: {region.label}: box {where} selects no face of the model{facing} "
+            f"(the model spans {_describe_extent(mesh.points)} mm)"
+        )
+    return chosen
+
+
+def nodal_loads(mesh: HexMesh, faces: Faces, case: LoadCase) -> np.ndarray:
+    """Forces on the nodes (n, 3) float64 N from the case's forces and pressures.
+
+    A force is spread over its faces by area; a pressure ``p`` acts as traction
+    ``-p * n`` on each face of outward normal ``n``. Each face's share goes a
+    quarter to each of its four corners (exact for a constant traction on a
+    bilinear face).
+    """
+    load = np.zeros((len(mesh.points), 3))
+    for item in case.loads:
+        chosen = _selected(faces, item.region, mesh, case)
+        area = faces.area[chosen]
+        if item.vector is not None:
+            per_face = area[:, None] / area.sum() * item.vector[None, :]
+        else:
+            per_face = -float(item.mpa) * area[:, None] * faces.axis_normal[chosen]
+        for corner in range(4):
+            for comp in range(3):
+                load[:, comp] += np.bincount(
+                    faces.nodes[chosen, corner], weights=per_face[:, comp] / 4.0,
+                    minlength=len(mesh.points),
+                )
+    return load
+
+
+def fixed_nodes(mesh: HexMesh, faces: Faces, case: LoadCase) -> np.ndarray:
+    """Nodes held in place (k,) int64; refuses a case that leaves a body free to move."""
+    held = np.zeros(len(mesh.points), dtype=bool)
+    for region in case.fixed:
+        chosen = _selected(faces, region, mesh, case)
+        held[faces.nodes[chosen].ravel()] = True
+    for body in range(mesh.bodies):
+        members = mesh.body == body
+        nodes = np.unique(mesh.nodes[members])
+        anchor = nodes[held[nodes]]
+        where = _describe_extent(mesh.centres[members])
+        name = "the part" if mesh.bodies == 1 else f"body {body + 1} of {mesh.bodies} ({where})"
+        if anchor.size == 0:
+            raise LoadCaseError(
+                f"{case.source}: {name} is held by no [[fixed]] region: it is free to move "
+                "along x, y and z and to turn about them"
+            )
+        spread = mesh.points[anchor] - mesh.points[anchor].mean(axis=0)
+        rank = np.linalg.matrix_rank(spread, tol=1e-6 * float(np.abs(spread).max() or 1.0))
+        if rank < 2:
+            direction = np.linalg.svd(spread)[2][0] if rank == 1 else np.array([0.0, 0.0, 1.0])
+            centre = mesh.points[anchor].mean(axis=0)
+            raise LoadCaseError(
+                f"{case.source}: {name} is held only along a line: it is free to turn about "
+                f"the axis through ({centre[0]:g}, {centre[1]:g}, {centre[2]:g}) along "
+                f"({direction[0]:.2f}, {direction[1]:.2f}, {direction[2]:.2f})"
+            )
+    return np.flatnonzero(held)
+
+
+def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = None) -> Solution:
+    """Solve ``K u = f`` for the case and recover the stress.
+
+    ``modulus_scale`` (e,) float64 in [0, 1] multiplies each element's modulus
+    (a printed part rebuilt from its roads); None means solid everywhere. The
+    stiffness is never assembled: the conjugate-gradient solver applies it
+    element by element (one 24 x 24 matrix shared by every box), preconditioned
+    by its diagonal, so memory stays a few arrays of the mesh's size.
+    Raises LoadCaseError for a case the mesh cannot carry.
+    """
+    started = time.perf_counter()
+    faces = boundary_faces(mesh)
+    held = fixed_nodes(mesh, faces, case)
+    force = nodal_loads(mesh, faces, case).ravel()
+    scale = (np.ones(len(mesh.nodes)) if modulus_scale is None
+             else np.asarray(modulus_scale, dtype=float))
+    scale = scale * case.youngs_mpa
+    ke = element_matrix(mesh.grid.cell, case.poisson)
+    dofs = mesh.dofs
+    n = 3 * len(mesh.points)
+    free = np.ones(n, dtype=bool)
+    free[(3 * held[:, None] + np.arange(3)).ravel()] = False
+    flat = dofs.ravel()
+
+    def apply(u: np.ndarray) -> np.ndarray:
+        local = np.einsum("ei,ij->ej", u[dofs], ke) * scale[:, None]
+        return np.where(free, np.bincount(flat, weights=local.ravel(), minlength=n), 0.0)
+
+    diagonal = np.bincount(flat, weights=np.outer(scale, np.diag(ke)).ravel(), minlength=n)
+    if np.any(diagonal[free] <= 0):
+        raise LoadCaseError(f"{case.source}: part of the model carries no stiffness")
+    inverse = np.where(free, 1.0 / np.where(diagonal > 0, diagonal, 1.0), 0.0)
+    u, iterations = conjugate_gradients(apply, np.where(free, force, 0.0), inverse)
+    if u is None:
+        raise LoadCaseError(
+            f"{case.source}: the analysis did not converge in {iterations} iterations: part "
+            "of the model may hang by a thread; try another mesh size"
+        )
+    u = np.where(free, u, 0.0)
+    strain = u[dofs] @ strain_matrix(mesh.grid.cell).T  # (e, 6)
+    stress = (strain @ elasticity_matrix(case.poisson).T) * scale[:, None]
+    return Solution(
+        mesh=mesh,
+        displacement=u.reshape(-1, 3),
+        stress=stress,
+        von_mises=von_mises(stress),
+        iterations=iterations,
+        seconds=time.perf_counter() - started,
+    )
+
+
+def _dot(a: np.ndarray, b: np.ndarray) -> float:
+    # einsum, not BLAS: a threaded BLAS spins its threads on a busy small machine
+    return float(np.einsum("i,i->", a, b))
+
+
+def conjugate_gradients(
+    apply: Callable[[np.ndarray], np.ndarray],
+    rhs: np.ndarray,
+    inverse_diagonal: np.ndarray,
+    rtol: float = RTOL,
+    max_iterations: int = MAX_ITERATIONS,
+) -> tuple[np.ndarray | None, int]:
+    """Solve ``K x = rhs`` for symmetric positive (semi)definite ``K`` given as ``apply``,
+    preconditioned by the inverse of its diagonal (Jacobi). ``rhs`` and
+    ``inverse_diagonal`` (n,) float64. Returns (x (n,), iterations), x None when the
+    residual did not fall below ``rtol`` times the right-hand side's norm."""
+    x = np.zeros_like(rhs)
+    r = rhs.copy()
+    z = inverse_diagonal * r
+    p = z.copy()
+    rz = _dot(r, z)
+    goal = rtol * np.sqrt(_dot(rhs, rhs))
+    if goal == 0:
+        return x, 0
+    for iteration in range(max_iterations):
+        if np.sqrt(_dot(r, r)) <= goal:
+            return x, iteration
+        q = apply(p)
+        curvature = _dot(p, q)
+        if not curvature > 0:
+            return None, iteration
+        alpha = rz / curvature
+        x += alpha * p
+        r -= alpha * q
+        z = inverse_diagonal * r
+        rz, previous = _dot(r, z), rz
+        p = z + (rz / previous) * p
+    return None, max_iterations
+
+
+def von_mises(stress: np.ndarray) -> np.ndarray:
+    """Von Mises stress (e,) of stresses (e, 6) in Voigt order, same units."""
+    sx, sy, sz, tyz, txz, txy = stress.T
+    return np.sqrt(
+        0.5 * ((sx - sy) ** 2 + (sy - sz) ** 2 + (sz - sx) ** 2)
+        + 3.0 * (tyz**2 + txz**2 + txy**2)
+    )

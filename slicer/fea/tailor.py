@@ -1,0 +1,93 @@
+"""Slicing with the built-in analysis: a load case turns a plan's infill into stress infill."""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+from dataclasses import dataclass
+from pathlib import Path
+
+from slicer.fea.field import FieldFile, stress_field_file
+from slicer.fea.loadcase import load_path_for
+from slicer.fields.stress_mass import MassMatch, match_mass
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+
+
+@dataclass(frozen=True)
+class Tailoring:
+    """What was done to a plan: the analysis (``field``, None without a load case) and
+    the equal-mass search (``mass``, None unless asked for)."""
+
+    field: FieldFile | None
+    mass: MassMatch | None
+
+    def lines(self) -> list[str]:
+        """Summary lines, one fact each."""
+        out: list[str] = []
+        if self.field is not None:
+            f = self.field
+            how = "cached" if f.cached else f"analysed in {f.seconds:.1f} s"
+            cell = " x ".join(f"{c:.2f}" for c in f.cell)
+            out.append(
+                f"stress analysis: {f.elements} elements of {cell} mm, peak von Mises "
+                f"{f.peak_mpa:.2f} MPa ({how})"
+            )
+        if self.mass is not None:
+            out.append(self.mass.describe())
+        return out
+
+
+def find_load_case(model: str | os.PathLike[str], settings: SliceSettings,
+                   given: str | os.PathLike[str] | None = None) -> Path | None:
+    """The load case of a model: ``given``, else ``infill.load``, else ``NAME.load.toml``
+    beside the model when it exists; None when there is none."""
+    if given:
+        return Path(given)
+    if settings.infill_load:
+        return Path(settings.infill_load)
+    beside = load_path_for(model)
+    return beside if beside.is_file() else None
+
+
+def with_analysis(
+    model: str | os.PathLike[str],
+    settings: SliceSettings,
+    load: str | os.PathLike[str],
+    cache_dir: str | os.PathLike[str],
+) -> tuple[SliceSettings, FieldFile]:
+    """Settings whose infill is the stress field of ``model`` under the case ``load``
+    (``infill.field = "stress"``, ``infill.file`` the analysis' field file in
+    ``cache_dir``, analysed there unless cached). Raises LoadCaseError, ModelError."""
+    field = stress_field_file(
+        model, load, cache_dir, settings.fea_mesh_size,
+        settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio,
+    )
+    changed = dataclasses.replace(
+        settings, infill_field="stress", infill_file=str(field.path), infill_load=str(load)
+    )
+    return changed, field
+
+
+def tailored_plan(
+    model: str | os.PathLike[str],
+    settings: SliceSettings,
+    bed: tuple[float, float, float],
+    cache_dir: str | os.PathLike[str],
+    load: str | os.PathLike[str] | None = None,
+) -> tuple[SlicePlan, Tailoring]:
+    """The model's plan with the analysis applied (when it has a load case, see
+    :func:`find_load_case`) and its mass matched (when the settings ask)."""
+    field = None
+    case = find_load_case(model, settings, load)
+    if case is not None:
+        settings, field = with_analysis(model, settings, case, cache_dir)
+    plan = SlicePlan.from_file(model, settings, bed)
+    plan, mass = match_mass(plan)
+    return plan, Tailoring(field, mass)
+
+
+def default_cache_dir() -> Path:
+    """Where the command line keeps analyses: ``$XDG_CACHE_HOME/hostd/fea``."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "hostd" / "fea"
