@@ -40,6 +40,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", metavar="FILE", help="take [slicing] and [printer] from FILE")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="override one slicing setting (repeatable)")
+    p.add_argument("--load", metavar="FILE",
+                   help="load case (TOML): stress infill from the built-in analysis")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
     p = sub.add_parser("preview", help="draw one layer's toolpaths as PNG")

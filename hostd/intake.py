@@ -13,10 +13,12 @@ import uuid
 from pathlib import Path
 
 from hostd.config import Config, ConfigError, slicing_settings
-from hostd.jobfolder import free_stem, leaves_folder, move, split_name
+from hostd.jobfolder import LOAD_SUFFIX, free_stem, leaves_folder, move, split_name
 from hostd.jobstore import Job, JobStore
 from hostd.outcomes import Outcomes
 from hostd.status import StatusHub
+from slicer.errors import ModelError
+from slicer.settings import SliceSettings
 
 log = logging.getLogger("hostd.intake")
 
@@ -38,16 +40,22 @@ class Intake:
 
     async def take(self, path: Path) -> Job | None:
         """Check ``path`` and queue it as a job, or send it to failed/ with the reason."""
+        if path.name.lower().endswith(LOAD_SUFFIX):
+            return self._lone_load(path)
         stem, suffix = split_name(path.name)
         override = path.with_name(f"{stem}.toml")
+        load = path.with_name(f"{stem}{LOAD_SUFFIX}")
         kind = suffix.lstrip(".")
         try:
             self._check(path)
             settings = self._settings(override) if kind == "stl" else {}
+            if kind == "stl" and (load.exists() or load.is_symlink()):
+                await asyncio.to_thread(_check_load, path, load, settings)
             digest = await asyncio.to_thread(_sha256, path)
         except Rejected as exc:
             job = self.store.add(path.name, str(path), str(path), kind, "", {})
-            self.fail(job, str(exc), extra=[override] if override.exists() else [])
+            extra = [p for p in (override, load) if p.exists() and p != path]
+            self.fail(job, str(exc), extra=extra)
             return None
         incoming = self.area / f"incoming-{uuid.uuid4().hex}"
         incoming.mkdir(parents=True)
@@ -58,12 +66,25 @@ class Intake:
             staged = move(path, incoming / path.name)
         if override.is_file() and not override.is_symlink():
             move(override, incoming / override.name)
+        if kind == "stl" and load.is_file() and not load.is_symlink():
+            move(load, incoming / load.name)  # found beside the model when it is sliced
         job = self.store.add(path.name, str(path), str(staged), kind, digest, settings)
         home = move(incoming, self.area / job.id)
         job = self.store.set_path(job.id, str(home / path.name))
         log.info("job %s: %s queued (sha256 %s)", job.id, job.name, digest[:12])
         self.hub.event("queued", id=job.id, name=job.name)
         return job
+
+    def _lone_load(self, path: Path) -> None:
+        """A settled load case: taken later with its model, or failed when there is none."""
+        if not (path.exists() or path.is_symlink()):
+            return None  # already taken with its model
+        stem = path.name[: -len(LOAD_SUFFIX)]
+        if any(split_name(p.name) == (stem, ".stl") for p in path.parent.iterdir()):
+            return None  # its model's intake takes it
+        job = self.store.add(path.name, str(path), str(path), "load", "", {})
+        self.fail(job, f"{path.name}: its model {stem}.stl is missing: drop the model with it")
+        return None
 
     def _check(self, path: Path) -> None:
         """Refuse links leaving the folder, non-files, unreadable, empty and huge files."""
@@ -143,6 +164,25 @@ class Intake:
                     target = self.jobs_folder / f"{free_stem(self.jobs_folder, stem)}{suffix}"
                 move(path, target)
             incoming.rmdir()
+
+
+def _check_load(model: Path, load: Path, settings: dict[str, object]) -> None:
+    """Refuse a job whose load case (``NAME.load.toml``) cannot be analysed: Rejected
+    with the case's own reason. A model that cannot be read is left to the slicing,
+    which fails the job with the model's reason."""
+    from slicer.fea.field import check_case  # the analysis' modules load only when needed
+    from slicer.fea.loadcase import LoadCaseError
+
+    if load.is_symlink() or not load.is_file():
+        raise Rejected(f"{load.name} must be a plain file")
+    chosen = SliceSettings.from_mapping(settings)
+    try:
+        check_case(model, load, chosen.fea_mesh_size, chosen.fea_youngs_modulus_mpa,
+                   chosen.fea_poisson_ratio)
+    except LoadCaseError as exc:
+        raise Rejected(str(exc)) from exc
+    except ModelError:
+        return
 
 
 def _sha256(path: Path) -> str:

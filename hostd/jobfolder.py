@@ -7,6 +7,8 @@ import shutil
 from pathlib import Path
 
 ACCEPTED_SUFFIXES = (".stl", ".gcode")
+# a load case taken with its model; one whose model never comes is failed on its own
+LOAD_SUFFIX = ".load.toml"
 IGNORED_SUFFIXES = (".part", "~", ".swp", ".swx", ".tmp", ".crdownload", ".partial")
 # every file an outcome may hold for one job stem; a stem is free when none exists
 OUTCOME_SUFFIXES = (".stl", ".gcode", ".toml", ".error.txt", ".summary.txt")
@@ -19,8 +21,9 @@ def is_ignored(name: str) -> bool:
 
 
 def is_job_name(name: str) -> bool:
-    """True for a name the watcher takes as a job: ``.stl`` or ``.gcode``, not ignored."""
-    return not is_ignored(name) and name.lower().endswith(ACCEPTED_SUFFIXES)
+    """True for a name the watcher passes to the intake: ``.stl``, ``.gcode`` or a load
+    case (``.load.toml``), not ignored."""
+    return not is_ignored(name) and name.lower().endswith((*ACCEPTED_SUFFIXES, LOAD_SUFFIX))
 
 
 def split_name(name: str) -> tuple[str, str]:

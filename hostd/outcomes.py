@@ -85,6 +85,7 @@ class Outcomes:
             model = Path(job.path)
             if model.exists() or model.is_symlink():
                 move(model, target.with_name(target.name + suffix))
-        for path in extra:
-            move(path, target.with_name(target.name + path.suffix))
+        for path in extra:  # NAME.toml, NAME.load.toml: each keeps its whole suffix
+            tail = path.name[len(stem):] if path.name.startswith(stem) else path.suffix
+            move(path, target.with_name(target.name + tail))
         return target

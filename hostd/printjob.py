@@ -23,8 +23,8 @@ from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
 from hostd.status import StatusHub
 from slicer.errors import ModelError
+from slicer.fea.tailor import tailored_plan
 from slicer.gcode import header_lines, summarize
-from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
 log = logging.getLogger("hostd.job")
@@ -55,6 +55,7 @@ class PrintJob:
         self.schedule: LayerSchedule | None = None
         self.source: LayerSource | None = None
         self.warned: list[str] = []  # the model's warnings logged so far
+        self.tailoring: list[str] = []  # the analysis and equal-mass lines for the summary
         stem, _suffix = split_name(job.name)
         self.home = Path(job.path).parent
         self.partial = self.home / f"{stem}.gcode.part"
@@ -119,9 +120,14 @@ class PrintJob:
             return await asyncio.to_thread(FileSource, Path(job.path))
         settings = SliceSettings.from_mapping(job.settings)
         started = time.monotonic()
-        plan = await asyncio.to_thread(
-            SlicePlan.from_file, Path(job.path), settings, self.config.printer.bed
+        plan, tailoring = await asyncio.to_thread(
+            tailored_plan, Path(job.path), settings, self.config.printer.bed,
+            self.config.state.folder / "fea",
         )
+        self.tailoring = tailoring.lines()
+        for line in self.tailoring:
+            log.info("job %s %s: %s", job.id, job.name, line)
+        settings = plan.settings
         log.info("job %s %s: whole-model pass %.2f s, %d layers, %d bodies", job.id, job.name,
                  time.monotonic() - started, plan.layer_count, plan.body_count)
         # outlines are cut lazily: repairs found in later layers are logged at the end
@@ -195,6 +201,7 @@ class PrintJob:
                 f"filament {summary.filament_mm:.0f} mm ({summary.filament_g:.1f} g)\n"
                 f"estimated print time {summary.time_s:.0f} s\n"
             )
+        summary_text += "".join(f"{line}\n" for line in self.tailoring)
         summary_text += f"sha256 {job.sha256}\nlines acknowledged {self.runner.lines_acked}\n"
         changes = self.schedule.changes if self.schedule else []
         cancelled = self.schedule.cancelled if self.schedule else []

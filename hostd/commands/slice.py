@@ -46,14 +46,29 @@ def load_settings(config: str | None, assignments: list[str]) -> tuple[SliceSett
 
 def load_plan(model: str, settings: SliceSettings, bed: tuple) -> SlicePlan:
     """The model's plan; a model that cannot be sliced is bad input (UsageError)."""
+    return load_tailored(model, settings, bed)[0]
+
+
+def load_tailored(
+    model: str, settings: SliceSettings, bed: tuple, load: str | None = None
+) -> tuple[SlicePlan, list[str]]:
+    """The model's plan with its load case's analysis (``load``, ``infill.load`` or
+    ``NAME.load.toml`` beside the model) and equal mass applied, and the lines
+    reporting them. A bad model or load case is bad input (UsageError)."""
+    from slicer.fea.loadcase import LoadCaseError
+    from slicer.fea.tailor import default_cache_dir, tailored_plan
+
     if not os.path.exists(model):
         raise UsageError(f"{model}: no such file")
     try:
-        return SlicePlan.from_file(model, settings, bed)
+        plan, tailoring = tailored_plan(model, settings, bed, default_cache_dir(), load)
+    except LoadCaseError as exc:  # names its file itself
+        raise UsageError(str(exc)) from exc
     except ModelError as exc:
         raise UsageError(f"{model}: {exc}") from exc
     except SettingsError as exc:
         raise UsageError(str(exc)) from exc
+    return plan, tailoring.lines()
 
 
 def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCode]:
@@ -300,7 +315,7 @@ def run(args) -> int:
     return_freed_memory()
     settings, bed = load_settings(args.config, args.set)
     started = time.monotonic()
-    plan = load_plan(args.model, settings, bed)
+    plan, tailoring = load_tailored(args.model, settings, bed, getattr(args, "load", None))
     bar = None if args.quiet else ProgressBar(sys.stderr, "slicing")
     try:
         summary = write_gcode(plan, args.output, bar)
@@ -314,6 +329,8 @@ def run(args) -> int:
     )
     if plan.body_count > 1:
         print(f"{plan.body_count} objects")
+    for line in tailoring:
+        print(line)
     for warning in plan.warnings:
         print(f"warning: {warning}")
     return 0

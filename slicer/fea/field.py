@@ -11,7 +11,7 @@ from pathlib import Path
 import numpy as np
 from scipy import ndimage
 
-from slicer.fea.hexmesh import CORNERS, hex_mesh
+from slicer.fea.hexmesh import CORNERS, boundary_faces, hex_mesh
 from slicer.fea.loadcase import (
     ABS_POISSON,
     ABS_YOUNGS_MPA,
@@ -19,7 +19,7 @@ from slicer.fea.loadcase import (
     LoadCaseError,
     read_load_case,
 )
-from slicer.fea.solve import Solution, analyse
+from slicer.fea.solve import Solution, analyse, fixed_nodes, nodal_loads
 from slicer.fea.voxel import default_cell, mesh_volume, voxelize
 
 FIELD_VERSION = "1"  # bump when the analysis changes what it writes
@@ -83,6 +83,36 @@ def analyse_arrays(
     if not grid.solid.any():
         raise LoadCaseError(f"{case.source}: the model has no inside at a {size:g} mm mesh")
     return analyse(hex_mesh(grid), case)
+
+
+def check_case(
+    model: str | os.PathLike[str],
+    load: str | os.PathLike[str],
+    size: float = 0.0,
+    youngs: float = ABS_YOUNGS_MPA,
+    poisson: float = ABS_POISSON,
+) -> LoadCase:
+    """Everything :func:`stress_field_file` would refuse, without solving: the file's
+    keys and values, then every region against the meshed model (a region that
+    selects no face, a body held by nothing). Cheap enough to run when a job is
+    taken. Raises LoadCaseError; a model that cannot be read raises ModelError."""
+    from slicer.mesh import read_stl
+
+    model, load = Path(model), Path(load)
+    if not model.is_file():
+        raise LoadCaseError(f"{load.name}: its model {model.name} is missing")
+    case = read_load_case(load, youngs, poisson)
+    vertices, faces = read_stl(model)
+    size = size or default_cell(mesh_volume(vertices, faces))
+    try:
+        grid = voxelize(vertices, faces, size)
+    except ValueError as exc:
+        raise LoadCaseError(f"{case.source}: {exc}") from exc
+    mesh = hex_mesh(grid)
+    surface = boundary_faces(mesh)
+    fixed_nodes(mesh, surface, case)
+    nodal_loads(mesh, surface, case)
+    return case
 
 
 def field_key(model_bytes: bytes, case: LoadCase, size: float) -> str:

@@ -11,6 +11,8 @@ from typing import Any
 
 import numpy as np
 
+from slicer.errors import ModelError
+
 ABS_YOUNGS_MPA = 2200.0
 ABS_POISSON = 0.35
 LOAD_SUFFIX = ".load.toml"
@@ -24,8 +26,9 @@ _TABLES = {
 }
 
 
-class LoadCaseError(ValueError):
-    """A load case that cannot be analysed; the message says which entry and why."""
+class LoadCaseError(ModelError):
+    """A load case that cannot be analysed; the message says which entry and why
+    (a ModelError: the job cannot be sliced as asked)."""
 
 
 @dataclass(frozen=True)

@@ -18,9 +18,11 @@ from slicer.fea.hexmesh import (
     strain_matrix,
 )
 from slicer.fea.loadcase import NORMAL_CONE_DEG, LoadCase, LoadCaseError, Region
+from slicer.fea.multigrid import Multigrid, assemble
 
 RTOL = 1e-8  # relative residual at which the conjugate gradients stop
 MAX_ITERATIONS = 20_000
+MG_ITERATIONS = 300  # with multigrid, more than this means it does not suit the mesh
 
 
 @dataclass(frozen=True)
@@ -133,9 +135,11 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
 
     ``modulus_scale`` (e,) float64 in [0, 1] multiplies each element's modulus
     (a printed part rebuilt from its roads); None means solid everywhere. The
-    stiffness is never assembled: the conjugate-gradient solver applies it
-    element by element (one 24 x 24 matrix shared by every box), preconditioned
-    by its diagonal, so memory stays a few arrays of the mesh's size.
+    stiffness (one 24 x 24 matrix shared by every box, scaled) is assembled a
+    chunk at a time into a sparse matrix and solved by conjugate gradients
+    preconditioned with a geometric multigrid V-cycle (see
+    :class:`slicer.fea.multigrid.Multigrid`): memory grows linearly with the
+    mesh, with no factorisation of the whole matrix.
     Raises LoadCaseError for a case the mesh cannot carry.
     """
     started = time.perf_counter()
@@ -146,27 +150,35 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
              else np.asarray(modulus_scale, dtype=float))
     scale = scale * case.youngs_mpa
     ke = element_matrix(mesh.grid.cell, case.poisson)
-    dofs = mesh.dofs
     n = 3 * len(mesh.points)
     free = np.ones(n, dtype=bool)
     free[(3 * held[:, None] + np.arange(3)).ravel()] = False
-    flat = dofs.ravel()
-
-    def apply(u: np.ndarray) -> np.ndarray:
-        local = np.einsum("ei,ij->ej", u[dofs], ke) * scale[:, None]
-        return np.where(free, np.bincount(flat, weights=local.ravel(), minlength=n), 0.0)
-
-    diagonal = np.bincount(flat, weights=np.outer(scale, np.diag(ke)).ravel(), minlength=n)
-    if np.any(diagonal[free] <= 0):
+    stiffness = assemble(mesh, ke, scale)[free][:, free].tocsr()
+    if np.any(stiffness.diagonal() <= 0):
         raise LoadCaseError(f"{case.source}: part of the model carries no stiffness")
-    inverse = np.where(free, 1.0 / np.where(diagonal > 0, diagonal, 1.0), 0.0)
-    u, iterations = conjugate_gradients(apply, np.where(free, force, 0.0), inverse)
-    if u is None:
+    positions = np.rint((mesh.points - mesh.grid.origin) / mesh.grid.cell).astype(np.int64)
+    node_body = np.zeros(len(mesh.points), dtype=np.int64)
+    node_body[mesh.nodes.ravel()] = np.repeat(mesh.body, 8)
+    try:
+        preconditioner = Multigrid(stiffness, positions, node_body, free)
+    except RuntimeError as exc:  # a singular coarsest level: the case moves freely
+        raise LoadCaseError(f"{case.source}: the model cannot carry this case ({exc})") from exc
+    solved, iterations = conjugate_gradients(
+        lambda x: stiffness @ x, force[free], preconditioner, max_iterations=MG_ITERATIONS
+    )
+    if solved is None:  # a mesh the smoother does not suit: plain Jacobi, slower but sure
+        inverse = 1.0 / stiffness.diagonal()
+        solved, more = conjugate_gradients(lambda x: stiffness @ x, force[free],
+                                           lambda r: inverse * r)
+        iterations += more
+    if solved is None:
         raise LoadCaseError(
             f"{case.source}: the analysis did not converge in {iterations} iterations: part "
             "of the model may hang by a thread; try another mesh size"
         )
-    u = np.where(free, u, 0.0)
+    u = np.zeros(n)
+    u[free] = solved
+    dofs = mesh.dofs
     strain = u[dofs] @ strain_matrix(mesh.grid.cell).T  # (e, 6)
     stress = (strain @ elasticity_matrix(case.poisson).T) * scale[:, None]
     return Solution(
@@ -187,17 +199,17 @@ def _dot(a: np.ndarray, b: np.ndarray) -> float:
 def conjugate_gradients(
     apply: Callable[[np.ndarray], np.ndarray],
     rhs: np.ndarray,
-    inverse_diagonal: np.ndarray,
+    precondition: Callable[[np.ndarray], np.ndarray],
     rtol: float = RTOL,
     max_iterations: int = MAX_ITERATIONS,
 ) -> tuple[np.ndarray | None, int]:
-    """Solve ``K x = rhs`` for symmetric positive (semi)definite ``K`` given as ``apply``,
-    preconditioned by the inverse of its diagonal (Jacobi). ``rhs`` and
-    ``inverse_diagonal`` (n,) float64. Returns (x (n,), iterations), x None when the
+    """Solve ``K x = rhs`` for symmetric positive definite ``K`` given as ``apply``,
+    with the symmetric preconditioner ``precondition`` (residual -> correction).
+    ``rhs`` (n,) float64. Returns (x (n,), iterations), x None when the
     residual did not fall below ``rtol`` times the right-hand side's norm."""
     x = np.zeros_like(rhs)
     r = rhs.copy()
-    z = inverse_diagonal * r
+    z = precondition(r)
     p = z.copy()
     rz = _dot(r, z)
     goal = rtol * np.sqrt(_dot(rhs, rhs))
@@ -213,7 +225,7 @@ def conjugate_gradients(
         alpha = rz / curvature
         x += alpha * p
         r -= alpha * q
-        z = inverse_diagonal * r
+        z = precondition(r)
         rz, previous = _dot(r, z), rz
         p = z + (rz / previous) * p
     return None, max_iterations

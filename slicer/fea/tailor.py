@@ -6,12 +6,15 @@ import dataclasses
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING
 
-from slicer.fea.field import FieldFile, stress_field_file
 from slicer.fea.loadcase import load_path_for
 from slicer.fields.stress_mass import MassMatch, match_mass
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
+
+if TYPE_CHECKING:
+    from slicer.fea.field import FieldFile
 
 
 @dataclass(frozen=True)
@@ -59,6 +62,8 @@ def with_analysis(
     """Settings whose infill is the stress field of ``model`` under the case ``load``
     (``infill.field = "stress"``, ``infill.file`` the analysis' field file in
     ``cache_dir``, analysed there unless cached). Raises LoadCaseError, ModelError."""
+    from slicer.fea.field import stress_field_file  # scipy.sparse: loaded when needed
+
     field = stress_field_file(
         model, load, cache_dir, settings.fea_mesh_size,
         settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio,

@@ -100,8 +100,8 @@ def voxelize(vertices: np.ndarray, faces: np.ndarray, size: float) -> VoxelGrid:
     with np.errstate(divide="ignore", invalid="ignore"):
         l1 = ((b[:, 1] - c[:, 1]) * (px - c[:, 0]) + (c[:, 0] - b[:, 0]) * (py - c[:, 1])) / det
         l2 = ((c[:, 1] - a[:, 1]) * (px - c[:, 0]) + (a[:, 0] - c[:, 0]) * (py - c[:, 1])) / det
-    l3 = 1.0 - l1 - l2
-    hit = ok & (l1 >= 0) & (l2 >= 0) & (l3 >= 0)
+        l3 = 1.0 - l1 - l2
+        hit = ok & (l1 >= 0) & (l2 >= 0) & (l3 >= 0)
     z = l1[hit] * a[hit, 2] + l2[hit] * b[hit, 2] + l3[hit] * c[hit, 2]
     # the crossing counts for every centre above it: centre k sits at k + 0.5
     k = np.clip(np.ceil(z - 0.5), 0, nz).astype(np.int64)
