@@ -92,7 +92,7 @@ def test_pressure_pushes_into_the_part() -> None:
 def test_check_case_refuses_a_load_file_whose_model_is_missing(tmp_path: Path) -> None:
     load = tmp_path / "part.load.toml"
     load.write_text(BAR)
-    with pytest.raises(LoadCaseError, match="part.load.toml: its model part.stl is missing"):
+    with pytest.raises(LoadCaseError, match=r"part\.load\.toml: its model part\.stl is missing"):
         check_case(tmp_path / "part.stl", load)
 
 

@@ -1,0 +1,112 @@
+"""Stress infill from the built-in analysis: where variant A puts material, B's axis, equal mass."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+import shapely
+import trimesh
+from slicer_helpers import extrusions, write_mesh
+
+from slicer.fea.tailor import tailored_plan
+from slicer.fields.stress import axis_profile
+from slicer.fields.stress_data import load_stress
+from slicer.fields.stress_mass import extruded_grams
+from slicer.plan import SlicePlan
+from slicer.settings import SettingsError, SliceSettings
+
+ROOT = Path(__file__).resolve().parent.parent
+DOGBONE = ROOT / "examples" / "dogbone" / "dogbone.stl"
+BED = (220.0, 220.0, 250.0)
+GAGE = (40.0, 10.0, 60.0, 20.0)  # model frame, mm: 20 long, 10 wide, centred
+FREE_ENDS = ((0.0, 0.0, 12.0, 30.0), (88.0, 0.0, 100.0, 30.0))  # the gripped ends
+
+
+def fill_length_per_area(plan, layers, boxes) -> float:
+    """Infill road length per mm^2 inside ``boxes`` (model frame) over ``layers``."""
+    xmin, ymin = plan.bounds[:2]
+    length = 0.0
+    for i in layers:
+        lines = plan.layer_code(i).lines
+        roads = [shapely.LineString(p) for p in extrusions(lines, "FILL") if len(p) >= 2]
+        fill = shapely.MultiLineString(roads)
+        for x0, y0, x1, y1 in boxes:
+            length += fill.intersection(shapely.box(x0 + xmin, y0 + ymin, x1 + xmin,
+                                                    y1 + ymin)).length
+    area = sum((x1 - x0) * (y1 - y0) for x0, y0, x1, y1 in boxes) * len(layers)
+    return length / area
+
+
+@pytest.fixture(scope="module")
+def cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    return tmp_path_factory.mktemp("fea")
+
+
+def test_variant_a_puts_more_infill_in_the_gage_than_in_the_gripped_ends(cache: Path) -> None:
+    settings = SliceSettings.from_mapping({"infill.stress": "A"})
+    plan, tailoring = tailored_plan(DOGBONE, settings, BED, cache)
+    assert plan.settings.infill_field == "stress" and tailoring.field is not None
+    layers = [10, 11]
+    gage = fill_length_per_area(plan, layers, [GAGE])
+    ends = fill_length_per_area(plan, layers, FREE_ENDS)
+    assert gage > 1.5 * ends, (gage, ends)
+    linear = plan.with_settings(SliceSettings())
+    assert gage > fill_length_per_area(linear, layers, [GAGE])
+
+
+def test_variant_b_reads_the_field_along_the_long_axis_only(cache: Path) -> None:
+    settings = SliceSettings.from_mapping({"infill.stress": "B"})
+    plan, tailoring = tailored_plan(DOGBONE, settings, BED, cache)
+    assert tailoring.field is not None and tailoring.field.cached  # A's analysis, reused
+    data = load_stress(tailoring.field.path)
+    axis, stations, values = axis_profile(data)
+    assert axis == 0 and stations[0] == pytest.approx(0.0) and stations[-1] >= 100.0
+    gage = values[(stations > 40) & (stations < 60)]
+    grip = values[stations < 6]
+    assert gage.min() > 3 * grip.max()  # 1 kN over 10 x 5 mm: about 20 MPa; the held end: ~0
+    assert np.median(gage) == pytest.approx(1000.0 / 50.0, rel=0.12)
+    field = plan.infill_field
+    ctx = plan.layer_context(10)
+    xmin, ymin = plan.bounds[:2]
+    across = field.stress(np.full(5, xmin + 50.0), ymin + np.linspace(10, 20, 5), ctx)
+    assert np.ptp(across) == pytest.approx(0.0, abs=1e-9)  # constant across the specimen
+
+
+def bar_files(folder: Path) -> Path:
+    bar = trimesh.creation.box((40.0, 12.0, 3.0))
+    bar.apply_translation([20.0, 6.0, 1.5])
+    stl = write_mesh(bar, folder / "bar.stl")
+    (folder / "bar.load.toml").write_text(
+        "[[fixed]]\nbox = [[0, 0, 0], [0, 12, 3]]\n"
+        "[[force]]\nbox = [[40, 0, 0], [40, 12, 3]]\nnewtons = [0, 50, 0]\n"
+    )
+    return stl
+
+
+@pytest.mark.parametrize("ask", ["linear", "target"])
+def test_equal_mass_lands_within_one_percent(tmp_path: Path, ask: str) -> None:
+    stl = bar_files(tmp_path)
+    base = {"layer_height": 0.3, "first_layer_height": 0.3, "top_layers": 2,
+            "bottom_layers": 2, "infill.density": 0.25}
+    reference = extruded_grams(SlicePlan.from_file(stl, SliceSettings.from_mapping(base), BED))
+    target = reference if ask == "linear" else 1.15 * reference
+    keys = {"infill.match_mass_of": "linear"} if ask == "linear" else {
+        "infill.target_mass_g": target}
+    plan, tailoring = tailored_plan(stl, SliceSettings.from_mapping({**base, **keys}), BED,
+                                    tmp_path / "cache")
+    assert tailoring.field is not None and tailoring.mass is not None
+    grams = extruded_grams(plan)
+    assert grams == pytest.approx(target, rel=0.01)
+    assert tailoring.mass.mass_g == pytest.approx(grams)
+    assert tailoring.mass.target_g == pytest.approx(target)
+    assert plan.settings.infill_density == pytest.approx(tailoring.mass.k)
+    assert "equal mass: k = " in tailoring.lines()[-1]
+
+
+def test_an_unreachable_target_mass_is_refused(tmp_path: Path) -> None:
+    stl = bar_files(tmp_path)
+    with pytest.raises(SettingsError, match="walls and skins alone"):
+        tailored_plan(stl, SliceSettings.from_mapping({"infill.target_mass_g": 0.01}), BED,
+                      tmp_path / "cache")
