@@ -44,6 +44,13 @@ def build_parser() -> argparse.ArgumentParser:
                    help="load case (TOML): stress infill from the built-in analysis")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
+    p = sub.add_parser("tailor", help="Linear, Stress A and B G-codes at equal mass of a "
+                       "folder's model and load case, pictures, predicted moduli")
+    p.add_argument("folder", metavar="DIR", help="holds NAME.stl, NAME.load.toml (NAME.toml)")
+    p.add_argument("-o", "--output", metavar="OUTDIR", help="where to write (default DIR/out)")
+    p.add_argument("--config", metavar="FILE", help="take [slicing] and [printer] from FILE")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
+
     p = sub.add_parser("preview", help="draw one layer's toolpaths as PNG")
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--layer", type=int, required=True, metavar="N")
@@ -99,6 +106,7 @@ _COMMANDS = {
     "run": "hostd.commands.run",
     "slice": "hostd.commands.slice",
     "preview": "hostd.commands.preview",
+    "tailor": "hostd.commands.tailor",
     "tui": "hostd.commands.tui",
     "status": "hostd.commands.status",
     "resume": "hostd.commands.resume",

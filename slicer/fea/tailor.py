@@ -4,12 +4,13 @@ from __future__ import annotations
 
 import dataclasses
 import os
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 from slicer.fea.loadcase import load_path_for
-from slicer.fields.stress_mass import MassMatch, match_mass
+from slicer.fields.stress_mass import MassMatch, extruded_grams, match_mass
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -80,15 +81,17 @@ def tailored_plan(
     bed: tuple[float, float, float],
     cache_dir: str | os.PathLike[str],
     load: str | os.PathLike[str] | None = None,
+    measure: Callable[[SlicePlan], float] = extruded_grams,
 ) -> tuple[SlicePlan, Tailoring]:
     """The model's plan with the analysis applied (when it has a load case, see
-    :func:`find_load_case`) and its mass matched (when the settings ask)."""
+    :func:`find_load_case`) and its mass matched (when the settings ask; ``measure``
+    as in :func:`slicer.fields.stress_mass.match_mass`)."""
     field = None
     case = find_load_case(model, settings, load)
     if case is not None:
         settings, field = with_analysis(model, settings, case, cache_dir)
     plan = SlicePlan.from_file(model, settings, bed)
-    plan, mass = match_mass(plan)
+    plan, mass = match_mass(plan, measure)
     return plan, Tailoring(field, mass)
 
 

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from slicer.gcode import filament_grams
@@ -61,9 +62,13 @@ def target_of(plan: SlicePlan) -> tuple[float, str] | None:
     return None
 
 
-def match_mass(plan: SlicePlan) -> tuple[SlicePlan, MassMatch | None]:
+def match_mass(
+    plan: SlicePlan, measure: Callable[[SlicePlan], float] = extruded_grams
+) -> tuple[SlicePlan, MassMatch | None]:
     """The plan at the infill density whose extruded mass is the target's within 1 %.
 
+    ``measure`` gives a plan's extruded mass in g (by default every layer is
+    sliced here; a caller writing the G-code anyway may measure by writing it).
     Mass grows with density; the search starts at the settings' density (the
     stress field's levels are fitted to the same mean spacing as the linear
     field's, so this is often within 1 % already), brackets the target between
@@ -81,7 +86,7 @@ def match_mass(plan: SlicePlan) -> tuple[SlicePlan, MassMatch | None]:
         nonlocal trials
         trials += 1
         trial = plan.with_settings(_with(settings, infill_density=density))
-        return trial, extruded_grams(trial)
+        return trial, measure(trial)
 
     first_d = settings.infill_density
     first_plan, first_m = mass_at(first_d)

@@ -1,0 +1,146 @@
+"""`hostd tailor DIR`: the paper's dogbone experiment for any part with a load case.
+
+Writes Linear, Stress A and Stress B G-codes at equal mass, pictures like the
+paper's Fig. 16 and 17, and the apparent modulus each print is predicted to
+have in the load case's tension test (the printed roads rebuilt on the voxel
+grid and analysed).
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import os
+import time
+import tomllib
+from pathlib import Path
+
+from hostd.cli import UsageError
+from hostd.commands.slice import load_settings, write_gcode
+from hostd.commands.tailor_pictures import write_pictures
+from slicer.errors import ModelError
+from slicer.fea.loadcase import LOAD_SUFFIX
+from slicer.fea.predict import Prediction, predict_moduli
+from slicer.fea.tailor import default_cache_dir, tailored_plan
+from slicer.plan import SlicePlan
+from slicer.settings import SettingsError, SliceSettings, parse_assignment
+
+VARIANTS = ("A", "B")
+
+
+def find_inputs(folder: Path) -> tuple[Path, Path, Path | None]:
+    """The folder's model ``NAME.stl``, its ``NAME.load.toml`` and optional ``NAME.toml``."""
+    if not folder.is_dir():
+        raise UsageError(f"{folder}: no such folder")
+    loads = sorted(folder.glob(f"*{LOAD_SUFFIX}"))
+    models = sorted(p for p in folder.iterdir() if p.suffix.lower() == ".stl")
+    if not loads:
+        raise UsageError(f"{folder}: no load case (NAME{LOAD_SUFFIX}) in the folder")
+    if len(loads) > 1:
+        raise UsageError(f"{folder}: more than one load case: {', '.join(p.name for p in loads)}")
+    stem = loads[0].name[: -len(LOAD_SUFFIX)]
+    model = next((p for p in models if p.stem == stem), None)
+    if model is None:
+        raise UsageError(f"{loads[0]}: its model {stem}.stl is missing")
+    settings = folder / f"{stem}.toml"
+    return model, loads[0], settings if settings.is_file() else None
+
+
+def _settings(args, extra: Path | None) -> tuple[SliceSettings, tuple]:
+    """``--config``'s slicing settings, then the folder's ``NAME.toml``, then ``--set``."""
+    settings, bed = load_settings(args.config, [])
+    if extra is not None:
+        try:
+            values = tomllib.loads(extra.read_text(encoding="utf-8"))
+            settings = SliceSettings.from_mapping(values, settings)
+        except (SettingsError, tomllib.TOMLDecodeError, OSError, UnicodeDecodeError) as exc:
+            raise UsageError(f"{extra}: {exc}") from exc
+    try:
+        overrides = dict(parse_assignment(a) for a in args.set)
+        settings = SliceSettings.from_mapping(overrides, base=settings)
+    except SettingsError as exc:
+        raise UsageError(str(exc)) from exc
+    return settings, bed
+
+
+class _Writer:
+    """Measures a trial plan's mass by writing its G-code; keeps the files by plan."""
+
+    def __init__(self, folder: Path, stem: str) -> None:
+        self.folder = folder
+        self.stem = stem
+        self.files: dict[int, Path] = {}
+
+    def __call__(self, plan: SlicePlan) -> float:
+        path = self.folder / f".{self.stem}-trial{len(self.files)}.gcode"
+        summary = write_gcode(plan, path)
+        self.files[id(plan)] = path
+        return summary.filament_g
+
+    def keep(self, plan: SlicePlan, target: Path) -> None:
+        """Keep ``plan``'s file as ``target`` (writing it if it was never measured)."""
+        chosen = self.files.pop(id(plan), None)
+        if chosen is None:
+            write_gcode(plan, target)
+        else:
+            os.replace(chosen, target)
+        for path in self.files.values():
+            path.unlink(missing_ok=True)
+
+
+def run(args) -> int:
+    """Slice the folder's model three ways at equal mass, draw them, predict their moduli."""
+    folder = Path(args.folder)
+    model, load, extra = find_inputs(folder)
+    settings, bed = _settings(args, extra)
+    out = Path(args.output) if args.output else folder / "out"
+    out.mkdir(parents=True, exist_ok=True)
+    started = time.monotonic()
+    settings = dataclasses.replace(settings, infill_match_mass_of="", infill_target_mass_g=0.0,
+                                   infill_load="")
+    linear_settings = dataclasses.replace(settings, infill_field="linear")
+    lines: list[str] = []
+    try:
+        linear = SlicePlan.from_file(model, linear_settings, bed)
+        target = write_gcode(linear, out / "linear.gcode").filament_g
+        lines.append(f"linear.gcode: {target:.3f} g at infill.density {settings.infill_density:g}")
+        plans = {"Linear": linear}
+        field = None
+        for variant in VARIANTS:
+            wanted = dataclasses.replace(settings, infill_stress=variant,
+                                         infill_target_mass_g=target)
+            writer = _Writer(out, f"stress-{variant.lower()}")
+            plan, tailoring = tailored_plan(model, wanted, bed, default_cache_dir(), load, writer)
+            writer.keep(plan, out / f"stress-{variant.lower()}.gcode")
+            plans[f"Stress {variant}"] = plan
+            field = tailoring.field
+            lines += [f"stress-{variant.lower()}.gcode: {line}" for line in tailoring.lines()]
+        assert field is not None
+        write_pictures(out, plans, field.path)
+        gcodes = {"Linear": out / "linear.gcode", "Stress A": out / "stress-a.gcode",
+                  "Stress B": out / "stress-b.gcode"}
+        predictions = predict_moduli(model, load, settings, linear.bounds, gcodes)
+    except ModelError as exc:
+        raise UsageError(str(exc)) from exc
+    except SettingsError as exc:
+        raise UsageError(str(exc)) from exc
+    lines += _table(predictions)
+    lines.append(f"done in {time.monotonic() - started:.1f} s")
+    (out / "tailor.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
+    for line in lines:
+        print(line)
+    print(f"written to {out}/: linear.gcode, stress-a.gcode, stress-b.gcode, fig16.png, "
+          "fig17.png, tailor.txt")
+    return 0
+
+
+def _table(predictions: list[Prediction]) -> list[str]:
+    """The predicted apparent moduli as text lines, each against Linear."""
+    base = next(p for p in predictions if p.name == "Linear").modulus_mpa
+    rows = ["predicted apparent modulus (tension test rebuilt from each G-code):"]
+    for p in predictions:
+        gain = 100.0 * (p.modulus_mpa / base - 1.0)
+        ratio = "" if p.name == "Solid" else f"  {gain:+.0f} % vs Linear"
+        mass = "solid model" if p.name == "Solid" else f"mass {p.mass_g:.2f} g"
+        rows.append(f"  {p.name:9s} {p.modulus_mpa / 1000:.3f} GPa  {mass}{ratio}")
+    return rows
+
