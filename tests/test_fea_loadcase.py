@@ -113,6 +113,7 @@ def test_daemon_fails_bad_load_cases_with_their_reasons_and_prints_a_good_one(da
         hostd.drop(text.encode(), f"{stem}.load.toml")
         hostd.drop(stl, f"{stem}.stl")
     hostd.drop(BAR.encode(), "lonely.load.toml")
+    hostd.drop(b"fea.mesh_size = 1.0\n", "good.toml")
     hostd.drop(BAR.encode(), "good.load.toml")
     hostd.drop(stl, "good.stl")
     failed, done = hostd.jobs / "failed", hostd.jobs / "done"
