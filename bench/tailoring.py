@@ -1,0 +1,184 @@
+"""Built-in analysis and tailoring: analysis time and peak RSS, `hostd tailor`, first extrusion.
+
+Measures, each in a fresh process:
+  * the mesh convergence of a cantilever (tip deflection against Timoshenko beam theory);
+  * the analysis alone (voxelise, assemble, solve, stress) of the dogbone under its
+    load case and of the bunny under the case below, at the default mesh size: wall
+    time and the process's peak resident memory;
+  * the whole `hostd tailor examples/dogbone` (empty analysis cache);
+  * drop-to-first-extrusion of a stress job (dogbone.stl with dogbone.load.toml) in a
+    fresh daemon on the simulated printer.
+Targets: dogbone analysis < 10 s, whole example < 60 s, bunny peak RSS < 500 MB,
+stress job's first extrusion < 1 s after the drop settles.
+
+Usage (from the repository root):
+    .venv/bin/python bench/tailoring.py [--skip-daemon] [--json OUT.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import resource
+import shutil
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+ROOT = Path(__file__).resolve().parents[1]
+DOGBONE = ROOT / "examples" / "dogbone"
+BUNNY = ROOT.parent / "shared" / "models" / "bunny.stl"
+# the bunny sits on its base; its head and ears (z above 52 mm) are pushed sideways and down
+BUNNY_CASE = """
+[[fixed]]
+box = [[0, 0, 0], [62.3, 48.3, 0.5]]
+[[force]]
+box = [[0, 0, 52], [62.3, 48.3, 61.8]]
+newtons = [20, 0, -50]
+"""
+SIZES = (2.5, 1.25, 0.0, 0.625, 0.5)  # 0: the default
+
+
+def child_analysis(model: str, load: str, size: float) -> dict:
+    """In a fresh process: analyse ``model`` under ``load``; time and peak RSS."""
+    from slicer.fea.field import analyse_arrays
+    from slicer.fea.loadcase import read_load_case
+    from slicer.mesh import read_stl
+
+    started = time.perf_counter()
+    vertices, faces = read_stl(model)
+    solution = analyse_arrays(vertices, faces, read_load_case(load), size)
+    return {
+        "seconds": time.perf_counter() - started,
+        "solve_s": solution.seconds,
+        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "elements": len(solution.mesh.cells),
+        "cell_mm": [round(float(c), 3) for c in solution.mesh.grid.cell],
+        "iterations": solution.iterations,
+        "peak_mpa": float(solution.von_mises.max()),
+    }
+
+
+def run_child(*args: str) -> dict:
+    """This script with ``args`` in a new interpreter; its JSON answer."""
+    done = subprocess.run([sys.executable, __file__, *args], capture_output=True, text=True,
+                          cwd=ROOT, timeout=900, check=False)
+    if done.returncode != 0:
+        raise RuntimeError(done.stderr.strip().splitlines()[-1] if done.stderr else "failed")
+    return json.loads(done.stdout.strip().splitlines()[-1])
+
+
+def convergence() -> list[dict]:
+    """Cantilever 100 x 10 x 10 mm, 10 N at the tip: deflection / theory per mesh size."""
+    import numpy as np
+    import trimesh
+
+    from slicer.fea.field import analyse_arrays
+    from slicer.fea.loadcase import parse_load_case
+
+    length, side, force, e, nu = 100.0, 10.0, 10.0, 2200.0, 0.35
+    beam = trimesh.creation.box((length, side, side))
+    beam.apply_translation([length / 2, side / 2, side / 2])
+    case = parse_load_case(
+        f"[[fixed]]\nbox = [[0, 0, 0], [0, {side}, {side}]]\n"
+        f"[[force]]\nbox = [[{length}, 0, 0], [{length}, {side}, {side}]]\n"
+        f"newtons = [0, 0, -{force}]\n")
+    inertia = side**4 / 12.0
+    theory = force * length**3 / (3 * e * inertia) + force * length / (
+        5 / 6 * e / (2 * (1 + nu)) * side * side)
+    rows = []
+    for size in SIZES:
+        solution = analyse_arrays(beam.vertices, beam.faces, case, size)
+        tip = solution.mesh.points[:, 0] > length - 1e-6
+        deflection = -float(np.mean(solution.displacement[tip, 2]))
+        rows.append({"size_mm": round(float(solution.mesh.grid.cell[0]), 3),
+                     "default": size == 0.0, "elements": len(solution.mesh.cells),
+                     "deflection_mm": deflection, "ratio": deflection / theory,
+                     "iterations": solution.iterations, "seconds": solution.seconds})
+    return rows
+
+
+def tailor_example() -> dict:
+    """The whole `hostd tailor examples/dogbone`, analysis cache empty."""
+    with tempfile.TemporaryDirectory(prefix="bench-tailor-") as tmp:
+        env = {**os.environ, "XDG_CACHE_HOME": tmp, "PYTHONPATH": str(ROOT)}
+        started = time.perf_counter()
+        done = subprocess.run(
+            [sys.executable, "-m", "hostd", "tailor", str(DOGBONE), "-o", f"{tmp}/out"],
+            capture_output=True, text=True, env=env, cwd=ROOT, timeout=1800, check=False)
+        seconds = time.perf_counter() - started
+    return {"seconds": seconds, "ok": done.returncode == 0,
+            "report": done.stdout if done.returncode == 0 else done.stderr}
+
+
+def stress_drop(timeout: float = 300.0) -> dict:
+    """Drop dogbone.load.toml then dogbone.stl into a fresh daemon; settled -> extrusion."""
+    from bench.daemonproc import Daemon, DaemonSetup
+    from bench.drop_to_extrusion import first_extrusion
+
+    setup = DaemonSetup()
+    with Daemon(setup) as daemon:
+        daemon.wait_ready()
+        shutil.copyfile(DOGBONE / "dogbone.load.toml", daemon.jobs / ".dogbone.load.toml.part")
+        os.replace(daemon.jobs / ".dogbone.load.toml.part", daemon.jobs / "dogbone.load.toml")
+        written = daemon.drop(DOGBONE / "dogbone.stl")
+        seen, note = first_extrusion(daemon, "dogbone.stl", timeout)
+    if seen is None:
+        return {"settled_to_extrusion_s": None, "note": note}
+    return {"settled_to_extrusion_s": seen - written - setup.settle_s, "note": note}
+
+
+def main(argv: list[str] | None = None) -> int:
+    p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    p.add_argument("--child", nargs=3, metavar=("MODEL", "LOAD", "SIZE"), help=argparse.SUPPRESS)
+    p.add_argument("--skip-daemon", action="store_true", help="no drop-to-extrusion run")
+    p.add_argument("--json", type=Path, metavar="OUT", help="also write the figures as JSON")
+    args = p.parse_args(argv)
+    if args.child:
+        print(json.dumps(child_analysis(args.child[0], args.child[1], float(args.child[2]))))
+        return 0
+    figures: dict = {"loadavg_before": os.getloadavg()}
+    print("cantilever 100 x 10 x 10 mm, tip deflection / Timoshenko beam theory")
+    print("  mesh mm  elements  ratio   iterations  solve s")
+    figures["convergence"] = convergence()
+    for row in figures["convergence"]:
+        mark = " (default)" if row["default"] else ""
+        print(f"  {row['size_mm']:7.3f}  {row['elements']:8d}  {row['ratio']:.4f}  "
+              f"{row['iterations']:10d}  {row['seconds']:7.2f}{mark}")
+    with tempfile.TemporaryDirectory(prefix="bench-fea-") as tmp:
+        bunny_load = Path(tmp) / "bunny.load.toml"
+        bunny_load.write_text(BUNNY_CASE)
+        cases = {"dogbone": (DOGBONE / "dogbone.stl", DOGBONE / "dogbone.load.toml")}
+        if BUNNY.is_file():
+            cases["bunny"] = (BUNNY, bunny_load)
+        for name, (model, load) in cases.items():
+            row = run_child("--child", str(model), str(load), "0")
+            figures[f"analysis_{name}"] = row
+            print(f"analysis {name}: {row['seconds']:.2f} s (solve {row['solve_s']:.2f} s, "
+                  f"{row['iterations']} iterations), {row['elements']} elements of "
+                  f"{row['cell_mm']} mm, peak RSS {row['peak_rss_mb']:.0f} MB")
+    figures["tailor"] = tailor_example()
+    print(f"hostd tailor examples/dogbone: {figures['tailor']['seconds']:.1f} s "
+          f"({'ok' if figures['tailor']['ok'] else 'FAILED'})")
+    print("  " + figures["tailor"]["report"].strip().replace("\n", "\n  "))
+    if not args.skip_daemon:
+        figures["stress_drop"] = stress_drop()
+        latency = figures["stress_drop"]["settled_to_extrusion_s"]
+        print("stress job, settled -> first extrusion: "
+              + (f"{latency:.2f} s" if latency is not None else figures["stress_drop"]["note"]))
+    figures["loadavg_after"] = os.getloadavg()
+    print(f"load average before/after: {figures['loadavg_before'][0]:.1f} / "
+          f"{figures['loadavg_after'][0]:.1f} on {os.cpu_count()} cores")
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
