@@ -8,6 +8,7 @@ already reads the broker). The layer picture and the estimates use
 
 from __future__ import annotations
 
+from functools import partial
 from typing import Any, ClassVar
 
 from rich.text import Text
@@ -95,7 +96,7 @@ class PrinterScreen(Screen[None]):
         for selector, title in titles.items():
             self.query_one(selector).border_title = title
         if self.own_stream:
-            self.run_worker(self._pump(), name="status-pump", exclusive=True)
+            self.run_worker(self._pump, name="status-pump", exclusive=True)
 
     async def _pump(self) -> None:
         async for item in self.source.stream():
@@ -160,7 +161,7 @@ class PrinterScreen(Screen[None]):
         key = (job.id, job.layer, view.show_field)
         if key != self._layer_key:
             self._layer_key = key
-            self.run_worker(self._load_layer(job.layer), group="layer", exclusive=True)
+            self.run_worker(partial(self._load_layer, job.layer), group="layer", exclusive=True)
         self._show_progress()
 
     def _show_progress(self) -> None:
@@ -210,15 +211,17 @@ class PrinterScreen(Screen[None]):
         last = self._estimated_at
         if last is None or last[0] != job.id or job.layer - last[1] >= step:
             self._estimated_at = (job.id, job.layer)
-            self.run_worker(self._load_estimate(), group="estimate", exclusive=True)
+            self.run_worker(self._load_estimate, group="estimate", exclusive=True)
 
     async def _load_estimate(self) -> None:
         try:
             self.estimate = await self._query("estimate")
         except ControlError:
             return
+        used = self.estimate.get("filament_used_mm")
+        total = self.estimate.get("filament_total_mm")
         panel = self.query_one(JobPanel)
-        panel.filament = (self.estimate["filament_used_mm"], self.estimate["filament_total_mm"])
+        panel.filament = (used, total) if used is not None and total is not None else None
         panel.refresh()
 
     # -- keys -----------------------------------------------------------------

@@ -116,16 +116,16 @@ class ObjectsScreen(ModalScreen[tuple[str, int] | None]):
 
     def __init__(self, layer: dict[str, Any], on_highlight) -> None:
         super().__init__()
-        self.layer = layer
+        self.plate = layer
         self.on_highlight = on_highlight
 
     def compose(self) -> ComposeResult:
         options = []
-        cancelled = {item["object"]: item["from_layer"] for item in self.layer["cancelled"]}
-        for body in range(self.layer["body_count"]):
+        cancelled = {item["object"]: item["from_layer"] for item in self.plate["cancelled"]}
+        for body in range(self.plate["body_count"]):
             if body in cancelled:
                 first = cancelled[body]
-                undo = " (u undoes)" if first >= self.layer["next_unsliced"] else ""
+                undo = " (u undoes)" if first >= self.plate["next_unsliced"] else ""
                 note = f"cancelled from layer {first + 1}{undo}"
             else:
                 note = "printing"

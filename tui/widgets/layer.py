@@ -56,6 +56,7 @@ class LayerView(Widget):
         self.message = "waiting for a job"
         self.show_field = False
         self.highlight: int | None = None
+        self._cache: tuple[tuple, Group] | None = None
         pairs = (*KINDS.values(), OTHER)
         self._palette = [Style(color=colour) for pair in pairs for colour in pair]
         self._palette += [Style(color=HIGHLIGHT), Style(color=CANCELLED), *_field_palette()]
@@ -83,6 +84,9 @@ class LayerView(Widget):
         if self.data is None or height < 2:
             return Text(self.message, style="dim", no_wrap=True, overflow="ellipsis")
         data = self.data
+        key = (width, height, id(data), self.printed_paths(), self.show_field, self.highlight)
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
         rows = height - 1
         frame = Frame(data["bounds"], width, rows)
         canvas = Canvas(width, rows)
@@ -103,7 +107,9 @@ class LayerView(Widget):
             if body["index"] == self.highlight or body["cancelled"]:
                 rings = [frame.dots(ring) for ring in body["rings"]]
                 canvas.polylines(rings, highlight + (1 if body["cancelled"] else 0))
-        return Group(canvas.text(self._palette), self._legend(width))
+        drawn = Group(canvas.text(self._palette), self._legend(width))
+        self._cache = (key, drawn)
+        return drawn
 
     def _field_cells(self, field: dict[str, Any], frame: Frame, canvas: Canvas) -> np.ndarray:
         """Field levels (0..FIELD_LEVELS-1, -1 outside) at the centre of every cell."""

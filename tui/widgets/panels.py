@@ -82,8 +82,8 @@ class JobPanel(Widget):
             line(layer, "  ", (bar(job.progress, bar_width), "green"), pct),
             line("elapsed ", (duration(job.elapsed_s), "bold"), "  ETA ",
                  (duration(job.eta_s), "bold"), "  ahead ", (str(job.layers_ready_ahead), "bold")),
-            line("filament ", (metres(used), "bold"), " of ", (metres(total), "bold"),
-                 ("  (estimate)" if total else "", "dim")),
+            line("filament ", ("≈" if total else "", "dim"),
+                 (metres(used).removesuffix(" m"), "bold"), " of ", (metres(total), "bold")),
         )
 
 
