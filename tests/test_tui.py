@@ -158,7 +158,7 @@ def test_screen_at_80x24_shows_every_panel_without_wrapping() -> None:
             assert temps == "hotend 209.5/210°C  bed 59.8/60°C"
             queue = [t.plain for t in screen.query_one("#queue").render().renderables]
             assert queue[:2] == ["1. bracket.stl", "2. gear.stl"]
-            assert queue[2].startswith("interrupted bunny.stl after layer 41")
+            assert queue[2] == "bunny.stl  stopped after layer 41"
             assert screen.query_one("#layer").border_title == "layer 13 of 25 · z 2.60 mm"
             view = screen.query_one(LayerView)
             assert 0 < view.printed_paths() < len(screen.layer_data["paths"])

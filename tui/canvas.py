@@ -89,7 +89,7 @@ class Canvas:
     def text(self, palette: Sequence[Style]) -> Text:
         """The canvas as Rich text, one line per row, runs of one style joined."""
         codes = self.codes()
-        out = Text(no_wrap=True, overflow="crop", end="")
+        out = Text(no_wrap=True, overflow="crop")
         for r in range(self.rows):
             line = "".join(map(chr, codes[r]))
             keys = self.fg[r] * 10_000 + self.bg[r]

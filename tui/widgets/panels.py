@@ -149,7 +149,7 @@ class QueuePanel(Widget):
             out = [line(("queue empty", "dim"))]
         for job in snap.interrupted:
             after = f"after layer {job.layer + 1}" if job.layer >= 0 else "before layer 1"
-            out.append(line(("interrupted ", "yellow"), job.name, (f" {after} (R)", "dim")))
+            out.append(line(job.name, ("  stopped ", "yellow"), (after, "dim")))
         return out
 
     def render(self) -> Group:
