@@ -1,4 +1,4 @@
-"""Snapshot pictures of the single-printer dashboard and its help, fed a fixed story (deterministic)."""
+"""Snapshots of the single-printer dashboard and its help, fed a fixed story (deterministic)."""
 
 from __future__ import annotations
 
