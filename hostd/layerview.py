@@ -10,6 +10,7 @@ from __future__ import annotations
 
 import math
 import re
+import weakref
 from typing import Any
 
 import numpy as np
@@ -21,7 +22,7 @@ from slicer.settings import INFILL_FIELDS, SliceSettings
 
 MAX_FIELD_CELLS = 40_000  # field samples per reply (e.g. 200 x 200)
 MAX_BODIES = 64  # bodies outlined per reply
-ESTIMATE_SAMPLES = 6  # layers sliced to estimate a retune's effect
+ESTIMATE_SAMPLES = 8  # layers of a job sliced (once) for its filament estimate
 _AXIS = re.compile(r"([XYE])(-?\d+(?:\.\d*)?)")
 
 
@@ -180,12 +181,31 @@ def retunable(settings: SliceSettings) -> dict[str, Any]:
     }
 
 
-def _sample_layers(first: int, last: int) -> list[int]:
-    """Up to ESTIMATE_SAMPLES layers spread evenly over ``first..last`` (empty when none)."""
-    if last < first:
+def sample_layers(count: int) -> list[int]:
+    """The layers an estimate slices: ESTIMATE_SAMPLES spread evenly over the job, fixed."""
+    if count <= 0:
         return []
-    picks = np.linspace(first, last, num=min(ESTIMATE_SAMPLES, last - first + 1))
+    picks = np.linspace(0, count - 1, num=min(ESTIMATE_SAMPLES, count))
     return sorted({round(float(v)) for v in picks})
+
+
+_MEASURED: weakref.WeakKeyDictionary[LayerSchedule, dict[tuple, tuple[float, float]]] = (
+    weakref.WeakKeyDictionary()
+)
+
+
+def _measure(schedule: LayerSchedule, index: int, settings: SliceSettings,
+             excluded: frozenset[int], plans: dict[SliceSettings, Any]) -> tuple[float, float]:
+    """Filament (mm) and time (s) of one layer sliced with ``settings``, remembered per job."""
+    seen = _MEASURED.setdefault(schedule, {})
+    key = (index, settings, excluded)
+    if key not in seen:
+        plan = plans.get(settings)
+        if plan is None:
+            plan = plans[settings] = schedule.base_plan.with_settings(settings)
+        code = plan.layer_code(index, excluded)
+        seen[key] = (code.filament_mm, code.time_s)
+    return seen[key]
 
 
 def estimate(
@@ -197,54 +217,57 @@ def estimate(
 ) -> dict[str, Any]:
     """The job's filament (used, total) and, with ``changes``, a retune's effect on it and the ETA.
 
-    A few layers before ``current`` (the layer printing) and a few from it on are
-    sliced; their mean filament and time per layer, times the layer counts, give
-    the estimates. With ``changes`` (flat keys, checked as ``set`` checks them:
-    SettingsError when refused) the sampled layers from ``next_unsliced`` on are
-    sliced again with them; the ratio of the times scales ``eta_s``. Nothing is
-    recorded.
+    The same few layers spread over the job (:func:`sample_layers`) are sliced
+    once per settings and remembered: their mean filament per layer before
+    ``current`` (the layer printing) and from it on, times the layer counts,
+    give the estimates. With ``changes`` (flat keys, checked as ``set`` checks
+    them: SettingsError when refused) the sampled layers from ``next_unsliced``
+    on are measured with them too; the ratio of the remaining times scales
+    ``eta_s``. Nothing is recorded.
     """
     layers = schedule.layer_count
     current = max(0, min(current, layers))
-    done = _sample_layers(0, current - 1)
-    ahead = _sample_layers(current, layers - 1)
-    retuned: dict[SliceSettings, Any] = {}
+    picks = sample_layers(layers)
+    plans: dict[SliceSettings, Any] = {schedule.settings_at(i): schedule.plan_at(i) for i in picks}
     if changes:
-        base = SliceSettings.from_mapping(changes, base=schedule.settings_at(layers - 1))
-        schedule.base_plan.with_settings(base)  # refuses geometry changes
+        probe = SliceSettings.from_mapping(changes, base=schedule.settings_at(layers - 1))
+        schedule.base_plan.with_settings(probe)  # refuses geometry changes
 
-    def code(index: int, new: bool):
-        excluded = schedule.excluded_at(index)
-        if not new:
-            return schedule.plan_at(index).layer_code(index, excluded)
-        settings = SliceSettings.from_mapping(changes or {}, base=schedule.settings_at(index))
-        plan = retuned.get(settings)
-        if plan is None:
-            plan = retuned[settings] = schedule.base_plan.with_settings(settings)
-        return plan.layer_code(index, excluded)
+    def measured(index: int, retuned: bool) -> tuple[float, float]:
+        settings = schedule.settings_at(index)
+        if retuned and index >= next_unsliced:
+            settings = SliceSettings.from_mapping(changes or {}, base=settings)
+        return _measure(schedule, index, settings, schedule.excluded_at(index), plans)
 
-    used = float(np.mean([code(i, False).filament_mm for i in done])) * current if done else 0.0
-    now = [code(i, False) for i in ahead]
+    def per_layer(indices: list[int], retuned: bool) -> tuple[float, float]:
+        if not indices:
+            return 0.0, 0.0
+        values = np.array([measured(i, retuned) for i in indices])
+        return float(values[:, 0].mean()), float(values[:, 1].mean())
+
+    before = [i for i in picks if i < current] or picks
+    after = [i for i in picks if i >= current] or picks[-1:]
+    used = per_layer(before, False)[0] * current
     left = layers - current
-    now_mm = float(np.mean([c.filament_mm for c in now])) * left if now else 0.0
-    now_s = float(np.mean([c.time_s for c in now])) * left if now else 0.0
+    now_mm, now_s = per_layer(after, False)
     reply: dict[str, Any] = {
         "layer": current,
         "from_layer": next_unsliced,
-        "sampled_layers": done + ahead,
+        "sampled_layers": picks,
         "filament_used_mm": round(used, 1),
-        "filament_total_mm": round(used + now_mm, 1),
+        "filament_total_mm": round(used + now_mm * left, 1),
         "eta_s": eta_s,
         "settings": retunable(schedule.settings_at(min(next_unsliced, layers - 1))),
         "fields": list(INFILL_FIELDS),
     }
     if changes:
-        new = [code(i, True) if i >= next_unsliced else c for i, c in zip(ahead, now, strict=True)]
-        new_mm = float(np.mean([c.filament_mm for c in new])) * left if new else 0.0
-        new_s = float(np.mean([c.time_s for c in new])) * left if new else 0.0
-        ratio = new_s / now_s if now_s > 0 else 1.0
+        late = [i for i in picks if i >= next_unsliced] or picks[-1:]
+        old_mm, old_s = per_layer(late, False)
+        new_mm, new_s = per_layer(late, True)
+        unsliced = layers - next_unsliced
+        ratio = (now_s * left + (new_s - old_s) * unsliced) / (now_s * left) if now_s else 1.0
         reply["retuned"] = {
-            "filament_total_mm": round(used + new_mm, 1),
+            "filament_total_mm": round(used + now_mm * left + (new_mm - old_mm) * unsliced, 1),
             "eta_s": None if eta_s is None else round(eta_s * ratio, 1),
             "time_ratio": round(ratio, 4),
         }

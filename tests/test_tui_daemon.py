@@ -7,9 +7,11 @@ from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
+import pytest
 from conftest import DATA, commands_of, executed_job_lines, sim_config
 from test_daemon import commands, two_bodies
 
+from hostd.api import ControlClient, ControlError
 from hostd.layerview import parse_layer
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
@@ -119,8 +121,21 @@ def test_cancel_a_body_from_the_dashboard_and_undo_another(daemon, tmp_path: Pat
             await until(lambda: any(e[2].startswith("body 1 cancelled") for e in screen.events),
                         10, "body 1 cancelled")
             cancelled_from.append(screen.layer_data["next_unsliced"])
+            async with ControlClient(str(socket)) as client:
+                with pytest.raises(ControlError, match="layer 99 does not exist"):
+                    await client.request("layer", layer=99)
+                with pytest.raises(ControlError, match="columns, rows"):
+                    await client.request("layer", field=[0, 5])
+                with pytest.raises(ControlError, match="object 0 is not cancelled"):
+                    await client.request("restore_object", object=0)
+                with pytest.raises(ControlError, match="layer_height"):
+                    await client.request("estimate", settings={"layer_height": 0.3})
             await pilot.press("r")
             await until(lambda: screen.snapshot.state == "printing", 10, "printing again")
+            await until(lambda: screen.layer_data["layer"] > cancelled_from[0], 60, "later layers")
+            async with ControlClient(str(socket)) as client:
+                with pytest.raises(ControlError, match="too late"):
+                    await client.request("restore_object", object=1)
             await pilot.press("c")
             await until(lambda: isinstance(app.screen, ConfirmScreen), 5, "the confirmation")
             await pilot.press("n")  # not cancelled
