@@ -11,7 +11,15 @@ from typing import Any
 import numpy as np
 from conftest import DATA
 
-from hostd.api import ControlError, InterruptedJob, JobStatus, Snapshot, Temperature, Temps
+from hostd.api import (
+    ControlError,
+    InterruptedJob,
+    JobStatus,
+    PrinterInfo,
+    Snapshot,
+    Temperature,
+    Temps,
+)
 from hostd.control import serve_control
 from hostd.layerview import layer_view
 from hostd.schedule import LayerSchedule
@@ -33,6 +41,7 @@ def printing(ts: float, hotend: float = 209.5, bed: float = 59.8, lines: int = 2
     """The dogbone printing its 13th layer of 25, with a queue and an interrupted job."""
     return Snapshot(
         state="printing",
+        printer=PrinterInfo("sim", "/dev/ttyACM0", True),
         temps=Temps(hotend=Temperature(hotend, 210.0), bed=Temperature(bed, 60.0)),
         job=JobStatus(id="7", name="dogbone.stl", layer=12, layers=25, progress=0.48,
                       lines_acked=lines, elapsed_s=95.0, eta_s=103.0, layers_ready_ahead=3),

@@ -108,6 +108,8 @@ class PrinterScreen(Screen[None]):
         """One status snapshot or event from the source (others' printers are ignored)."""
         if self.printer and item.printer and item.printer != self.printer:
             return
+        if not self.printer and item.printer and isinstance(item, StatusItem):
+            self.printer = item.printer  # the first printer heard from is the one shown
         if isinstance(item, StatusItem):
             self.show(item.snapshot)
         else:
