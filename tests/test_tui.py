@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 from conftest import DATA
+from textual.widgets._footer import FooterKey
 
 from hostd.api import (
     ControlError,
@@ -215,7 +216,8 @@ def test_keys_pause_resume_confirmed_cancel_filter_and_retune() -> None:
             assert "ETA 1:43 -> 2:11" in question and "2.53 m -> 3.10 m" in question
             await pilot.press("y")
             await until(lambda: ("set", {"settings": {"infill.density": 0.4}}) in source.calls)
-            await pilot.press("question_mark")
+            help_key = next(k for k in screen.query(FooterKey) if k.key == "question_mark")
+            await pilot.click(help_key)  # the mouse works the footer's keys
             await until(lambda: isinstance(app.screen, HelpScreen))
             await pilot.press("escape", "q")
         assert not app.is_running
