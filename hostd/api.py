@@ -8,6 +8,31 @@ Requests carry ``{"cmd": NAME, ...args}`` and an optional ``"id"``; each gets on
 reply ``{"reply": NAME, "ok": true|false, "id": ..., "error": text|null, ...}``.
 ``{"cmd": "subscribe"}`` turns the connection into a stream of
 ``{"status": SNAPSHOT}`` and ``{"event": EVENT}`` lines.
+
+Requests for the dashboard (control socket only; over MQTT they are refused):
+
+- ``{"cmd": "layer", "layer": N, "tolerance": MM, "field": [COLS, ROWS]}``: one layer
+  of the job printing (``layer`` defaults to the one printing; ``tolerance``, default
+  0.2 mm, simplifies the polylines; ``field`` is optional). The reply adds ``layer``,
+  ``layers``, ``z`` (mm), ``bounds`` ([xmin, ymin, xmax, ymax] mm of the whole model,
+  the same frame for every layer), ``paths`` (in print order, each ``{"kind": TYPE,
+  "points": [[x, y], ...], "end": K}``: TYPE is the G-code's ``;TYPE:`` name such as
+  WALL-OUTER, WALL-INNER, SKIN, FILL, SUPPORT; the path is printed once K of the
+  layer's ``commands`` are acknowledged), ``commands``, ``acked_before`` (the job's
+  ``lines_acked`` when the layer started streaming, or null when unknown), ``next_unsliced``
+  (the first layer not sliced yet), ``body_count``, ``bodies`` (with more than one body:
+  ``{"index", "cancelled", "rings": [[[x, y], ...], ...]}`` outlines on this layer),
+  ``cancelled`` (``[{"object", "from_layer"}]``) and ``field`` (null, or ``{"name",
+  "columns", "rows", "low", "high", "values"}``: rows top first over ``bounds``, each
+  value 0..255 between ``low`` and ``high``, -1 outside the layer).
+- ``{"cmd": "estimate", "settings": {KEY: VALUE}}``: the job's ``filament_used_mm``
+  and ``filament_total_mm`` estimated from a few sliced layers, ``eta_s``, ``settings``
+  (the retunable values now: infill.density, infill.field, nozzle_temp, bed_temp),
+  ``fields`` (the infill field names), and with
+  ``settings`` (optional, checked as ``set`` checks them, not applied) ``retuned``:
+  ``{"filament_total_mm", "eta_s", "time_ratio"}`` if the retune were made now.
+- ``{"cmd": "restore_object", "object": N}``: undo ``cancel_object`` while no layer
+  without that body has been sliced yet.
 """
 
 from __future__ import annotations
@@ -32,6 +57,9 @@ COMMANDS = (
     "set",
     "queue_move",
     "queue_remove",
+    "restore_object",
+    "layer",
+    "estimate",
 )
 EVENTS = (
     "queued",
@@ -44,6 +72,7 @@ EVENTS = (
     "cancelled",
     "interrupted",
     "object_cancelled",
+    "object_restored",
     "error",
 )
 
@@ -138,6 +167,9 @@ class ControlError(RuntimeError):
     """The daemon refused a command or could not be reached."""
 
 
+MAX_REPLY_BYTES = 64 << 20  # a reply line (a layer's toolpaths) can be this long
+
+
 class ControlClient:
     """Async client of the control socket: one request at a time, or a subscription."""
 
@@ -148,7 +180,9 @@ class ControlClient:
 
     async def __aenter__(self) -> ControlClient:
         try:
-            self._reader, self._writer = await asyncio.open_unix_connection(self.path)
+            self._reader, self._writer = await asyncio.open_unix_connection(
+                self.path, limit=MAX_REPLY_BYTES
+            )
         except OSError as exc:
             raise ControlError(f"cannot reach the daemon at {self.path}: {exc}") from exc
         return self

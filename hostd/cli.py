@@ -53,7 +53,8 @@ def build_parser() -> argparse.ArgumentParser:
 
     p = sub.add_parser("preview", help="draw one layer's toolpaths as PNG")
     p.add_argument("model", metavar="MODEL")
-    p.add_argument("--layer", type=int, required=True, metavar="N")
+    p.add_argument("--layer", type=int, required=True, metavar="N",
+                   help="layer N of the model, counted from 1 as everywhere (-1: the last)")
     p.add_argument("-o", "--output", metavar="OUT.png", required=True)
     p.add_argument("--field", action="store_true", help="draw the infill field and its level sets")
     p.add_argument("--config", metavar="FILE")

@@ -3,14 +3,18 @@
 Arguments: ``resume_job {"job": ID or NAME}``; ``cancel_object {"object": N}`` (a body
 index from 0, also accepted as ``"body"``); ``set {"settings": {KEY: VALUE, ...}}`` or
 ``set {"key": KEY, "value": VALUE}`` with the flat slicing keys of the configuration;
-``queue_move {"job": ID, "index": N}`` (0 = next); ``queue_remove {"job": ID}``.
+``queue_move {"job": ID, "index": N}`` (0 = next); ``queue_remove {"job": ID}``;
+``restore_object {"object": N}``; ``layer {"layer": N, "tolerance": MM, "field": [COLS, ROWS]}``
+and ``estimate {"settings": {...}}`` (see :mod:`hostd.layerview`).
 """
 
 from __future__ import annotations
 
+import asyncio
 from collections.abc import Callable
 from typing import Any
 
+from hostd import layerview
 from hostd.intake import Intake
 from hostd.jobstore import JobStore, JobStoreError
 from hostd.printjob import PrintJob
@@ -109,6 +113,74 @@ class DaemonController:
         self.hub.event("object_cancelled", id=job.job.id, name=job.job.name, object=raw,
                        from_layer=first)
         return {"job": job.job.id, "object": raw, "from_layer": first}
+
+    async def _cmd_restore_object(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self._printing()
+        raw = args.get("object", args.get("body"))
+        if isinstance(raw, bool) or not isinstance(raw, int):
+            raise CommandError("restore_object needs \"object\": a body number from 0")
+        if job.schedule is None or job.source is None:
+            raise CommandError("a G-code job has no objects to restore")
+        found = [first for body, first in job.schedule.cancelled if body == raw]
+        if not found:
+            raise CommandError(f"object {raw} is not cancelled")
+        first = job.source.next_unsliced
+        if found[-1] < first:
+            raise CommandError(f"object {raw} is already left out of sliced layers (from layer "
+                               f"{found[-1] + 1} on): too late to bring it back")
+        job.schedule.cancelled = [item for item in job.schedule.cancelled if item[0] != raw]
+        self.store.forget_cancelled_object(job.job.id, raw)
+        self.hub.event("object_restored", id=job.job.id, name=job.job.name, object=raw)
+        return {"job": job.job.id, "object": raw}
+
+    def _sliced(self) -> PrintJob:
+        job = self._printing()
+        if job.schedule is None or job.source is None:
+            raise CommandError("a G-code job has no toolpaths to show")
+        return job
+
+    async def _cmd_layer(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self._sliced()
+        runner, schedule = job.runner, job.schedule
+        index = args.get("layer", min(runner.completed + 1, schedule.layer_count - 1))
+        if isinstance(index, bool) or not isinstance(index, int):
+            raise CommandError("layer needs \"layer\": a layer index from 0")
+        if not 0 <= index < schedule.layer_count:
+            raise CommandError(f"layer {index} does not exist: the job has layers "
+                               f"0..{schedule.layer_count - 1}")
+        tolerance = args.get("tolerance", 0.2)
+        field = args.get("field")
+        if not isinstance(tolerance, int | float) or not 0 <= tolerance <= 50:
+            raise CommandError("\"tolerance\" must be a number of mm from 0 to 50")
+        if field is not None and not (
+            isinstance(field, list) and len(field) == 2
+            and all(isinstance(v, int) and 0 < v <= 1000 for v in field)
+        ):
+            raise CommandError("\"field\" must be [columns, rows], each 1..1000")
+        stored = self.store.get(job.job.id)
+        reply = await asyncio.to_thread(
+            layerview.layer_view, schedule, index, float(tolerance), tuple(field) if field else None
+        )
+        reply["job"] = job.job.id
+        reply["acked_before"] = layerview.acked_before(schedule, runner, job.source, stored, index)
+        reply["next_unsliced"] = job.source.next_unsliced
+        return reply
+
+    async def _cmd_estimate(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self._sliced()
+        changes = args.get("settings")
+        if changes is not None and (not isinstance(changes, dict) or not changes):
+            raise CommandError("estimate takes \"settings\": {KEY: VALUE, ...}")
+        status = job.runner.status()
+        try:
+            reply = await asyncio.to_thread(
+                layerview.estimate, job.schedule, job.runner.completed + 1,
+                job.source.next_unsliced, status.eta_s, changes,
+            )
+        except SettingsError as exc:
+            raise CommandError(str(exc)) from exc
+        reply["job"] = job.job.id
+        return reply
 
     async def _cmd_set(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()

@@ -111,7 +111,8 @@ class Daemon:
     def queue_changed(self) -> None:
         """Publish the queue and the interrupted jobs, and wake the print loop."""
         self.hub.update(
-            queue=tuple(job.name for job in self.store.queued()),
+            queue=tuple(job.name for job in self.store.queued()
+                        if self.current is None or job.id != self.current.job.id),
             interrupted=tuple(
                 InterruptedJob(job.id, job.name, job.layer) for job in self.store.interrupted()
             ),

@@ -1,8 +1,13 @@
-"""`make run`: start the daemon on the embedded default, drop the sample model, show progress."""
+"""`make run`: start the daemon on the embedded default, drop the sample model, open the dashboard.
+
+On a terminal the dashboard (`hostd tui`) opens on the demo daemon; quitting it
+(``q``) stops the demo. Anywhere else a plain progress line is printed instead.
+"""
 
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import os
 import shutil
 import signal
@@ -13,6 +18,7 @@ from importlib import resources
 from pathlib import Path
 
 from hostd.api import ControlClient, ControlError, Snapshot
+from hostd.commands.print_file import fit_bar, terminal_columns
 
 SAMPLE = "dogbone_100x30x5.stl"
 JOBS = Path("jobs")
@@ -30,21 +36,19 @@ def drop_sample(jobs: Path) -> Path:
     return target
 
 
-def progress_line(snapshot: Snapshot, width: int = 30) -> str:
-    """One terminal line: state, job, a bar, layer, temperatures and ETA."""
+def progress_line(snapshot: Snapshot, columns: int = 80) -> str:
+    """One line shorter than ``columns``: state, job, a bar, layer N of M, hotend and ETA."""
     temps = snapshot.temps
     heat = f"hotend {temps.hotend.actual:5.1f}/{temps.hotend.target:3.0f}C"
     job = snapshot.job
     if job is None:
         waiting = f"{len(snapshot.queue)} queued" if snapshot.queue else "waiting for a job"
-        return f"[{snapshot.state:8}] {waiting}  {heat}"
-    filled = round(job.progress * width)
-    bar = "#" * filled + "-" * (width - filled)
+        return f"[{snapshot.state:8}] {waiting}  {heat}"[: columns - 1]
     eta = "--" if job.eta_s is None else f"{int(job.eta_s) // 60}:{int(job.eta_s) % 60:02d}"
-    return (
-        f"[{snapshot.state:8}] {job.name} |{bar}| {job.progress * 100:5.1f}% "
-        f"layer {job.layer}/{job.layers}  {heat}  ETA {eta}"
-    )
+    head = f"[{snapshot.state:8}] {job.name} "
+    tail = (f"{job.progress * 100:5.1f}% layer {job.layer + 1} of {job.layers}  {heat}  "
+            f"ETA {eta}")
+    return (head + fit_bar(job.progress, tail, columns - len(head)))[: columns - 1]
 
 
 async def resume_interrupted(socket: Path) -> None:
@@ -52,7 +56,7 @@ async def resume_interrupted(socket: Path) -> None:
     async with ControlClient(str(socket)) as client:
         snapshot = await client.status()
         for job in snapshot.interrupted:
-            print(f"resuming {job.name} (job {job.id}) after layer {job.layer}")
+            print(f"resuming {job.name} (job {job.id}) after layer {job.layer + 1}")
             try:
                 await client.request("resume_job", job=job.id)
             except ControlError as exc:
@@ -71,7 +75,7 @@ async def watch(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
             async with ControlClient(str(socket)) as client:
                 async for item in client.subscribe():
                     if "status" in item:
-                        line = progress_line(item["status"])
+                        line = progress_line(item["status"], terminal_columns(sys.stdout))
                         sys.stdout.write("\r" + line.ljust(last_len))
                         last_len = len(line)
                     else:
@@ -84,14 +88,32 @@ async def watch(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
             await asyncio.sleep(0.3)
 
 
+async def dashboard(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
+    """The dashboard on the demo daemon, until it is quit."""
+    from tui.app import Dashboard
+    from tui.sources import SocketSource
+
+    while not socket.exists():
+        if daemon.poll() is not None:
+            return
+        await asyncio.sleep(0.1)
+    with contextlib.suppress(ControlError, OSError):
+        await resume_interrupted(socket)
+    await Dashboard(SocketSource(str(socket))).run_async()
+
+
 def main() -> int:
-    """Run the demo until Ctrl-C; the daemon is stopped cleanly on the way out."""
+    """Run the demo until the dashboard is quit (or Ctrl-C); the daemon stops cleanly."""
+    on_terminal = sys.stdin.isatty() and sys.stdout.isatty()
     config = resources.files("hostd.data") / "demo.toml"
     with resources.as_file(config) as config_path:
         log = (STATE / "hostd.log")
         STATE.mkdir(parents=True, exist_ok=True)
         print("hostd demo: simulated printer at 50x real time, job folder ./jobs, state ./var")
-        print(f"daemon log: {log}   dashboard in another terminal: .venv/bin/hostd tui")
+        if on_terminal:
+            print(f"daemon log: {log}   the dashboard opens; q quits it and ends the demo")
+        else:
+            print(f"daemon log: {log}   dashboard in another terminal: .venv/bin/hostd tui")
         with open(log, "ab") as log_file:
             daemon = subprocess.Popen(
                 [sys.executable, "-m", "hostd", "run", "--config", str(config_path)],
@@ -103,7 +125,11 @@ def main() -> int:
             dropped = drop_sample(JOBS)
             print(f"dropped {dropped} at t={time.monotonic() - started:.1f}s; Ctrl-C stops")
             try:
-                asyncio.run(watch(STATE / "hostd.sock", daemon))
+                if on_terminal:
+                    asyncio.run(dashboard(STATE / "hostd.sock", daemon))
+                    print("dashboard closed: stopping the daemon...")
+                else:
+                    asyncio.run(watch(STATE / "hostd.sock", daemon))
             except KeyboardInterrupt:
                 print("\nstopping the daemon...")
             finally:

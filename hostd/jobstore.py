@@ -326,6 +326,12 @@ class JobStore:
                 (int(job_id), time.time(), body, from_layer),
             )
 
+    def forget_cancelled_object(self, job_id: str, body: int) -> None:
+        """Undo :meth:`record_cancelled_object` for ``body`` (it prints again)."""
+        with self._tx() as db:
+            db.execute("DELETE FROM cancelled_objects WHERE seq = ? AND body = ?",
+                       (int(job_id), body))
+
     def move(self, job_id: str, index: int) -> list[Job]:
         """Put a queued job at ``index`` (0 = next) of the queue; returns the new queue."""
         with self._tx() as db:

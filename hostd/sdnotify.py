@@ -71,7 +71,8 @@ def status_line(snapshot: Snapshot) -> str:
     elif job is None:
         text = snapshot.state
     else:
-        text = f"{snapshot.state} {job.name} layer {job.layer}/{job.layers} ({job.progress:.0%})"
+        text = (f"{snapshot.state} {job.name} layer {job.layer + 1} of {job.layers} "
+                f"({job.progress:.0%})")
         if job.eta_s is not None:
             minutes, seconds = divmod(int(job.eta_s), 60)
             text += f", ETA {minutes // 60}:{minutes % 60:02d}:{seconds:02d}"

@@ -264,9 +264,12 @@ class SlicePlan:
             )
         else:
             ctx = self.layer_context(i, excluded_bodies)
+        skin = self._skins.get(i)
+        if excluded_bodies and skin is not None:  # no skin over a cancelled body
+            skin = shapely.intersection(skin, ctx.domain)
         regions = LayerRegions(
             islands=islands,
-            skin=self._skins.get(i),
+            skin=skin,
             support=_private(self._support[i]) if self._support is not None else None,
             interface=_private(self._interface[i]) if self._interface is not None else None,
         )

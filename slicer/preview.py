@@ -77,7 +77,7 @@ def render_layer(
 def _legend(draw: ImageDraw.ImageDraw, plan, i: int) -> None:
     """Layer number, height and the colour key in the top-left corner."""
     draw.text(
-        (8, 6), f"layer {i}/{plan.layer_count - 1}  z={plan.layer_z(i):.2f} mm", fill=(0, 0, 0)
+        (8, 6), f"layer {i + 1} of {plan.layer_count}  z={plan.layer_z(i):.2f} mm", fill=(0, 0, 0)
     )
     y = 22
     for name, colour in COLOURS.items():

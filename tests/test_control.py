@@ -263,7 +263,7 @@ def test_hostd_status_reads_the_running_daemon(tmp_path: Path) -> None:
         assert json.loads(out) == hub.current.to_dict()
         code, out, err = await run_cli("status", "--socket", str(path))()
         assert code == 0, err
-        assert "printing" in out and "bunny.stl" in out and "layer 40/120" in out
+        assert "printing" in out and "bunny.stl" in out and "layer 41 of 120" in out
         assert "1:02:05" in out and "cube.stl" in out
 
     serve(tmp_path, scenario)

@@ -93,7 +93,7 @@ def test_watchdog_pings_and_reports_status_changes(listener: tuple[socket.socket
         await until("WATCHDOG=1")
         hub.update(state="printing", job=JobStatus(id="1", name="a.stl", layer=2, layers=10,
                                                    progress=0.2))
-        await until("STATUS=printing a.stl layer 2/10 (20%)")
+        await until("STATUS=printing a.stl layer 3 of 10 (20%)")
         pings = got.count("WATCHDOG=1")
         hub.update()  # same summary: no new STATUS
         got.clear()
@@ -120,7 +120,7 @@ def test_status_line_is_one_readable_line() -> None:
         queue=("b.stl", "c.stl"),
     )
     assert status_line(snapshot) == (
-        "printing my part.stl layer 5/50 (10%), ETA 1:01:40, 2 queued"
+        "printing my part.stl layer 6 of 50 (10%), ETA 1:01:40, 2 queued"
     )
     assert status_line(Snapshot(state="error", error="thermal\nrunaway")) == (
         "error: thermal runaway, printer not connected"

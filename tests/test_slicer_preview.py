@@ -57,4 +57,4 @@ def test_preview_refuses_a_layer_out_of_range(tmp_path) -> None:
         check=False,
     )
     assert run.returncode == 2
-    assert "layers 0..99" in run.stderr
+    assert "layers 1..100" in run.stderr

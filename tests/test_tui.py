@@ -1,103 +1,294 @@
-"""The dashboard driven by Textual's Pilot against a real control socket."""
+"""The dashboard on a fixed source: layout at 80x24, panels, keys, and a source without replies."""
 
 from __future__ import annotations
 
 import asyncio
 import tempfile
+from collections.abc import AsyncIterator
 from pathlib import Path
 from typing import Any
 
-from textual.widgets import ProgressBar, RichLog, Static
+import numpy as np
+from conftest import DATA
+from textual.widgets._footer import FooterKey
 
-from hostd.api import InterruptedJob, JobStatus, Snapshot, Temperature, Temps
+from hostd.api import (
+    ControlError,
+    InterruptedJob,
+    JobStatus,
+    PrinterInfo,
+    Snapshot,
+    Temperature,
+    Temps,
+)
 from hostd.control import serve_control
+from hostd.layerview import layer_view
+from hostd.schedule import LayerSchedule
 from hostd.status import CommandError, StatusHub
-from tui.app import Dashboard, describe_job, describe_queue
-from tui.sources import SocketSource
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+from tui.app import Dashboard
+from tui.canvas import Canvas, Frame
+from tui.format import bar, duration, layer_text
+from tui.printer_screen import NO_LAYER_VIEW
+from tui.sources import EventItem, SocketSource, StatusItem
+from tui.widgets.dialogs import ConfirmScreen, HelpScreen, RetuneScreen
+from tui.widgets.layer import LayerView
+
+T0 = 1_700_000_000.0  # a fixed clock for deterministic pictures
+
+
+def printing(ts: float, hotend: float = 209.5, bed: float = 59.8, lines: int = 2400) -> Snapshot:
+    """The dogbone printing its 13th layer of 25, with a queue and an interrupted job."""
+    return Snapshot(
+        state="printing",
+        printer=PrinterInfo("sim", "/dev/ttyACM0", True),
+        temps=Temps(hotend=Temperature(hotend, 210.0), bed=Temperature(bed, 60.0)),
+        job=JobStatus(id="7", name="dogbone.stl", layer=12, layers=25, progress=0.48,
+                      lines_acked=lines, elapsed_s=95.0, eta_s=103.0, layers_ready_ahead=3),
+        queue=("bracket.stl", "gear.stl"),
+        interrupted=(InterruptedJob(id="5", name="bunny.stl", layer=40),),
+        ts=ts,
+    )
+
+
+def history() -> list[StatusItem]:
+    """Ten minutes of heating up and printing, one snapshot every 10 s."""
+    items = []
+    for k in range(60):
+        t = k / 60
+        items.append(StatusItem("sim", printing(T0 - 600 + 10 * k, hotend=25 + 185 * min(1, 3 * t),
+                                                bed=22 + 38 * min(1, 2 * t))))
+    return [*items, StatusItem("sim", printing(T0))]
+
+
+EVENTS = [
+    EventItem("sim", {"event": "started", "id": "7", "name": "dogbone.stl", "layers": 25,
+                      "resumed_from": None, "ts": T0 - 100}),
+    *(EventItem("sim", {"event": "layer", "id": "7", "layer": n, "layers": 25,
+                        "ts": T0 - 90 + 8 * n}) for n in range(12)),
+]
+
+
+class FixedSource:
+    """A source that tells a fixed story: status snapshots, events, and a real layer reply.
+
+    The layer reply is made by the daemon's own code (``hostd.layerview``) from the
+    dogbone; commands are recorded, and those in ``refuse`` refused.
+    """
+
+    label = "fixed source"
+
+    def __init__(self, items: list[StatusItem | EventItem] | None = None,
+                 refuse: tuple[str, ...] = ()) -> None:
+        self.items = items if items is not None else [*history(), *EVENTS]
+        self.refuse = refuse
+        self.calls: list[tuple[str, dict[str, Any]]] = []
+        self.queries: list[tuple[str, dict[str, Any]]] = []
+        plan = SlicePlan.from_file(DATA / "dogbone_100x30x5.stl", SliceSettings())
+        self.schedule = LayerSchedule(plan, SliceSettings())
+
+    async def stream(self) -> AsyncIterator[StatusItem | EventItem]:
+        for item in self.items:
+            yield item
+        await asyncio.Event().wait()
+
+    async def command(self, printer: str, cmd: str, **args: Any) -> None:
+        self.calls.append((cmd, args))
+        if cmd in self.refuse:
+            raise ControlError(f"{cmd} refused for the test")
+
+    async def query(self, printer: str, cmd: str, **args: Any) -> dict[str, Any]:
+        self.queries.append((cmd, args))
+        if cmd == "estimate":
+            reply = {"layer": 12, "from_layer": 16, "filament_used_mm": 1210.0,
+                     "filament_total_mm": 2530.0, "eta_s": 103.0,
+                     "settings": {"infill.density": 0.2, "infill.field": "linear",
+                                  "nozzle_temp": 210.0, "bed_temp": 60.0},
+                     "fields": ["linear", "wave"]}
+            if args.get("settings"):
+                reply["retuned"] = {"filament_total_mm": 3105.0, "eta_s": 131.0,
+                                    "time_ratio": 1.27}
+            return reply
+        field = tuple(args["field"]) if args.get("field") else None
+        reply = layer_view(self.schedule, args.get("layer", 12), args.get("tolerance", 0.2), field)
+        commands = reply["commands"]
+        return {**reply, "job": "7", "acked_before": 2400 - commands // 2, "next_unsliced": 16}
+
+
+async def until(check, timeout: float = 30.0) -> None:
+    loop = asyncio.get_running_loop()
+    deadline = loop.time() + timeout
+    while not check():
+        if loop.time() > deadline:
+            raise AssertionError("condition not met in time")
+        await asyncio.sleep(0.02)
+
+
+def test_text_helpers() -> None:
+    assert layer_text(0, 25) == "layer 1 of 25" and layer_text(24, 25) == "layer 25 of 25"
+    assert duration(None) == "--" and duration(103) == "1:43" and duration(3725) == "1:02:05"
+    for fraction in (0.0, 0.33, 0.5, 1.0):
+        assert len(bar(fraction, 17)) == 17
+    assert bar(0.5, 10).startswith("█████") and bar(1.0, 4) == "████"
+
+
+def test_canvas_draws_a_square_where_it_belongs() -> None:
+    frame = Frame((0, 0, 10, 10), cols=10, rows=5, margin=0)
+    canvas = Canvas(10, 5)
+    square = np.array([[0, 0], [10, 0], [10, 10], [0, 10], [0, 0]], dtype=float)
+    canvas.polylines([frame.dots(square)], colour=3)
+    codes = canvas.codes()
+    assert codes.shape == (5, 10)
+    lit = codes != 0x2800
+    # 20 x 20 dots show a 10 mm square 20 dots wide, centred: columns 0..9 of rows 0..4
+    assert lit[:, :].any(axis=0).tolist().count(True) == 10
+    assert not lit[1:-1, 1:-1].any()  # hollow
+    assert set(canvas.fg[lit].tolist()) == {3}
+    text = canvas.text([None, None, None, __import__("rich.style").style.Style(color="red")])
+    assert text.plain.count("\n") == 4 and len(text.plain.split("\n")[0]) == 10
+
+
+def test_screen_at_80x24_shows_every_panel_without_wrapping() -> None:
+    source = FixedSource()
+
+    async def scenario() -> None:
+        app = Dashboard(source)
+        async with app.run_test(size=(80, 24)):
+            screen = app.printer_screen
+            await until(lambda: screen.layer_data is not None and len(screen.events) == 13)
+            await until(lambda: screen.query_one(LayerView).printed is not None)
+            job = [t.plain for t in screen.query_one("#job").render().renderables]
+            width = screen.query_one("#job").content_size.width
+            assert job[0].startswith("dogbone.stl") and job[1].startswith("layer 13 of 25")
+            assert job[2] == "elapsed 1:35  ETA 1:43  ahead 3"
+            assert job[3] == "filament ≈1.21 of 2.53 m"
+            assert all(len(line) <= width for line in job), (job, width)
+            temps = screen.query_one("#temps").render().renderables[0].plain
+            assert temps == "hotend 209.5/210°C  bed 59.8/60°C"
+            queue = [t.plain for t in screen.query_one("#queue").render().renderables]
+            assert queue[:2] == ["1. bracket.stl", "2. gear.stl"]
+            assert queue[2] == "bunny.stl  stopped after layer 41"
+            assert screen.query_one("#layer").border_title == "layer 13 of 25 · z 2.60 mm"
+            view = screen.query_one(LayerView)
+            assert 0 < view.printed_paths() < len(screen.layer_data["paths"])
+            lines = view.render().renderables[0].plain.split("\n")
+            assert len(lines) == view.content_size.height - 1
+            assert {len(line) for line in lines} == {view.content_size.width}
+            for widget in screen.query("#job, #temps, #queue, #layer, #log"):
+                assert widget.region.right <= 80 and widget.region.bottom <= 23
+
+    asyncio.run(scenario())
+    layer_args = [args for cmd, args in source.queries if cmd == "layer"]
+    assert layer_args and all(args["layer"] == 12 for args in layer_args)
+
+
+def test_keys_pause_resume_confirmed_cancel_filter_and_retune() -> None:
+    source = FixedSource(refuse=("resume",))
+
+    async def scenario() -> None:
+        app = Dashboard(source)
+        async with app.run_test(size=(100, 30)) as pilot:
+            screen = app.printer_screen
+            await until(lambda: screen.layer_data is not None)
+            await pilot.press("p")
+            await until(lambda: ("pause", {}) in source.calls)
+            await pilot.press("r")
+            await until(lambda: any("resume refused" in e[2] for e in screen.events))
+            await pilot.press("c")
+            await until(lambda: isinstance(app.screen, ConfirmScreen))
+            await pilot.press("n")
+            await pilot.pause()
+            assert all(cmd != "cancel" for cmd, _ in source.calls)
+            await pilot.press("c", "y")
+            await until(lambda: ("cancel", {}) in source.calls)
+            await pilot.press("R")
+            await until(lambda: ("resume_job", {"job": "5"}) in source.calls)
+            await pilot.press("slash", *"layer 3", "enter")
+            await until(lambda: screen.log_filter == "layer 3")
+            assert len(screen.query_one("#log").lines) == 1  # "layer 3 of 25 done"
+            await pilot.press("t")
+            await until(lambda: isinstance(app.screen, RetuneScreen))
+            await pilot.press(*["backspace"] * 3, "4", "0", "enter", "enter", "enter", "enter")
+            await until(lambda: isinstance(app.screen, ConfirmScreen))
+            question = str(app.screen.query_one("#question").render())
+            assert "infill.density = 0.4" in question
+            assert "ETA 1:43 -> 2:11" in question and "2.53 m -> 3.10 m" in question
+            await pilot.press("y")
+            await until(lambda: ("set", {"settings": {"infill.density": 0.4}}) in source.calls)
+            help_key = next(k for k in screen.query(FooterKey) if k.key == "question_mark")
+            await pilot.click(help_key)  # the mouse works the footer's keys
+            await until(lambda: isinstance(app.screen, HelpScreen))
+            await pilot.press("escape", "q")
+        assert not app.is_running
+
+    asyncio.run(scenario())
+    retune = [args for cmd, args in source.queries if cmd == "estimate" and args]
+    assert retune == [{"settings": {"infill.density": 0.4}}]
+
+
+class StatusOnly:
+    """A source like MQTT: status and commands, no replies to read (no ``query``)."""
+
+    label = "status only"
+
+    async def stream(self) -> AsyncIterator[StatusItem]:
+        yield StatusItem("a", printing(T0))
+        yield StatusItem("b", Snapshot(state="error", error="thermal runaway", ts=T0))
+        await asyncio.Event().wait()
+
+    async def command(self, printer: str, cmd: str, **args: Any) -> None:
+        raise ControlError("commands are disabled")
+
+
+def test_a_source_without_replies_shows_status_and_says_why_there_is_no_picture() -> None:
+    async def scenario() -> None:
+        app = Dashboard(StatusOnly(), printer="a")
+        async with app.run_test(size=(80, 24)) as pilot:
+            screen = app.printer_screen
+            await until(lambda: screen.query_one(LayerView).message == NO_LAYER_VIEW)
+            assert screen.snapshot.state == "printing"  # printer b's error is not this one's
+            await pilot.press("p")
+            await until(lambda: any("pause refused: commands are disabled" in e[2]
+                                    for e in screen.events))
+
+    asyncio.run(scenario())
 
 
 class RecordingController:
-    """Records the commands the dashboard sends; refuses cancel while idle."""
+    """Records the commands the dashboard sends over a real control socket."""
 
     def __init__(self) -> None:
         self.calls: list[tuple[str, dict[str, Any]]] = []
 
     async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
         self.calls.append((cmd, args))
-        if cmd == "resume":
-            raise CommandError("nothing is paused")
+        if cmd == "layer":
+            raise CommandError("no job is printing")
         return {}
 
 
-PRINTING = Snapshot(
-    state="printing",
-    temps=Temps(hotend=Temperature(209.5, 210.0), bed=Temperature(59.8, 60.0)),
-    job=JobStatus(id="7", name="dogbone", layer=12, layers=25, progress=0.48, lines_acked=4321,
-                  elapsed_s=95.0, eta_s=103.0, layers_ready_ahead=3),
-    queue=("bracket", "gear"),
-    interrupted=(InterruptedJob(id="5", name="bunny", layer=40),),
-)
+def test_socket_source_status_and_commands_over_a_real_control_socket() -> None:
+    async def scenario(folder: Path) -> RecordingController:
+        hub = StatusHub(Snapshot(state="idle"))
+        controller = RecordingController()
+        path = folder / "hostd.sock"
+        server = asyncio.create_task(serve_control(path, hub, controller))
+        await until(path.exists)
+        app = Dashboard(SocketSource(str(path)))
+        async with app.run_test(size=(80, 24)) as pilot:
+            screen = app.printer_screen
+            await until(lambda: screen.snapshot.state == "idle")
+            hub.update(state="printing", job=printing(T0).job)
+            await until(lambda: screen.query_one(LayerView).message == "no job is printing")
+            hub.event("layer", id="7", layer=3, layers=25)
+            await until(lambda: any(e[2] == "layer 4 of 25 done" for e in screen.events), 3)
+            await pilot.press("p")
+            await until(lambda: ("pause", {}) in controller.calls)
+        server.cancel()
+        await asyncio.gather(server, return_exceptions=True)
+        return controller
 
-
-def _text(app: Dashboard, selector: str) -> str:
-    return str(app.query_one(selector, Static).render())
-
-
-async def _until(predicate, timeout: float = 5.0) -> None:
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not predicate():
-        if asyncio.get_running_loop().time() > deadline:
-            raise AssertionError("condition not met in time")
-        await asyncio.sleep(0.02)
-
-
-async def _scenario(folder: Path) -> RecordingController:
-    hub = StatusHub(Snapshot(state="idle"))
-    controller = RecordingController()
-    path = folder / "hostd.sock"
-    server = asyncio.create_task(serve_control(path, hub, controller), name="control")
-    await _until(path.exists)
-    app = Dashboard(SocketSource(str(path)))
-    async with app.run_test(size=(110, 30)) as pilot:
-        await _until(lambda: "No job" in _text(app, "#job"))
-        hub.update(**{k: getattr(PRINTING, k) for k in ("state", "temps", "job", "queue",
-                                                          "interrupted")})
-        await _until(lambda: "dogbone" in _text(app, "#job"))
-        assert "layer 12/25" in _text(app, "#job")
-        assert "209.5" in _text(app, "#temps")
-        assert "bracket" in _text(app, "#queue_text") and "bunny" in _text(app, "#queue_text")
-        assert abs(app.query_one("#progress", ProgressBar).progress - 0.48) < 1e-9
-        assert "PRINTING" in app.title
-
-        hub.event("layer", layer=12)
-        await _until(lambda: len(app.query_one("#log", RichLog).lines) >= 1)
-
-        await pilot.press("p")
-        await _until(lambda: ("pause", {}) in controller.calls)
-        await pilot.press("r")
-        await _until(lambda: any(c == "resume" for c, _ in controller.calls))
-        await _until(lambda: any("refused" in str(line) for line in app.query_one("#log",
-                                                                                  RichLog).lines))
-        await pilot.press("c")
-        await asyncio.sleep(0.2)
-        assert all(c != "cancel" for c, _ in controller.calls), "one press must not cancel"
-        await pilot.press("c")
-        await _until(lambda: any(c == "cancel" for c, _ in controller.calls))
-        await pilot.press("R")
-        await _until(lambda: ("resume_job", {"job": "5"}) in controller.calls)
-    server.cancel()
-    await asyncio.gather(server, return_exceptions=True)
-    return controller
-
-
-def test_dashboard_shows_status_and_sends_commands() -> None:
     with tempfile.TemporaryDirectory(prefix="hostd-tui-") as folder:
-        controller = asyncio.run(_scenario(Path(folder)))
-    assert [cmd for cmd, _ in controller.calls] == ["pause", "resume", "cancel", "resume_job"]
-
-
-def test_panel_texts() -> None:
-    assert "No job" in describe_job(Snapshot())
-    text = describe_job(PRINTING)
-    assert "lines acknowledged 4321" in text and "ETA 1:43" in text
-    assert describe_queue(Snapshot()) == "(empty)"
+        controller = asyncio.run(scenario(Path(folder)))
+    assert [cmd for cmd, _ in controller.calls if cmd != "estimate"][-1] == "pause"

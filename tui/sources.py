@@ -28,13 +28,26 @@ class EventItem:
 
 
 class Source(Protocol):
-    """A stream of status and events, and a way to send commands back."""
+    """A stream of status and events, and a way to send commands back.
+
+    ``query`` sends a request whose reply the dashboard reads (``layer``,
+    ``estimate``: see :mod:`hostd.api`) and returns the reply; a source that
+    cannot answer such requests (MQTT carries status and commands only) raises
+    :class:`Unanswered`, and the dashboard says that view needs the control socket.
+    A source without ``query`` is treated the same way.
+    """
 
     label: str
 
     def stream(self) -> AsyncIterator[StatusItem | EventItem]: ...
 
     async def command(self, printer: str, cmd: str, **args: Any) -> None: ...
+
+    async def query(self, printer: str, cmd: str, **args: Any) -> dict[str, Any]: ...
+
+
+class Unanswered(ControlError):
+    """This source cannot answer that request (it needs the daemon's control socket)."""
 
 
 class SocketSource:
@@ -65,6 +78,11 @@ class SocketSource:
         """Send one command; raises ControlError with the daemon's reason when refused."""
         async with ControlClient(self.path) as client:
             await client.request(cmd, **args)
+
+    async def query(self, printer: str, cmd: str, **args: Any) -> dict[str, Any]:
+        """Send one request and return the daemon's reply; ControlError when refused."""
+        async with ControlClient(self.path) as client:
+            return await client.request(cmd, **args)
 
 
 class MqttSource:
@@ -107,3 +125,7 @@ class MqttSource:
         if self._client is None:
             raise ControlError("not connected to the broker")
         await self._client.publish(f"hostd/{printer}/cmd", json.dumps({"cmd": cmd, **args}))
+
+    async def query(self, printer: str, cmd: str, **args: Any) -> dict[str, Any]:
+        """MQTT carries no replies to read: always :class:`Unanswered`."""
+        raise Unanswered(f"{cmd}: needs the daemon's control socket (hostd tui --socket)")

@@ -5,6 +5,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import contextlib
+import os
+import shutil
 import signal
 import sys
 import time
@@ -36,12 +38,31 @@ class Progress:
     hotend: tuple[float, float | None] | None = None
 
 
-class ProgressBar:
-    """One text line on ``stream``, redrawn at most ten times a second."""
+def terminal_columns(stream: TextIO) -> int:
+    """The width of the terminal ``stream`` writes to; else ``$COLUMNS``, else 80."""
+    with contextlib.suppress(AttributeError, OSError, ValueError):
+        return max(20, os.get_terminal_size(stream.fileno()).columns)
+    return max(20, shutil.get_terminal_size((80, 24)).columns)
 
-    def __init__(self, stream: TextIO, width: int = 30, enabled: bool = True) -> None:
+
+def fit_bar(fraction: float, tail: str, columns: int, widest: int = 30) -> str:
+    """``[###---] tail`` in fewer than ``columns`` characters: the bar shrinks, then goes."""
+    room = min(widest, columns - 1 - len(tail) - 3)
+    if room < 5:
+        return tail.strip()[: columns - 1]
+    filled = round(max(0.0, min(1.0, fraction)) * room)
+    return f"[{'#' * filled}{'-' * (room - filled)}] {tail}"[: columns - 1]
+
+
+class ProgressBar:
+    """One text line on ``stream``, redrawn at most ten times a second, never wider than
+    the terminal (``columns``, found from the stream when not given)."""
+
+    def __init__(self, stream: TextIO, width: int = 30, enabled: bool = True,
+                 columns: int | None = None) -> None:
         self.stream = stream
         self.width = width
+        self.columns = columns
         self.enabled = enabled
         self.started = time.monotonic()
         self._last = 0.0
@@ -53,16 +74,17 @@ class ProgressBar:
             return
         self._last = now
         frac = min(1.0, progress.done / progress.total) if progress.total else 1.0
-        filled = round(frac * self.width)
         temp = ""
         if progress.hotend is not None:
             actual, target = progress.hotend
             temp = f" T {actual:.0f}/{target:.0f}" if target is not None else f" T {actual:.0f}"
-        self.stream.write(
-            f"\r[{'#' * filled}{'-' * (self.width - filled)}] {100 * frac:5.1f}% "
-            f"{progress.done}/{progress.total} {progress.unit} {progress.acked} lines{temp} "
-            f"{now - self.started:6.1f}s"
-        )
+        if progress.unit == "layers":
+            count = f"layer {max(progress.done, 1)} of {progress.total}"
+        else:
+            count = f"{progress.done}/{progress.total} {progress.unit}"
+        tail = f"{100 * frac:5.1f}% {count} {progress.acked} acked{temp} {now - self.started:.1f}s"
+        columns = self.columns or terminal_columns(self.stream)
+        self.stream.write("\r" + fit_bar(frac, tail, columns, self.width).ljust(columns - 1))
         if final:
             self.stream.write("\n")
         self.stream.flush()

@@ -29,7 +29,7 @@ def run(args: argparse.Namespace) -> int:
             return EXIT_FAILURE
         raise UsageError(str(exc)) from exc
     print(f"job {reply.get('job')} ({reply.get('name')}) queued to resume at layer "
-          f"{reply.get('from_layer')}")
+          f"{int(reply.get('from_layer') or 0) + 1}")
     return EXIT_OK
 
 

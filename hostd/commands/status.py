@@ -40,7 +40,7 @@ def format_summary(snapshot: Snapshot) -> str:
     job = snapshot.job
     if job is not None:
         lines.append(
-            f"job {job.name} ({job.id}): layer {job.layer}/{job.layers}, {job.progress:.1%},"
+            f"job {job.name} ({job.id}): layer {job.layer + 1} of {job.layers}, {job.progress:.1%},"
             f" elapsed {_seconds(job.elapsed_s)}, ETA {_seconds(job.eta_s)},"
             f" {job.layers_ready_ahead} layers ready ahead"
         )
@@ -48,7 +48,7 @@ def format_summary(snapshot: Snapshot) -> str:
         lines.append(f"queue ({len(snapshot.queue)}): " + ", ".join(snapshot.queue))
     for item in snapshot.interrupted:
         lines.append(
-            f"interrupted: {item.name} ({item.id}) after layer {item.layer};"
+            f"interrupted: {item.name} ({item.id}) after layer {item.layer + 1};"
             f" resume with `hostd resume {item.id}`"
         )
     if snapshot.error:

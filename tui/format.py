@@ -1,0 +1,69 @@
+"""Text the dashboard shows: durations, layer numbers, lengths, events, all fitting one line."""
+
+from __future__ import annotations
+
+import time
+from typing import Any
+
+
+def duration(seconds: float | None) -> str:
+    """``1:02:03``, ``2:03`` or ``--`` for an unknown time."""
+    if seconds is None:
+        return "--"
+    seconds = int(max(seconds, 0))
+    hours, rest = divmod(seconds, 3600)
+    minutes, secs = divmod(rest, 60)
+    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
+
+
+def layer_text(index: int, count: int) -> str:
+    """A 0-based layer index as people read it: ``layer 13 of 25``."""
+    return f"layer {index + 1} of {count}"
+
+
+def metres(mm: float | None) -> str:
+    """Filament length: ``1.25 m``, ``--`` when unknown."""
+    return "--" if mm is None else f"{mm / 1000:.2f} m"
+
+
+def bar(fraction: float, width: int) -> str:
+    """A progress bar of ``width`` cells with eighth-cell resolution."""
+    width = max(0, width)
+    eighths = round(max(0.0, min(1.0, fraction)) * width * 8)
+    full, part = divmod(eighths, 8)
+    text = "█" * full + (" ▏▎▍▌▋▊▉"[part] if part and full < width else "")
+    return text + "·" * (width - len(text))
+
+
+def clock(ts: float) -> str:
+    """Local ``HH:MM:SS`` of a Unix time."""
+    return time.strftime("%H:%M:%S", time.localtime(ts))
+
+
+def describe_event(event: dict[str, Any]) -> tuple[str, str]:
+    """(colour, text) of a job event, without its time."""
+    kind = str(event.get("event", "?"))
+    name = event.get("name", "")
+    layers = event.get("layers")
+    layer = event.get("layer")
+    if kind == "layer" and isinstance(layer, int) and isinstance(layers, int):
+        return "cyan", f"{layer_text(layer, layers)} done"
+    if kind == "started":
+        resumed = event.get("resumed_from")
+        how = f"resumed at layer {resumed + 1}:" if isinstance(resumed, int) else "started"
+        return "green", f"{how} {name} ({layers} layers)"
+    if kind in ("paused", "resumed", "interrupted") and isinstance(layer, int):
+        return "yellow", f"{kind} after layer {layer + 1}" if layer >= 0 else kind
+    if kind == "object_cancelled":
+        return "magenta", (f"body {event.get('object')} cancelled from layer "
+                           f"{int(event.get('from_layer', 0)) + 1}")
+    if kind == "object_restored":
+        return "magenta", f"body {event.get('object')} restored"
+    if kind in ("done", "failed", "cancelled", "queued"):
+        colour = {"done": "green", "queued": "cyan"}.get(kind, "red")
+        reason = event.get("reason") or event.get("error") or ""
+        return colour, f"{kind}: {name} {reason}".rstrip()
+    if kind == "error":
+        return "red", f"error: {event.get('message') or event.get('reason') or ''}".rstrip()
+    details = " ".join(f"{k}={v}" for k, v in event.items() if k not in ("event", "ts", "id"))
+    return "white", f"{kind} {details}".rstrip()

@@ -1,0 +1,1 @@
+"""The single-printer dashboard's widgets."""

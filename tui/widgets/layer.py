@@ -1,0 +1,151 @@
+"""The current layer drawn with braille dots: toolpaths by type, printed part brighter, field."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+from rich.console import Group
+from rich.style import Style
+from rich.text import Text
+from textual.widget import Widget
+
+from tui.canvas import Canvas, Frame
+from tui.format import layer_text
+
+# (printed, still to come) colour of each ;TYPE: kind
+KINDS = {
+    "WALL-OUTER": ("#ff5f5f", "#6e3030"),
+    "WALL-INNER": ("#ffaf3f", "#6e5025"),
+    "SKIN": ("#f0e050", "#6a6430"),
+    "FILL": ("#5fd75f", "#2d5e2d"),
+    "SUPPORT": ("#6f9fff", "#2f4470"),
+}
+OTHER = ("#d0d0d0", "#555555")
+LEGEND = (("WALL-OUTER", "outer"), ("WALL-INNER", "inner"), ("SKIN", "skin"),
+          ("FILL", "infill"), ("SUPPORT", "support"))
+HIGHLIGHT = "#ffffff"
+CANCELLED = "#ff00ff"
+FIELD_LEVELS = 16
+
+
+def _field_palette() -> list[Style]:
+    """Dark blue to yellow (the PNG preview's colour map), FIELD_LEVELS steps."""
+    anchors = np.array([[68, 1, 84], [59, 82, 139], [33, 145, 140], [94, 201, 98],
+                        [253, 231, 37]], dtype=float)
+    out = []
+    for t in np.linspace(0.0, 1.0, FIELD_LEVELS):
+        at = t * (len(anchors) - 1)
+        low = min(int(at), len(anchors) - 2)
+        r, g, b = anchors[low] * (1 - (at - low)) + anchors[low + 1] * (at - low)
+        out.append(Style(color=f"#{int(r):02x}{int(g):02x}{int(b):02x}"))
+    return out
+
+
+class LayerView(Widget):
+    """Draws the ``layer`` reply of the control API, sized to the widget.
+
+    ``printed`` is the number of the layer's commands acknowledged (None: the
+    whole layer is still to come; ``done=True``: all of it is printed).
+    """
+
+    def __init__(self, **kwargs) -> None:
+        super().__init__(**kwargs)
+        self.data: dict[str, Any] | None = None
+        self.printed: int | None = None
+        self.message = "waiting for a job"
+        self.show_field = False
+        self.highlight: int | None = None
+        self._cache: tuple[tuple, Group] | None = None
+        pairs = (*KINDS.values(), OTHER)
+        self._palette = [Style(color=colour) for pair in pairs for colour in pair]
+        self._palette += [Style(color=HIGHLIGHT), Style(color=CANCELLED), *_field_palette()]
+
+    def show(self, data: dict[str, Any] | None, message: str = "") -> None:
+        """A new layer (or none, with a message saying why)."""
+        self.data, self.message = data, message
+        self.refresh()
+
+    def progress(self, printed: int | None) -> None:
+        """How many of the layer's commands are acknowledged; redraws when that changes."""
+        if printed != self.printed:
+            self.printed = printed
+            self.refresh()
+
+    def printed_paths(self) -> int:
+        """How many of the layer's paths are wholly printed."""
+        if self.data is None or self.printed is None:
+            return 0
+        ends = [path["end"] for path in self.data["paths"]]
+        return int(np.searchsorted(ends, self.printed, side="right"))
+
+    def render(self) -> Group | Text:
+        width, height = self.content_size.width, self.content_size.height
+        if self.data is None or height < 2:
+            return Text(self.message, style="dim", no_wrap=True, overflow="ellipsis")
+        data = self.data
+        key = (width, height, id(data), self.printed_paths(), self.show_field, self.highlight)
+        if self._cache is not None and self._cache[0] == key:
+            return self._cache[1]
+        rows = height - 1
+        frame = Frame(data["bounds"], width, rows)
+        canvas = Canvas(width, rows)
+        if self.show_field and data.get("field"):
+            canvas.fill_background(self._field_cells(data["field"], frame, canvas),
+                                   base=len(self._palette) - FIELD_LEVELS)
+        done = self.printed_paths()
+        kinds = list(KINDS)
+        for stage, paths in ((1, data["paths"][done:]), (0, data["paths"][:done])):
+            by_kind: dict[int, list[np.ndarray]] = {}
+            for path in paths:
+                slot = kinds.index(path["kind"]) if path["kind"] in KINDS else len(kinds)
+                by_kind.setdefault(slot * 2 + stage, []).append(frame.dots(path["points"]))
+            for colour, lines in by_kind.items():
+                canvas.polylines(lines, colour)
+        highlight = len(KINDS) * 2 + 2
+        for body in data.get("bodies") or ():
+            if body["index"] == self.highlight or body["cancelled"]:
+                rings = [frame.dots(ring) for ring in body["rings"]]
+                canvas.polylines(rings, highlight + (1 if body["cancelled"] else 0))
+        drawn = Group(canvas.text(self._palette), self._legend(width))
+        self._cache = (key, drawn)
+        return drawn
+
+    def _field_cells(self, field: dict[str, Any], frame: Frame, canvas: Canvas) -> np.ndarray:
+        """Field levels (0..FIELD_LEVELS-1, -1 outside) at the centre of every cell."""
+        values = np.asarray(field["values"], dtype=np.int64)
+        xmin, ymin, xmax, ymax = self.data["bounds"]
+        cx = frame.x0 + (np.arange(canvas.cols) * 2 + 1) / frame.scale
+        cy = frame.y1 - (np.arange(canvas.rows) * 4 + 2) / frame.scale
+        col = np.floor((cx - xmin) / max(xmax - xmin, 1e-6) * field["columns"]).astype(int)
+        row = np.floor((ymax - cy) / max(ymax - ymin, 1e-6) * field["rows"]).astype(int)
+        ok_c = (col >= 0) & (col < field["columns"])
+        ok_r = (row >= 0) & (row < field["rows"])
+        out = np.full((canvas.rows, canvas.cols), -1, dtype=np.int64)
+        grid = values[np.clip(row, 0, field["rows"] - 1)][:, np.clip(col, 0, field["columns"] - 1)]
+        inside = ok_r[:, None] & ok_c[None, :] & (grid >= 0)
+        out[inside] = grid[inside] * FIELD_LEVELS // 256
+        return out
+
+    def _legend(self, width: int) -> Text:
+        data = self.data or {}
+        text = Text(no_wrap=True, overflow="ellipsis", end="")
+        if self.show_field and data.get("field"):
+            field = data["field"]
+            text.append(f"field {field['name']} ", "bold")
+            for style in self._palette[-FIELD_LEVELS::3]:
+                text.append("█", style)
+            text.append(f" {field['low']:g}..{field['high']:g}", "dim")
+            return text
+        for kind, name in LEGEND:
+            text.append("■", KINDS[kind][0])
+            text.append(f"{name} ")
+        text.append("dim=to come", "dim")
+        return text
+
+    @staticmethod
+    def title(data: dict[str, Any] | None) -> str:
+        """The border title: layer N of M and its height."""
+        if data is None:
+            return "layer"
+        return f"{layer_text(data['layer'], data['layers'])} · z {data['z']:.2f} mm"
