@@ -4,20 +4,22 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+from drivers.linkevents import LinkState
+
 LONG_COMMANDS = frozenset(
     {"M109", "M190", "M191", "G28", "G29", "G30", "G32", "G34", "M400", "G4", "M600", "M303",
      "M226", "M0", "M1"}
 )
 
-# link states
-DISCONNECTED = "disconnected"
-CONNECTING = "connecting"
-RECONNECTING = "reconnecting"
-READY = "ready"
-PAUSED = "paused"
-CANCELLED = "cancelled"
-ERROR = "error"
-HALTED = "halted"
+# link states (members of LinkState, equal to their names in lower case)
+DISCONNECTED = LinkState.DISCONNECTED
+CONNECTING = LinkState.CONNECTING
+RECONNECTING = LinkState.RECONNECTING
+READY = LinkState.READY
+PAUSED = LinkState.PAUSED
+CANCELLED = LinkState.CANCELLED
+ERROR = LinkState.ERROR
+HALTED = LinkState.HALTED
 
 
 class LinkError(ConnectionError):
