@@ -209,6 +209,8 @@ class LinkCore(Resync, Writing, Watching):
         """
         number = entry.number
         repeated = number is not None and number <= self._emitted_through
+        if number is not None and not repeated:
+            self._catch_up(number)
         if number is not None:
             self.last_acked_number = max(self.last_acked_number, number)
             self.model.holds(number)
@@ -226,6 +228,22 @@ class LinkCore(Resync, Writing, Watching):
                                       job, token))
         if self._completes_renumber(entry):
             self._finish_renumber()
+
+    def _catch_up(self, number: int) -> None:
+        """Line ``number`` is done, so is every line before it (the printer runs them in
+        order): acknowledge those not yet acknowledged (their own oks were counted for
+        copies written again, or for lines the printer refused)."""
+        for earlier in range(self._emitted_through + 1, number):
+            held = self.history.get(earlier)
+            if held is None:
+                continue
+            command, internal = held
+            token = self._waiters.pop(earlier, None)
+            if not internal:
+                self.acked += 1
+            if not internal or token is not None:
+                self._events.append(Acked(earlier, command, not internal, token))
+        self._emitted_through = max(self._emitted_through, number - 1)
 
     def _completes_renumber(self, entry: InFlight) -> bool:
         renumber = self.renumber
@@ -306,6 +324,14 @@ class LinkCore(Resync, Writing, Watching):
         self._waiters[number] = token
 
     # -- connection -------------------------------------------------------------------------
+
+    def retune(self, config: StreamerConfig) -> None:
+        """New settings (firmware defaults chosen at connect): buffers apply at once."""
+        self.config = config
+        self.window.max_bytes = config.rx_buffer
+        if config.bufsize > self.window.max_lines or not self.advanced_ok:
+            self.window.max_lines = max(config.bufsize, 1)
+        self.window.limit = self.window.max_lines
 
     def begin_connect(self, now: float) -> None:
         """The port is open: wait for ``start`` (the board's reset)."""

@@ -57,16 +57,41 @@ class Resync:
             # as an unknown command): take the acknowledgement back and replay
             self.last_acked_number = number - 1
         model = self.model
+        if error_line is not None:
+            model.holds(error_line)
+        if error_line is not None and error_line + 1 == number and model.explains(error_line):
+            # the printer took lines at or after the replay's start before their copies
+            # arrived (the refusal that started it was spurious, or lines still on the wire
+            # got through): those copies are refused, each once, and need no answer
+            self._resync(number)
+            return
         if number == model.refused and model.echoes > 0:
             model.echoes -= 1
             self.stats.duplicate_resends += 1
+            if error_line is not None:
+                self.window.drop_copy(error_line)
             return
         if number >= self.next_number:
             return  # the printer has every line sent: nothing to replay
         self.window.shrink()
         dropped = self.window.drop_from(number)
-        model.replaying(number, max(0, len(dropped) - 1))
+        model.replaying(number, len(dropped) - 1, top=self.next_number - 1)
         self.replay_next = number
+
+    def _resync(self, number: int) -> None:
+        """A refusal whose ``Last Line`` is past the replay's start: the printer took those
+        lines before their copies arrived (the refusal that started the replay was spurious,
+        or lines still on the wire got through) and needs ``number`` next. The copies of the
+        lines it holds are refused, one refusal each (echoes, answered by nothing); a copy
+        of ``number`` written after them will be taken. The replay skips what is held."""
+        model = self.model
+        model.advanced(number)
+        self.window.drop_copy(number - 1)
+        self.stats.duplicate_resends += 1
+        if self.replay_next is not None and self.replay_next < number:
+            self.replay_next = number if number < self.next_number else None
+            if self.replay_next is None:
+                self.force_replay = False
 
     def _refused_during_renumber(self, error_before: Response | None) -> None:
         renumber = self.renumber

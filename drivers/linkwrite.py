@@ -140,8 +140,9 @@ class Writing:
         if self.replay_next is None:
             self.force_replay = False
         self.stats.lines_resent += 1
+        self.model.copy(number)
         return data, InFlight(number, command, len(data), internal=internal,
-                              probe=command == "M105" and internal)
+                              probe=command == "M105" and internal, copy=True)
 
     def _next_control_line(self) -> tuple[bytes, InFlight | None] | None:
         control = self.control[0]

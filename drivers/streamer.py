@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import logging
 from collections.abc import Awaitable, Callable, Iterable
 from types import TracebackType
 
@@ -33,6 +34,7 @@ from drivers.linkevents import (
     Temperature,
     Written,
 )
+from drivers.linkprofile import Profile, profile_for, tuned
 from drivers.protocol import Response
 from drivers.transport import Transport, TransportError
 
@@ -53,6 +55,8 @@ __all__ = [
     "Streamer",
     "StreamerConfig",
 ]
+
+log = logging.getLogger("drivers.link")
 
 
 class Streamer:
@@ -97,6 +101,7 @@ class Streamer:
         self._wake = asyncio.Event()
         self._progress = asyncio.Event()
         self._group: asyncio.Task[None] | None = None
+        self.profile: Profile | None = None  # the firmware defaults chosen at connect
 
     # -- what the core knows ----------------------------------------------------------------
 
@@ -187,6 +192,7 @@ class Streamer:
                 self._wake.set()
                 await waiter
                 await self._control_line("M115")
+                self._tune()
                 if "AUTOREPORT_TEMP" in self.capable and self.config.temperature_interval_s > 0:
                     seconds = max(1, round(self.config.temperature_interval_s))
                     await self._control_line(f"M155 S{seconds}")
@@ -195,6 +201,17 @@ class Streamer:
             self._dispatch(self.core.take_events())
             raise LinkError(self.core.error) from exc
         self.core.connected(loop.time())
+
+    def _tune(self) -> None:
+        """Settings for the firmware just identified (``M115``), logged."""
+        self.profile = profile_for(self.firmware, self.capabilities)
+        config, changes = tuned(self.config, self.profile)
+        self.config = config
+        self.core.retune(config)
+        shown = ", ".join(f"{key}={value}" for key, value in sorted(changes.items()))
+        log.info("printer link: %s (%s); rx_buffer=%d bufsize=%d ok_after_resend=%s%s",
+                 self.profile.name, self.profile.why, config.rx_buffer, config.bufsize,
+                 config.ok_after_resend, f"; firmware defaults applied: {shown}" if shown else "")
 
     async def send(self, command: str) -> int:
         """Queue one job command; returns its line number once it has been written.

@@ -22,6 +22,7 @@ class InFlight:
     internal: bool = False
     probe: bool = False
     token: int | None = field(default=None, repr=False)
+    copy: bool = False  # written again by a replay
 
 
 class SendWindow:
@@ -132,6 +133,16 @@ class SendWindow:
         self._entries = kept
         self._bytes = sum(e.nbytes for e in kept)
         return dropped
+
+    def drop_copy(self, last_line: int) -> InFlight | None:
+        """Forget the oldest replayed copy of a line up to ``last_line`` (the printer held
+        the line already and refused the copy: it will get no ``ok``)."""
+        for entry in self._entries:
+            if entry.copy and entry.number is not None and entry.number <= last_line:
+                self._entries.remove(entry)
+                self._bytes -= entry.nbytes
+                return entry
+        return None
 
     def clear(self) -> list[InFlight]:
         """Forget every line (the printer reset or the link was lost)."""
