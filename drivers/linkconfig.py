@@ -2,22 +2,27 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+import math
+from collections.abc import Mapping
+from dataclasses import dataclass, fields
+from typing import Any
+
+from drivers.linkevents import LinkState
 
 LONG_COMMANDS = frozenset(
     {"M109", "M190", "M191", "G28", "G29", "G30", "G32", "G34", "M400", "G4", "M600", "M303",
      "M226", "M0", "M1"}
 )
 
-# link states
-DISCONNECTED = "disconnected"
-CONNECTING = "connecting"
-RECONNECTING = "reconnecting"
-READY = "ready"
-PAUSED = "paused"
-CANCELLED = "cancelled"
-ERROR = "error"
-HALTED = "halted"
+# link states (members of LinkState, equal to their names in lower case)
+DISCONNECTED = LinkState.DISCONNECTED
+CONNECTING = LinkState.CONNECTING
+RECONNECTING = LinkState.RECONNECTING
+READY = LinkState.READY
+PAUSED = LinkState.PAUSED
+CANCELLED = LinkState.CANCELLED
+ERROR = LinkState.ERROR
+HALTED = LinkState.HALTED
 
 
 class LinkError(ConnectionError):
@@ -52,6 +57,9 @@ class StreamerConfig:
     - ``ok_after_resend``: the firmware answers ``Error`` + ``Resend`` with an ``ok`` (Marlin
       2.1); set False for builds that send none. A wrong guess costs time, not lines.
     - ``reconnect_attempts`` / ``reconnect_delay_s``: after the port is lost.
+    - ``firmware_defaults``: at connect, the firmware's name and ``M115`` capabilities
+      choose defaults for the settings not in ``explicit`` (:mod:`drivers.linkprofile`).
+    - ``explicit``: settings the user chose (``[printer.link]``); never overridden.
     """
 
     rx_buffer: int = 127
@@ -72,18 +80,78 @@ class StreamerConfig:
     renumber_retry_s: float = 1.0
     reconnect_attempts: int = 0
     reconnect_delay_s: float = 1.0
+    firmware_defaults: bool = True
+    explicit: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:
-        if self.rx_buffer < 16:
-            raise ValueError("rx_buffer must be at least 16 bytes")
-        if self.bufsize < 1:
-            raise ValueError("bufsize must be at least 1")
-        if self.history < 64:
-            raise ValueError("history must keep at least 64 lines")
-        if self.probe_after_s <= 0 or self.start_timeout_s < 0:
-            raise ValueError("timeouts must be positive")
-        if self.renumber_at < 1000:
-            raise ValueError("renumber_at must be at least 1000")
+        _check(16 <= self.rx_buffer <= 65536, "rx_buffer", "must be 16..65536 bytes")
+        _check(1 <= self.bufsize <= 1024, "bufsize", "must be 1..1024 commands")
+        _check(64 <= self.history <= 10_000_000, "history", "must keep 64..10000000 lines")
+        _check(self.start_timeout_s >= 0, "start_timeout_s", "must be >= 0")
+        for key in ("connect_timeout_s", "probe_after_s", "long_command_timeout_s",
+                    "renumber_retry_s"):
+            _check(getattr(self, key) > 0, key, "must be > 0")
+        for key in ("temperature_interval_s", "resync_quiet_s", "reconnect_delay_s"):
+            _check(getattr(self, key) >= 0, key, "must be >= 0")
+        _check(self.probe_retries >= 1, "probe_retries", "must be >= 1")
+        _check(self.reconnect_attempts >= 0, "reconnect_attempts", "must be >= 0")
+        _check(self.renumber_at >= 1000, "renumber_at", "must be at least 1000")
+        _check(self.renumber_at <= 2**31 - 1, "renumber_at", "must fit Marlin's long")
+        unknown = self.explicit - set(self.setting_names())
+        _check(not unknown, "explicit", f"names no setting: {sorted(unknown)}")
+
+    @classmethod
+    def setting_names(cls) -> tuple[str, ...]:
+        """Names of the settings a user may set (``[printer.link]``)."""
+        return tuple(f.name for f in fields(cls) if f.name != "explicit")
+
+    @classmethod
+    def from_mapping(cls, values: Mapping[str, Any]) -> StreamerConfig:
+        """Settings from a mapping (a TOML table): every key checked, unknown keys refused.
+
+        The keys given are recorded in ``explicit``: firmware defaults never override them.
+        Raises :class:`LinkSettingError` naming the key.
+        """
+        defaults = cls()
+        kwargs: dict[str, Any] = {}
+        for key, value in values.items():
+            if key not in cls.setting_names():
+                raise LinkSettingError(key, "unknown key")
+            kwargs[key] = _typed(key, value, getattr(defaults, key))
+        return cls(**kwargs, explicit=frozenset(kwargs))
+
+
+class LinkSettingError(ValueError):
+    """A link setting is unknown or out of range; ``key`` names it."""
+
+    def __init__(self, key: str, reason: str) -> None:
+        super().__init__(f"{key}: {reason}")
+        self.key = key
+        self.reason = reason
+
+
+def _check(ok: bool, key: str, reason: str) -> None:
+    if not ok:
+        raise LinkSettingError(key, reason)
+
+
+def _typed(key: str, value: Any, default: Any) -> Any:
+    """``value`` checked against the type of the setting's default."""
+    if isinstance(default, bool):
+        _check(isinstance(value, bool), key, f"expected true or false, got {value!r}")
+    elif isinstance(default, int):
+        _check(isinstance(value, int) and not isinstance(value, bool), key,
+               f"expected a whole number, got {value!r}")
+    elif isinstance(default, float):
+        _check(isinstance(value, int | float) and not isinstance(value, bool), key,
+               f"expected a number, got {value!r}")
+        _check(math.isfinite(value), key, "must be finite")
+        return float(value)
+    elif isinstance(default, tuple):
+        _check(isinstance(value, list | tuple) and all(isinstance(v, str) for v in value),
+               key, f"expected a list of G-code lines, got {value!r}")
+        return tuple(value)
+    return value
 
 
 @dataclass

@@ -10,6 +10,7 @@ FAULT_KINDS = (
     "corrupt_tx",
     "drop_ok",
     "resend",
+    "refuse",
     "busy",
     "reset",
     "disconnect",
@@ -40,6 +41,10 @@ class SimulatorConfig:
     - ``p_resend``: per accepted numbered line, a spurious ``Resend: <that line>`` although
       the line was fine; it is executed once and answered by its one ``ok`` as usual, and a
       re-sent copy is rejected as a duplicate (line-number error);
+    - ``p_refuse``: per accepted numbered line, a spurious refusal in Marlin's own form,
+      ``Error:checksum mismatch, Last Line: <that line>``, ``Resend: <the next>`` and (with
+      ``ok_after_resend``) ``ok``, as noise on a real board's replies produces; nothing is
+      drained, so the lines behind it on the wire are accepted as usual;
     - ``p_busy``: per executed command, a burst of 1-5 ``echo:busy: processing`` lines,
       each after one keepalive interval of simulated time;
     - ``p_reset``: per executed command, a reset before it (queue, receive buffer,
@@ -87,6 +92,7 @@ class SimulatorConfig:
     p_corrupt_tx: float = 0.0
     p_drop_ok: float = 0.0
     p_resend: float = 0.0
+    p_refuse: float = 0.0
     p_busy: float = 0.0
     p_reset: float = 0.0
     p_disconnect: float = 0.0

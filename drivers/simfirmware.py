@@ -19,7 +19,7 @@ from drivers.faults import FaultInjector
 from drivers.heater import BED, HOTEND, Heater, format_temperatures
 from drivers.simclock import SimClock
 from drivers.simconfig import SimulatorConfig
-from drivers.simlines import check_line
+from drivers.simlines import ERR_CHECKSUM, check_line
 from drivers.simmotion import Motion, Planner
 
 ERR_KILLED = "Error:Printer halted. kill() called!"
@@ -210,6 +210,13 @@ class Firmware:
             # a request for a line that arrived intact; its own ok follows when it runs,
             # so every received line is still answered by exactly one ok
             self.emit(f"Resend: {self.last_n}")
+        if spurious and self.faults.fires("refuse"):
+            # Marlin's refusal of a line that arrived intact (noise on a real board): the
+            # lines behind it are accepted as usual
+            self.emit(f"Error:{ERR_CHECKSUM}{self.last_n}")
+            self.emit(f"Resend: {self.last_n + 1}")
+            if self.config.ok_after_resend:
+                self.send_ok()
 
     def _line_error(self, message: str) -> None:
         """Marlin's ``gcode_line_error``: report, drain the receive buffer, ask for a resend."""

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 from collections import deque
 from dataclasses import dataclass, field
 
@@ -13,7 +12,8 @@ class InFlight:
 
     ``number`` is its line number (``None`` for an unnumbered line), ``nbytes`` its framed
     length in bytes, ``internal`` marks lines the link adds itself (M110, M105, M115, M155),
-    ``probe`` marks an ``M105`` whose ``ok T:...`` answer proves every earlier line done.
+    ``probe`` marks an ``M105`` whose ``ok T:...`` answer proves every earlier line done,
+    ``token`` is the caller's handle for whoever waits on the line (``None``: nobody).
     """
 
     number: int | None
@@ -21,7 +21,8 @@ class InFlight:
     nbytes: int
     internal: bool = False
     probe: bool = False
-    waiter: asyncio.Future[int] | None = field(default=None, repr=False)
+    token: int | None = field(default=None, repr=False)
+    copy: bool = False  # written again by a replay
 
 
 class SendWindow:
@@ -29,11 +30,17 @@ class SendWindow:
 
     ``max_bytes`` bounds the bytes not yet acknowledged (the firmware's receive buffer,
     127 for Marlin's 128-byte ring); ``max_lines`` bounds the commands (``BUFSIZE``).
+    Within those the window adapts to the noise on the line: ``limit`` (lines) halves on
+    every refusal and grows back by one line for every ``limit`` clean acknowledgements,
+    so a noisy wire degrades towards one line in flight (a send-and-wait host) instead of
+    feeding refusals with lines that will be refused too.
     """
 
     def __init__(self, max_bytes: int, max_lines: int) -> None:
         self.max_bytes = max_bytes
         self.max_lines = max_lines
+        self.limit = max_lines
+        self._credit = 0
         self._entries: deque[InFlight] = deque()
         self._bytes = 0
 
@@ -52,7 +59,23 @@ class SendWindow:
         """True if a line of ``nbytes`` may be written now (always, when nothing is in flight)."""
         if not self._entries:
             return True
-        return self._bytes + nbytes <= self.max_bytes and len(self._entries) < self.max_lines
+        lines = min(self.max_lines, self.limit)
+        return self._bytes + nbytes <= self.max_bytes and len(self._entries) < lines
+
+    def shrink(self) -> None:
+        """A refusal: halve the line limit (at least one line stays allowed)."""
+        self.limit = max(1, min(self.limit, self.max_lines) // 2)
+        self._credit = 0
+
+    def grow(self) -> None:
+        """A clean acknowledgement: after ``limit`` of them, one more line is allowed."""
+        if self.limit >= self.max_lines:
+            self.limit = self.max_lines
+            return
+        self._credit += 1
+        if self._credit >= self.limit:
+            self._credit = 0
+            self.limit += 1
 
     def push(self, entry: InFlight) -> None:
         """Record a line just written."""
@@ -110,6 +133,16 @@ class SendWindow:
         self._entries = kept
         self._bytes = sum(e.nbytes for e in kept)
         return dropped
+
+    def drop_copy(self, last_line: int) -> InFlight | None:
+        """Forget the oldest replayed copy of a line up to ``last_line`` (the printer held
+        the line already and refused the copy: it will get no ``ok``)."""
+        for entry in self._entries:
+            if entry.copy and entry.number is not None and entry.number <= last_line:
+                self._entries.remove(entry)
+                self._bytes -= entry.nbytes
+                return entry
+        return None
 
     def clear(self) -> list[InFlight]:
         """Forget every line (the printer reset or the link was lost)."""

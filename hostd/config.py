@@ -9,6 +9,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
+from drivers.linkconfig import LinkSettingError, StreamerConfig
 from slicer.settings import SettingsError, SliceSettings
 
 
@@ -39,12 +40,14 @@ class StateConfig:
 
 @dataclass(frozen=True)
 class PrinterConfig:
-    """The printer: id for MQTT topics, serial port or "sim", baud, build volume in mm."""
+    """The printer: id for MQTT topics, serial port or "sim", baud, build volume in mm,
+    and the link settings (``[printer.link]``)."""
 
     id: str = "sim"
     port: str = "sim"
     baud: int = 250000
     bed: tuple[float, float, float] = (220.0, 220.0, 250.0)
+    link: StreamerConfig = field(default_factory=StreamerConfig)
 
 
 @dataclass(frozen=True)
@@ -136,6 +139,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             port=printer.text("port", "sim", empty=False),
             baud=printer.integer("baud", 250000, 300, 10_000_000),
             bed=printer.bed("bed", (220.0, 220.0, 250.0)),
+            link=printer.link("link"),
         ),
         simulator=SimConfig(
             time_scale=sim.number("time_scale", 1.0, 0.0, 1000.0),
@@ -245,6 +249,15 @@ class _Section:
         if not low <= value <= high:
             raise self._fail(key, f"{value!r} is outside {low}..{high}")
         return value
+
+    def link(self, key: str) -> StreamerConfig:
+        value = self._get(key, {})
+        if not isinstance(value, Mapping):
+            raise self._fail(key, "expected a [table]")
+        try:
+            return StreamerConfig.from_mapping(value)
+        except LinkSettingError as exc:
+            raise self._fail(f"{key}.{exc.key}", exc.reason) from exc
 
     def bed(self, key: str, default: tuple[float, float, float]) -> tuple[float, float, float]:
         value = self._get(key, list(default))

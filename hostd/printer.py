@@ -8,7 +8,7 @@ from collections.abc import AsyncIterator
 
 from drivers.simconfig import SimulatorConfig
 from drivers.simulator import SimulatedPrinter
-from drivers.streamer import Streamer, StreamerConfig
+from drivers.streamer import Streamer
 from drivers.transport import open_transport
 from hostd.config import Config
 
@@ -42,7 +42,7 @@ async def printer_link(config: Config) -> AsyncIterator[Streamer]:
                  port, config.simulator.time_scale, config.simulator.baud)
     try:
         transport = await open_transport(port, baud)
-        async with Streamer(transport, StreamerConfig()) as streamer:
+        async with Streamer(transport, config.printer.link) as streamer:
             await streamer.connect()
             log.info("printer connected on %s: %s", port, streamer.firmware or "unknown firmware")
             yield streamer

@@ -235,7 +235,7 @@ def test_advanced_ok_teaches_the_command_buffer_size():
         link = asyncio.run(stream_job(sim, lines))
         executed = list(sim.executed)
     assert job_lines(executed) == lines
-    assert link._window.max_lines >= 8
+    assert link.core.window.max_lines >= 8
 
 
 def test_line_numbers_restart_with_m110_before_they_grow_large():

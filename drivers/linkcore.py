@@ -1,0 +1,363 @@
+"""The printer link's protocol core: pure state machine, no I/O, time passed in.
+
+``LinkCore`` is fed every line the printer sends (``feed(text, now)``), asked for the next
+bytes to write (``next_bytes(now)``) and ticked (``tick(now)``); each returns, or queues in
+``take_events()``, what the shell must do: resolve waiters, report, fail. Reading is here;
+writing is in :mod:`drivers.linkwrite`, timers in :mod:`drivers.linkwatch`.
+"""
+
+from __future__ import annotations
+
+import re
+from collections import deque
+
+from drivers.linkconfig import StreamerConfig, StreamStats
+from drivers.linkevents import Acked, Event, Failed, LinkState, Report, Started, Temperature
+from drivers.linkmodel import PrinterModel
+from drivers.linkresync import Resync
+from drivers.linkwatch import Watching
+from drivers.linkwrite import Control, Renumber, Writing
+from drivers.resend import recover
+from drivers.responses import Response, parse_response
+from drivers.window import InFlight, SendWindow
+
+# the echo of one of our framed lines whose leading N noise turned into another character:
+# the printer ran it as an unknown command (its checksum may be stripped from the echo)
+_GARBLED_N = re.compile(r'unknown command:\s*"?[^\d\s"](\d+) ', re.IGNORECASE)
+
+# most oks awaited for an M110 written several times
+MAX_LATE_OKS = 8
+
+
+class LinkCore(Resync, Writing, Watching):
+    """Everything the link knows and decides, as plain data; see the module docstring."""
+
+    def __init__(self, config: StreamerConfig | None = None) -> None:
+        """A core in ``DISCONNECTED`` state, nothing queued."""
+        self.config = config or StreamerConfig()
+        self.stats = StreamStats()
+        self.capabilities: dict[str, str] = {}
+        self.firmware = ""
+        self.acked = 0
+        self.state = LinkState.DISCONNECTED
+        self.error: str | None = None
+        self.window = SendWindow(self.config.rx_buffer, self.config.bufsize)
+        self.model = PrinterModel()
+        self.history: dict[int, tuple[str, bool]] = {}
+        self.next_number = 1
+        self.replay_next: int | None = None
+        self.last_acked_number = 0
+        self.control: deque[Control] = deque()
+        self.pending: deque[tuple[str, int]] = deque()
+        self.renumber: Renumber | None = None
+        self.paused = False
+        self.cancelled = False
+        self.started = False
+        self.handshaking = False
+        self.last_rx = 0.0
+        self.last_poll = 0.0
+        self.probes_unanswered = 0
+        self.reconnected_at = 0.0
+        self._events: list[Event] = []
+        self._expect_resend_ok = False
+        self._last_error: Response | None = None  # a line error just before this line
+        self._emitted_through = 0
+        self._waiters: dict[int, int] = {}  # line number -> token of a replayed control line
+        self._late_oks = 0  # oks of M110s written again, still to come and not counted
+        self.advanced_ok = False
+        self.init_resync()
+
+    # -- the shell's side -----------------------------------------------------------------
+
+    def take_events(self) -> list[Event]:
+        """Events produced since the last call, oldest first."""
+        events, self._events = self._events, []
+        return events
+
+    @property
+    def capable(self) -> frozenset[str]:
+        """Names of the capabilities the firmware reported as enabled (``Cap:NAME:1``)."""
+        return frozenset(k for k, v in self.capabilities.items() if v == "1")
+
+    def idle(self) -> bool:
+        """Nothing in flight, queued for the link's own use, replaying or renumbering."""
+        return (not len(self.window) and not self.control
+                and self.replay_next is None and self.renumber is None)
+
+    def alive(self) -> bool:
+        """False once the link failed or the printer halted."""
+        return self.state not in (LinkState.ERROR, LinkState.HALTED)
+
+    def feed(self, text: str, now: float) -> list[Event]:
+        """One line received from the printer (without its line ending)."""
+        self.last_rx = now
+        self.probes_unanswered = 0
+        self.handle(recover(parse_response(text)), now)
+        return self.take_events()
+
+    def fail(self, reason: str) -> None:
+        """The link is dead: ``ERROR``, and every waiter fails."""
+        if not self.alive():
+            return
+        self.state = LinkState.ERROR
+        self.error = reason
+        self.report(reason)
+        self.fail_waiters(reason)
+
+    def halt(self, reason: str) -> None:
+        """The printer stopped (kill, emergency stop): ``HALTED``, every waiter fails."""
+        self.state = LinkState.HALTED
+        self.error = reason
+        self.fail_waiters(reason)
+
+    def fail_waiters(self, reason: str) -> None:
+        """Drop everything queued; the shell fails every waiter it holds."""
+        self.pending.clear()
+        self.control.clear()
+        self._waiters.clear()
+        self._events.append(Failed(reason))
+
+    def report(self, text: str) -> None:
+        """Tell the user (``on_error``)."""
+        self._events.append(Report(text))
+
+    # -- reading --------------------------------------------------------------------------
+
+    def handle(self, response: Response, now: float) -> None:
+        """Act on one classified response."""
+        kind = response.kind
+        if kind == "other":
+            return  # unreadable noise (a Resend garbled beyond repair): keep what came before
+        after_resend = self._expect_resend_ok
+        self._expect_resend_ok = False
+        error_before = self._last_error
+        self._last_error = None
+        if kind == "ok":
+            if response.has_temperatures:
+                self._events.append(Temperature(response))
+            if after_resend:
+                return  # the ok Marlin 2.1 sends after every Resend
+            if error_before is not None and self.config.ok_after_resend:
+                self.on_lost_resend(error_before)  # this is the ok after it
+                return
+            self._on_ok(response)
+        elif kind == "resend":
+            self._expect_resend_ok = error_before is not None and self.config.ok_after_resend
+            self.on_resend(response, error_before)
+        elif kind == "error":
+            self._on_error(response)
+        elif kind == "temperature":
+            self._events.append(Temperature(response))
+        elif kind == "echo":
+            self._on_echo(response)
+        elif kind == "capability":
+            if response.name == "FIRMWARE_NAME":
+                self.firmware = response.value
+            else:
+                self.capabilities[response.name] = response.value
+        elif kind == "start":
+            self._on_start()
+
+    def _on_echo(self, response: Response) -> None:
+        garbled = _GARBLED_N.match(response.text)
+        if garbled and int(garbled.group(1)) in self.history \
+                and not response.text[garbled.end():].startswith("M110"):
+            # a line of ours whose leading N was garbled ran as an unknown command; its ok
+            # belongs to no line of ours (the line is refused by number later). An M110 is
+            # left alone: renumbering counts one ok per write of it, and one that did not
+            # take shows as refused lines, which renumber again
+            self._expect_resend_ok = True
+
+    def _on_start(self) -> None:
+        if self.state == LinkState.CONNECTING and not self.handshaking:
+            if not self.started:
+                self.started = True
+                self._events.append(Started())
+        elif self.state == LinkState.RECONNECTING:
+            self.state = LinkState.PAUSED if self.paused else LinkState.READY
+            self.on_reset()
+        else:
+            self.on_reset()
+
+    def _on_ok(self, response: Response) -> None:
+        if response.has_temperatures:
+            self._late_oks = 0  # a probe's answer: any late ok came before it
+        elif self._late_oks:
+            self._late_oks -= 1
+            return
+        if response.queue_free is not None:
+            self.advanced_ok = True
+            if self.config.learn_bufsize and response.queue_free + 1 > self.window.max_lines:
+                grown = self.window.limit >= self.window.max_lines
+                self.window.max_lines = response.queue_free + 1
+                if grown:
+                    self.window.limit = self.window.max_lines
+        # oks are counted in order; an advanced ok's N is not trusted to name the line it
+        # acknowledges (firmwares print the last line received or the one executed)
+        done = self.window.ack_probe() if response.has_temperatures else self.window.ack_one()
+        if done and self.replay_next is None:
+            self.window.grow()
+        for entry in done:
+            self.acknowledged(entry)
+
+    def acknowledged(self, entry: InFlight) -> None:
+        """Record one line as done, in the numbering it was written under.
+
+        An ``M110`` that completes a renumbering is recorded like any line, in the old
+        numbering, and only then starts the new one, so that the records kept by line number
+        (``last_acked_number``, ``_emitted_through``) end as the new numbering sets them.
+        """
+        number = entry.number
+        repeated = number is not None and number <= self._emitted_through
+        if number is not None and not repeated:
+            self._catch_up(number)
+        if number is not None:
+            self.last_acked_number = max(self.last_acked_number, number)
+            self.model.holds(number)
+            if not repeated:
+                self._emitted_through = number
+        token = entry.token
+        if number is not None:
+            # a line replayed after a refusal or reset is a new entry: its waiter is by number
+            token = self._waiters.pop(number, token)
+        job = not entry.internal and not repeated  # not again when replayed after a refusal
+        if job:
+            self.acked += 1
+        if job or token is not None:
+            self._events.append(Acked(number if number is not None else -1, entry.command,
+                                      job, token))
+        if self._completes_renumber(entry):
+            self._finish_renumber()
+
+    def _catch_up(self, number: int) -> None:
+        """Line ``number`` is done, so is every line before it (the printer runs them in
+        order): acknowledge those not yet acknowledged (their own oks were counted for
+        copies written again, or for lines the printer refused)."""
+        for earlier in range(self._emitted_through + 1, number):
+            held = self.history.get(earlier)
+            if held is None:
+                continue
+            command, internal = held
+            token = self._waiters.pop(earlier, None)
+            if not internal:
+                self.acked += 1
+            if not internal or token is not None:
+                self._events.append(Acked(earlier, command, not internal, token))
+        self._emitted_through = max(self._emitted_through, number - 1)
+
+    def _completes_renumber(self, entry: InFlight) -> bool:
+        renumber = self.renumber
+        return (renumber is not None and renumber.sent and entry.number == renumber.line
+                and entry.command.startswith("M110"))
+
+    def _finish_renumber(self) -> None:
+        """The printer took the ``M110``: continue in the numbering it set (every record
+        kept by line number is set for it here)."""
+        renumber = self.renumber
+        assert renumber is not None
+        value, keep = renumber.value, renumber.keep_history
+        self.renumber = None
+        if renumber.token is not None:
+            self._events.append(Acked(value, f"M110 N{value}", False, renumber.token))
+        self.clear_resync()
+        if keep and value + 1 < self.next_number:
+            self.replay_next = value + 1
+        else:
+            self.history.clear()
+            self.next_number = value + 1
+            self.replay_next = None
+            self.force_replay = False
+            self._emitted_through = value
+            self.forget_requests()  # requests counted against the old numbers
+        self.last_acked_number = value
+        self.model.renumbered(value)
+        # an M110 written again after silence may have its first ok still to come, before
+        # any ok of the lines that follow: those oks are not counted for them
+        self._late_oks = min(renumber.late_oks(), MAX_LATE_OKS)
+
+    def _on_error(self, response: Response) -> None:
+        self.stats.errors += 1
+        if response.error_kind in ("checksum", "line_number", "no_checksum", "no_line_number"):
+            self._last_error = response
+            return
+        if response.error_kind in ("halted", "stopped"):
+            self.report(response.text)
+            self.halt(f"printer stopped: {response.text}")
+            self.error = response.text
+            return
+        self.report(response.text)
+
+    def on_lost_resend(self, error: Response) -> None:
+        """An ``Error`` then its ``ok``, the ``Resend`` between them lost to noise: act on
+        the request the error implies (the line after its ``Last Line``), so that a refused
+        ``M110`` counts as refused and a refused line is replayed."""
+        digits = str(error.line + 1) if error.line is not None else ""
+        implied = Response("resend", f"Resend: {digits}",
+                           line=error.line + 1 if digits else None, digits=digits)
+        self.on_resend(implied, error)
+        self._expect_resend_ok = False  # its ok is the one being read
+
+    def on_reset(self) -> None:
+        """``start`` mid-stream: the printer rebooted and lost its buffers and line number."""
+        self.stats.resets += 1
+        self.forget_requests()  # requests seen before the reboot confirm nothing after it
+        if self.renumber is None:
+            value = self.last_acked_number
+            self.renumber = Renumber(value, value, keep_history=True, quiet=True)
+        self.forget_in_flight()
+        self.model.lost()
+
+    def forget_in_flight(self) -> None:
+        """Whatever was on the wire or in the printer's buffers is gone (reset or cut):
+        nothing in flight, no replay under way, an ``M110`` in progress to be written anew."""
+        self.window.clear()
+        self.clear_resync()
+        self.replay_next = None
+        self.force_replay = False
+        self._late_oks = 0
+        if self.renumber is not None:
+            self.renumber.sent = False
+            self.renumber.writes = self.renumber.refusals = 0
+
+    def remember_waiter(self, number: int, token: int) -> None:
+        """A control line's waiter, found again by number when the line is replayed."""
+        self._waiters[number] = token
+
+    # -- connection -------------------------------------------------------------------------
+
+    def retune(self, config: StreamerConfig) -> None:
+        """New settings (firmware defaults chosen at connect): buffers apply at once."""
+        self.config = config
+        self.window.max_bytes = config.rx_buffer
+        if config.bufsize > self.window.max_lines or not self.advanced_ok:
+            self.window.max_lines = max(config.bufsize, 1)
+        self.window.limit = self.window.max_lines
+
+    def begin_connect(self, now: float) -> None:
+        """The port is open: wait for ``start`` (the board's reset)."""
+        self.state = LinkState.CONNECTING
+        self.last_rx = now
+
+    def begin_handshake(self, reset_to: int, keep_history: bool, token: int) -> None:
+        """``M110 N<reset_to>`` once nothing is in flight; ``token`` is acknowledged when
+        the printer took it."""
+        self.handshaking = True  # from now on a `start` is a reset to recover from
+        self.renumber = Renumber(self.next_number, reset_to, keep_history, token=token)
+
+    def connected(self, now: float) -> None:
+        """The handshake is done: ready to stream (or paused, if paused meanwhile)."""
+        self.state = LinkState.PAUSED if self.paused else LinkState.READY
+        self.last_poll = now
+
+    def link_lost(self, reason: str) -> None:
+        """The port failed; the shell tries to reopen it."""
+        self.state = LinkState.DISCONNECTED
+        self.report(f"link lost: {reason}")
+
+    def reopened(self, now: float) -> None:
+        """The port is open again: wait for ``start`` or ``start_timeout_s``."""
+        self.stats.reconnects += 1
+        self.reconnected_at = self.last_rx = now
+        self.forget_in_flight()
+        self.model.lost()
+        self.state = LinkState.RECONNECTING

@@ -1,0 +1,77 @@
+"""What the protocol core tells its shell: the link's state and the events it produces."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from enum import StrEnum
+
+from drivers.responses import Response
+
+
+class LinkState(StrEnum):
+    """The link's state; each value equals the string the daemon and the API report."""
+
+    DISCONNECTED = "disconnected"
+    CONNECTING = "connecting"
+    RECONNECTING = "reconnecting"
+    READY = "ready"
+    PAUSED = "paused"
+    CANCELLED = "cancelled"
+    ERROR = "error"
+    HALTED = "halted"
+
+
+# states in which nothing is written
+STOPPED = frozenset({LinkState.ERROR, LinkState.HALTED, LinkState.DISCONNECTED,
+                     LinkState.RECONNECTING})
+
+
+@dataclass(frozen=True)
+class Written:
+    """A job line (``token`` from ``queue_job``) went out as line ``number``."""
+
+    token: int
+    number: int
+
+
+@dataclass(frozen=True)
+class Acked:
+    """A line was acknowledged for the first time.
+
+    ``job`` is False for the link's own lines (``M110``, ``M105``...); ``token`` is the
+    handle given when it was queued (``None``: nobody waits for it).
+    """
+
+    number: int
+    command: str
+    job: bool
+    token: int | None
+
+
+@dataclass(frozen=True)
+class Temperature:
+    """A temperature report (``ok T:...``, auto-report or a heating wait's lines)."""
+
+    response: Response
+
+
+@dataclass(frozen=True)
+class Report:
+    """A printer error or a link problem worth telling the user about."""
+
+    text: str
+
+
+@dataclass(frozen=True)
+class Failed:
+    """The link failed or the printer halted: every waiter fails with ``reason``."""
+
+    reason: str
+
+
+@dataclass(frozen=True)
+class Started:
+    """The ``start`` banner of a board reset arrived while connecting."""
+
+
+Event = Written | Acked | Temperature | Report | Failed | Started

@@ -1,0 +1,79 @@
+"""The protocol core's model of the printer: which lines it holds, refused, or may still get."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+
+@dataclass
+class PrinterModel:
+    """What the link knows of the firmware's line bookkeeping (current numbering).
+
+    - ``held``: every line up to this number is in the firmware (acknowledged, or named by
+      the ``Last Line`` of a refusal); lines after it that were written and not yet
+      acknowledged are in the window, i.e. still on the wire or in its buffers.
+    - ``refused``: the line a replay started from after the printer refused it (``None``:
+      no replay since the last resynchronisation).
+    - ``echoes``: refusals still expected for that line from copies written before the
+      replay (each line behind a refused one is refused too, or silently drained).
+    - ``first`` / ``copied``: the lines the replay has written again so far (copies), and
+      ``top`` the last line written before it began. A copy can only be refused with a
+      ``Last Line`` from ``first`` to ``max(top, copied)``: the printer cannot hold a
+      line written after the copy before it reads the copy.
+    """
+
+    held: int = 0
+    refused: int | None = None
+    echoes: int = 0
+    first: int = 0
+    copied: int = -1
+    top: int = -1
+
+    def holds(self, number: int) -> None:
+        """Line ``number`` is known to be in the firmware (and so is every earlier one)."""
+        if number > self.held:
+            self.held = number
+
+    def replaying(self, number: int, echoes: int, top: int) -> None:
+        """A replay starts at ``number`` after lines up to ``top`` were written; ``echoes``
+        refusals are still expected from lines written before it."""
+        self.refused = number
+        self.echoes = max(0, echoes)
+        self.first = number
+        self.copied = number - 1
+        self.top = top
+
+    def explains(self, last_line: int) -> bool:
+        """True if a copy written by the replay may have been refused with ``last_line``:
+        the printer holds a line at or after the replay's start."""
+        return (self.refused is not None and self.copied >= self.first
+                and self.refused <= last_line <= max(self.top, self.copied))
+
+    def advanced(self, number: int) -> None:
+        """The printer holds up to ``number - 1`` past the replay's start: the copies of
+        held lines are refused, one refusal each, and ``number`` is needed next."""
+        assert self.refused is not None
+        self.echoes = max(0, min(number - 1, self.copied) - self.refused)
+        self.refused = number
+
+    def copy(self, number: int) -> None:
+        """Line ``number`` was written again by the replay."""
+        if self.refused is not None and number > self.copied:
+            self.copied = number
+
+    def settled(self) -> None:
+        """No refusal still expected."""
+        self.refused = None
+        self.echoes = 0
+        self.first = 0
+        self.copied = -1
+        self.top = -1
+
+    def renumbered(self, value: int) -> None:
+        """``M110 N<value>`` took effect."""
+        self.held = value
+        self.settled()
+
+    def lost(self) -> None:
+        """The printer reset or the port was cut: it holds nothing in flight."""
+        self.settled()

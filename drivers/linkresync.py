@@ -1,0 +1,137 @@
+"""The protocol core's answer to refusals: which line to replay from, once per refusal."""
+
+from __future__ import annotations
+
+from drivers.resend import resolve_resend
+from drivers.responses import Response
+
+
+class Resync:
+    """Mixin of :class:`~drivers.linkcore.LinkCore`: resend requests and refusals."""
+
+    def init_resync(self) -> None:
+        """No request seen yet."""
+        self._unconfirmed: tuple[int, int] = (-1, 0)
+        self._implausible: tuple[str, int] = ("", 0)
+
+    def clear_resync(self) -> None:
+        """No replay under way and no refusal expected (reset, renumbering, link cut)."""
+        self.model.settled()
+
+    def forget_requests(self) -> None:
+        """Requests counted so far name other lines now (new numbering, or a reboot)."""
+        self._unconfirmed = (-1, 0)
+        self._implausible = ("", 0)
+
+    def on_resend(self, response: Response, error_before: Response | None) -> None:
+        """``Resend: N``: replay from N, when the request is sane.
+
+        The number is checked against the lines that can be asked for (unacknowledged or
+        next), repaired when digits were lost, confirmed by the ``Error`` line before it or
+        by repetition; further requests for the same error (lines that were still on the
+        wire) are answered once; a request for an acknowledged line means lost state.
+        """
+        error_line = error_before.line if error_before is not None else None
+        self.stats.resends += 1
+        if self.renumber is not None:
+            self._refused_during_renumber(error_before)
+            return
+        low = min([*self.window.numbers(), self.last_acked_number + 1, self.next_number])
+        candidates = range(low, self.next_number + 1)
+        number = resolve_resend(response.digits, candidates, error_line)
+        if number is None:
+            number = self._repeated_implausible(response, error_line)
+            if number is None:
+                self.stats.implausible_resends += 1
+                return
+        self._implausible = ("", 0)
+        if error_before is None and not self._confirm_unannounced(number):
+            return
+        if number <= self.last_acked_number:
+            if self.last_acked_number - number > self.window.max_lines + 4 \
+                    or number not in self.history:
+                # far behind what it acknowledged: the printer lost its line number
+                self.on_reset()
+                return
+            # an ok counted for a line the printer refused (a mangled line it answered
+            # as an unknown command): take the acknowledgement back and replay
+            self.last_acked_number = number - 1
+        model = self.model
+        if error_line is not None:
+            model.holds(error_line)
+        if error_line is not None and error_line + 1 == number and model.explains(error_line):
+            # the printer took lines at or after the replay's start before their copies
+            # arrived (the refusal that started it was spurious, or lines still on the wire
+            # got through): those copies are refused, each once, and need no answer
+            self._resync(number)
+            return
+        if number == model.refused and model.echoes > 0:
+            model.echoes -= 1
+            self.stats.duplicate_resends += 1
+            if error_line is not None:
+                self.window.drop_copy(error_line)
+            return
+        if number >= self.next_number:
+            return  # the printer has every line sent: nothing to replay
+        self.window.shrink()
+        dropped = self.window.drop_from(number)
+        model.replaying(number, len(dropped) - 1, top=self.next_number - 1)
+        self.replay_next = number
+
+    def _resync(self, number: int) -> None:
+        """A refusal whose ``Last Line`` is past the replay's start: the printer took those
+        lines before their copies arrived (the refusal that started the replay was spurious,
+        or lines still on the wire got through) and needs ``number`` next. The copies of the
+        lines it holds are refused, one refusal each (echoes, answered by nothing); a copy
+        of ``number`` written after them will be taken. The replay skips what is held."""
+        model = self.model
+        model.advanced(number)
+        self.window.drop_copy(number - 1)
+        self.stats.duplicate_resends += 1
+        if self.replay_next is not None and self.replay_next < number:
+            self.replay_next = number if number < self.next_number else None
+            if self.replay_next is None:
+                self.force_replay = False
+
+    def _refused_during_renumber(self, error_before: Response | None) -> None:
+        renumber = self.renumber
+        if renumber.writes:
+            renumber.refusals += 1
+        # M110 skips the line-number check, so only a checksum error can refuse it; a
+        # line-number error comes from a line sent before it (before the reset)
+        refused = error_before is not None and error_before.error_kind != "line_number"
+        if renumber.sent and refused:
+            self.window.clear()
+            renumber.sent = False
+        else:
+            self.stats.duplicate_resends += 1
+
+    def _confirm_unannounced(self, number: int) -> bool:
+        """Marlin announces every resend with an ``Error:`` line. A request without one (the
+        error line lost to noise, or a spurious request) is obeyed only when repeated: if
+        the printer really lacks the line, it refuses the next line with an error."""
+        previous, count = self._unconfirmed
+        count = count + 1 if previous == number else 1
+        self._unconfirmed = (number, count)
+        if count >= 2:
+            self._unconfirmed = (-1, 0)
+            return True
+        self.stats.unconfirmed_resends += 1
+        return False
+
+    def _repeated_implausible(self, response: Response, error_line: int | None) -> int | None:
+        """A request repeated three times, or confirmed by the error's ``Last Line``, for a
+        line not yet acknowledged and still held, is obeyed after all; one for an
+        acknowledged line is returned too (the caller treats it as lost state)."""
+        digits, count = self._implausible
+        count = count + 1 if digits == response.digits else 1
+        self._implausible = (response.digits, count)
+        number = response.line
+        if number is None or number > self.next_number:
+            return None
+        confirmed = error_line is not None and error_line + 1 == number
+        if count >= 3 or confirmed:
+            self._implausible = ("", 0)
+            if number <= self.last_acked_number or number in self.history:
+                return number
+        return None

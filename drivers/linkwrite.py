@@ -1,0 +1,201 @@
+"""The protocol core's writing half: which line goes out next, if the window allows one."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+from drivers.linkevents import STOPPED, LinkState, Written
+from drivers.protocol import frame
+from drivers.window import InFlight
+
+
+@dataclass
+class Renumber:
+    """An ``M110`` in progress: written as line ``line``, sets the last line to ``value``."""
+
+    line: int
+    value: int
+    keep_history: bool
+    token: int | None = None
+    sent: bool = False
+    sent_at: float = 0.0
+    quiet: bool = False
+    writes: int = 0  # times the M110 was written
+    refusals: int = 0  # resend requests while it was out (each may stand for a write)
+
+    def late_oks(self) -> int:
+        """Oks still to come for the writes the completing ok did not answer: every write
+        is answered once, by an ok or by a refusal (counted generously, so that a line of
+        the new numbering is never taken for one)."""
+        return max(0, self.writes - 1 - self.refusals)
+
+
+@dataclass
+class Control:
+    """A line the link (``internal``) or the user adds outside the job: ``force`` passes
+    the window, ``probe`` marks an ``M105`` asked to find lost oks."""
+
+    command: str
+    internal: bool
+    probe: bool = False
+    force: bool = False
+    token: int | None = None
+
+
+class Writing:
+    """Mixin of :class:`~drivers.linkcore.LinkCore`: the writer's decisions."""
+
+    force_replay = False  # a probe is due: replay past the window, then probe
+
+    def queue_job(self, command: str, token: int) -> None:
+        """A job command to write after those already queued; ``Written`` tells its number."""
+        self.pending.append((command, token))
+
+    def queue_control(self, command: str, *, internal: bool, token: int | None = None,
+                      probe: bool = False, force: bool = False, front: bool = False) -> None:
+        """A line outside the job; ``front`` puts it before everything queued."""
+        control = Control(command, internal, probe=probe, force=force, token=token)
+        if front:
+            self.control.appendleft(control)
+        else:
+            self.control.append(control)
+
+    def drop_pending(self) -> list[int]:
+        """Forget the job lines not yet written; their tokens, for the shell to fail."""
+        tokens = [token for _, token in self.pending]
+        self.pending.clear()
+        return tokens
+
+    def next_bytes(self, now: float) -> bytes | None:
+        """The next line to write now (recorded as written), or ``None``."""
+        if self.state in STOPPED:
+            return None
+        out = self._next_line(now)
+        if out is None:
+            return None
+        data, entry = out
+        if entry is not None:
+            self.window.push(entry)
+        self.stats.lines_sent += 1
+        self.stats.bytes_sent += len(data)
+        return data
+
+    def _next_line(self, now: float) -> tuple[bytes, InFlight | None] | None:
+        if self.renumber is not None:
+            return self._next_renumber_line(now)
+        if self.replay_next is not None:
+            return self._next_replay_line()
+        if self.control:
+            return self._next_control_line()
+        if self.pending and not self.paused and not self.cancelled:
+            if self.next_number >= self.config.renumber_at:
+                if len(self.window):
+                    # drain first, outside the renumbering: until the M110 is written the
+                    # printer keeps the old numbers, and a probe must recover a lost ok
+                    return None
+                self.stats.renumbers += 1
+                self.renumber = Renumber(self.next_number, 0, keep_history=False)
+                return self._next_renumber_line(now)
+            command, token = self.pending[0]
+            data = frame(self.next_number, command)
+            if not self.window.has_room(len(data)):
+                return None
+            self.pending.popleft()
+            number = self._assign(command)
+            self._events.append(Written(token, number))
+            return data, InFlight(number, command, len(data))
+        return None
+
+    def _next_renumber_line(self, now: float) -> tuple[bytes, InFlight | None] | None:
+        """``M110`` once nothing else is in flight; only forced lines pass it."""
+        renumber = self.renumber
+        assert renumber is not None
+        if self.control and self.control[0].force and not self.control[0].probe:
+            return self._next_control_line()
+        if renumber.sent or len(self.window):
+            return None
+        if renumber.quiet and now - self.last_rx < self.config.resync_quiet_s:
+            return None  # let replies to lines sent before the reset arrive first
+        command = f"M110 N{renumber.value}"
+        data = frame(renumber.line, command)
+        renumber.sent = True
+        renumber.writes += 1
+        renumber.sent_at = now
+        return data, InFlight(renumber.line, command, len(data), internal=True)
+
+    def _next_replay_line(self) -> tuple[bytes, InFlight | None] | None:
+        number = self.replay_next
+        assert number is not None
+        if self.control and self.control[0].force and not self.control[0].probe:
+            return self._next_control_line()
+        held = self.history.get(number)
+        if held is None:
+            self.fail(f"printer asked for line {number}, which is no longer held")
+            return None
+        command, internal = held
+        data = frame(number, command)
+        if not self.force_replay and not self.window.has_room(len(data)):
+            return None
+        self.replay_next = number + 1 if number + 1 < self.next_number else None
+        if self.replay_next is None:
+            self.force_replay = False
+        self.stats.lines_resent += 1
+        self.model.copy(number)
+        return data, InFlight(number, command, len(data), internal=internal,
+                              probe=command == "M105" and internal, copy=True)
+
+    def _next_control_line(self) -> tuple[bytes, InFlight | None] | None:
+        control = self.control[0]
+        data = frame(self.next_number, control.command)
+        if not control.force and not self.window.has_room(len(data)):
+            return None
+        self.control.popleft()
+        number = self._assign(control.command, internal=control.internal)
+        if control.token is not None:
+            self.remember_waiter(number, control.token)
+        return data, InFlight(number, control.command, len(data), internal=control.internal,
+                              probe=control.probe, token=control.token)
+
+    def _assign(self, command: str, internal: bool = False) -> int:
+        number = self.next_number
+        self.next_number += 1
+        self.history[number] = (command, internal)
+        self.history.pop(number - self.config.history, None)
+        return number
+
+    def emergency(self, command: str) -> None:
+        """``command`` (``M112``, ``M108``, ``M410``) as the very next line, past the window
+        and any replay."""
+        self.queue_control(command, internal=False, force=True, front=True)
+        if command == "M112":
+            self.replay_next = None
+            self.force_replay = False
+
+    def pause(self, park: list[str]) -> None:
+        """Stop job lines after those written; ``park`` lines go out first."""
+        self.paused = True
+        if self.state == LinkState.READY:
+            self.state = LinkState.PAUSED
+        for command in park:
+            self.queue_control(command, internal=False)
+
+    def resume(self) -> None:
+        """Job lines flow again."""
+        self.paused = False
+        if self.state == LinkState.PAUSED:
+            self.state = LinkState.READY
+
+    def cancel(self, end_gcode: list[str]) -> list[int]:
+        """Refuse job lines; ``end_gcode`` after what is in flight. Tokens dropped."""
+        self.cancelled = True
+        self.paused = False
+        tokens = self.drop_pending()
+        for command in end_gcode:
+            self.queue_control(command, internal=False)
+        return tokens
+
+    def begin_job(self) -> None:
+        """Accept job lines again after ``cancel``."""
+        self.cancelled = False
+        if self.state == LinkState.CANCELLED:
+            self.state = LinkState.READY

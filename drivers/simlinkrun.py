@@ -1,0 +1,185 @@
+"""Hosts on the virtual clock: the protocol core, and a send-and-wait host to compare with.
+
+Both stream a job to a :class:`~drivers.simvirtual.VirtualPrinter` with no real time
+passing, for deterministic fault tests and for the throughput benchmark's noisy rows.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+from drivers.linkconfig import StreamerConfig, StreamStats
+from drivers.linkcore import LinkCore
+from drivers.linkevents import Acked, Event, Failed, Started
+from drivers.protocol import frame
+from drivers.resend import recover
+from drivers.responses import parse_response
+from drivers.simconfig import SimulatorConfig
+from drivers.simvirtual import Clock, VirtualPrinter
+
+# commands the link adds on its own
+INTERNAL = ("M110", "M115", "M155", "M105")
+
+
+class NoConvergence(RuntimeError):
+    """The job did not finish within the virtual time allowed."""
+
+
+@dataclass
+class LinkRun:
+    """The outcome of one stream on the virtual clock.
+
+    ``executed``: job commands the printer executed, in order (link's own lines removed);
+    ``acked``: job commands acknowledged to the caller, in order; ``seconds``: virtual
+    time from the first job line to the last acknowledgement; ``bytes_written``: every
+    byte the host wrote.
+    """
+
+    executed: list[str]
+    acked: list[str]
+    seconds: float
+    bytes_written: int
+    printer: VirtualPrinter
+    stats: StreamStats = field(default_factory=StreamStats)
+
+    @property
+    def rate(self) -> float:
+        """Job lines per virtual second."""
+        return len(self.executed) / self.seconds if self.seconds > 0 else float("inf")
+
+
+def job_commands(executed: list[str]) -> list[str]:
+    """Executed commands without the link's own lines."""
+    return [c for c in executed if c.split(" ", 1)[0] not in INTERNAL]
+
+
+def run_core(
+    lines: list[str],
+    sim: SimulatorConfig,
+    link: StreamerConfig,
+    *,
+    printer_hook: Callable[[VirtualPrinter], None] | None = None,
+    exec_s: float = 0.0,
+    max_seconds: float = 1e7,
+    printer_class: type[VirtualPrinter] = VirtualPrinter,
+) -> LinkRun:
+    """Connect the core to a fresh virtual printer, stream ``lines``, wait for every ack.
+
+    ``printer_hook`` may set the printer's ``split`` and its lanes' ``delay`` before the
+    first byte. Raises :class:`NoConvergence` past ``max_seconds`` of virtual time and
+    ``RuntimeError`` if the link fails.
+    """
+    clock = Clock()
+    core = LinkCore(link)
+    acked: list[str] = []
+    written = [0]
+    phase = {"next": 0, "streaming": False, "start": 0.0, "end": 0.0}
+    handshake, identify = 1, 2
+
+    def handle(events: list[Event]) -> None:
+        for event in events:
+            if isinstance(event, Started):
+                core.begin_handshake(0, keep_history=False, token=handshake)
+            elif isinstance(event, Acked):
+                if event.job:
+                    acked.append(event.command)
+                if event.token == handshake:
+                    core.queue_control("M115", internal=True, token=identify)
+                elif event.token == identify:
+                    core.connected(clock.now)
+                    phase["streaming"] = True
+                    phase["start"] = clock.now
+            elif isinstance(event, Failed):
+                raise RuntimeError(f"link failed: {event.reason}")
+
+    def pump() -> None:
+        if phase["streaming"]:
+            while len(core.pending) < 8 and phase["next"] < len(lines):
+                core.queue_job(lines[phase["next"]], phase["next"] + 3)
+                phase["next"] += 1
+        while (data := core.next_bytes(clock.now)) is not None:
+            written[0] += len(data)
+            printer.write(data)
+        handle(core.take_events())
+
+    def on_line(text: str) -> None:
+        handle(core.feed(text, clock.now))
+        pump()
+
+    def done() -> bool:
+        return (phase["streaming"] and phase["next"] >= len(lines) and not core.pending
+                and core.idle())
+
+    interval = core.tick_interval()
+
+    def tick() -> None:
+        handle(core.tick(clock.now))
+        pump()
+        if not done():
+            clock.at(clock.now + interval, tick)
+
+    printer = printer_class(sim, clock, on_line, exec_s=exec_s)
+    if printer_hook is not None:
+        printer_hook(printer)
+    core.begin_connect(0.0)
+    printer.power_on()
+    clock.at(interval, tick)
+    while not done():
+        if not clock.step():
+            raise NoConvergence("nothing left to happen and the job is not done")
+        if clock.now > max_seconds:
+            raise NoConvergence(f"not done after {max_seconds:g} virtual seconds")
+    phase["end"] = clock.now
+    return LinkRun(job_commands(printer.executed), acked, phase["end"] - phase["start"],
+                   written[0], printer, core.stats)
+
+
+def run_send_and_wait(lines: list[str], sim: SimulatorConfig, *, exec_s: float = 0.0,
+                      max_seconds: float = 1e7) -> LinkRun:
+    """A careful one-line-at-a-time host (as OctoPrint and Printrun stream): write a line,
+    wait for its ``ok``; replay the line in flight when the printer refuses it (an
+    ``Error`` naming the line before it), ignore other requests and the ``ok`` after them.
+    """
+    clock = Clock()
+    state = {"n": 0, "skip": 0, "error": None, "start": 0.0, "done": False}
+    written = [0]
+
+    def send(number: int) -> None:
+        data = frame(number, "M110 N0" if number == 0 else lines[number - 1])
+        written[0] += len(data)
+        printer.write(data)
+
+    def on_line(text: str) -> None:
+        response = recover(parse_response(text))
+        error, state["error"] = state["error"], None
+        n = state["n"]
+        if response.kind == "error" and response.line is not None:
+            state["error"] = response
+        elif response.kind == "resend":
+            if sim.ok_after_resend and error is not None:
+                state["skip"] += 1
+            if error is not None and error.line is not None and error.line < n:
+                state["n"] = error.line + 1  # the line in flight (or one before) was refused
+                send(state["n"])
+        elif response.kind == "start" and n == 0:
+            send(0)
+        elif response.kind == "ok":
+            if state["skip"]:
+                state["skip"] -= 1
+                return
+            if n == 0:
+                state["start"] = clock.now
+            if n >= len(lines):
+                state["done"] = True
+                return
+            state["n"] = n + 1
+            send(n + 1)
+
+    printer = VirtualPrinter(sim, clock, on_line, exec_s=exec_s)
+    printer.power_on()
+    while not state["done"]:
+        if not clock.step() or clock.now > max_seconds:
+            raise NoConvergence("the send-and-wait host stalled")
+    return LinkRun(job_commands(printer.executed), lines[: state["n"]],
+                   clock.now - state["start"], written[0], printer)

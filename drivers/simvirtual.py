@@ -1,0 +1,258 @@
+"""The simulated Marlin on a virtual clock: the pty simulator's rules as discrete events.
+
+Same line checks (:func:`drivers.simlines.check_line`), same seeded faults
+(:class:`drivers.faults.FaultInjector`, every kind but ``disconnect``), same receive buffer,
+command queue, drain on error and message order as :mod:`drivers.simfirmware`, but nothing
+runs in real time: a :class:`VirtualWire` carries bytes both ways at ``baud / 10`` bytes per
+second plus a one-way latency, and the caller advances one shared clock event by event. A
+host (the protocol core, or anything else) talks to it through ``write`` and ``on_line``.
+"""
+
+from __future__ import annotations
+
+import heapq
+import itertools
+from collections import deque
+from collections.abc import Callable
+
+from drivers.faults import FaultInjector
+from drivers.simcommands import FIRMWARE_NAME
+from drivers.simconfig import SimulatorConfig
+from drivers.simlines import ERR_CHECKSUM, check_line
+
+BUSY = "echo:busy: processing"
+TEMPERATURES = " T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"
+
+
+class Clock:
+    """A virtual clock and its queue of timed callbacks (run in time order, then FIFO)."""
+
+    def __init__(self) -> None:
+        self.now = 0.0
+        self._queue: list[tuple[float, int, Callable[[], None]]] = []
+        self._seq = itertools.count()
+
+    def at(self, when: float, action: Callable[[], None]) -> None:
+        """Run ``action`` at virtual time ``when`` (not before now)."""
+        heapq.heappush(self._queue, (max(when, self.now), next(self._seq), action))
+
+    def step(self) -> bool:
+        """Run the next action; False when none is left."""
+        if not self._queue:
+            return False
+        when, _, action = heapq.heappop(self._queue)
+        self.now = when
+        action()
+        return True
+
+    def next_time(self) -> float | None:
+        """When the next action is due (``None``: nothing queued)."""
+        return self._queue[0][0] if self._queue else None
+
+
+class Lane:
+    """One direction of the wire: bytes leave in order, each after its wire time.
+
+    ``delay(size)`` may add an extra delay to one piece (order is kept: a piece never
+    arrives before the one written before it).
+    """
+
+    def __init__(self, clock: Clock, rate: float, latency: float,
+                 deliver: Callable[[bytes], None]) -> None:
+        self.clock = clock
+        self.rate = rate
+        self.latency = latency
+        self.deliver = deliver
+        self.delay: Callable[[int], float] | None = None
+        self._free_at = 0.0
+        self._last_arrival = 0.0
+        self.epoch = 0  # bumped when the wire is cut: pieces under way are lost
+
+    def send(self, pieces: list[bytes]) -> None:
+        """Put ``pieces`` (one write, maybe split) on the wire now."""
+        epoch = self.epoch
+        for piece in pieces:
+            start = max(self._free_at, self.clock.now)
+            self._free_at = start + (len(piece) / self.rate if self.rate else 0.0)
+            arrival = self._free_at + self.latency
+            if self.delay is not None:
+                arrival += self.delay(len(piece))
+            arrival = max(arrival, self._last_arrival)
+            self._last_arrival = arrival
+            self.clock.at(arrival, lambda p=piece, e=epoch: self._arrive(p, e))
+
+    def _arrive(self, piece: bytes, epoch: int) -> None:
+        if epoch == self.epoch:
+            self.deliver(piece)
+
+
+class VirtualPrinter:
+    """Marlin's main loop as events: receive buffer, line checks, queue, one ok per command.
+
+    ``write(data)`` puts host bytes on the wire; ``on_line(text)`` is called for every line
+    the printer's replies deliver to the host. ``executed`` lists executed commands in
+    order. ``split(data)`` may cut each host write into pieces (default: one piece).
+    """
+
+    def __init__(self, config: SimulatorConfig, clock: Clock,
+                 on_line: Callable[[str], None], exec_s: float = 0.0) -> None:
+        self.config = config
+        self.clock = clock
+        self.on_line = on_line
+        self.exec_s = exec_s
+        self.faults = FaultInjector(config)
+        rate = config.bytes_per_second
+        self.to_printer = Lane(clock, rate, config.latency_s, self._receive)
+        self.to_host = Lane(clock, rate, config.latency_s, self._host_bytes)
+        self.split: Callable[[bytes], list[bytes]] | None = None
+        self.executed: list[str] = []
+        self.last_n = 0
+        self.errors = 0
+        self.resets = 0
+        self._rx = bytearray()
+        self._partial = bytearray()
+        self._host_partial = bytearray()
+        self._queue: deque[tuple[str, int | None]] = deque()
+        self._running = False
+        self._booting_until = 0.0
+        self._boot_id = 0
+
+    # -- the host's side -----------------------------------------------------------------
+
+    def write(self, data: bytes) -> None:
+        """Host bytes onto the wire, now."""
+        self.to_printer.send(self.split(data) if self.split else [data])
+
+    def power_on(self) -> None:
+        """The board boots: ``start`` after the boot delay."""
+        self._reset()
+
+    # -- the UART --------------------------------------------------------------------------
+
+    def _receive(self, data: bytes) -> None:
+        if self.clock.now < self._booting_until:
+            return  # lost while booting
+        room = self.config.rx_buffer - len(self._rx)
+        self._rx += data[: max(0, room)]
+        self._serve()
+
+    def _host_bytes(self, data: bytes) -> None:
+        self._host_partial += data
+        while True:
+            end = self._host_partial.find(b"\n")
+            if end < 0:
+                return
+            raw = bytes(self._host_partial[:end])
+            del self._host_partial[: end + 1]
+            self.on_line(raw.decode("ascii", "replace"))
+
+    def emit(self, line: str) -> None:
+        """One reply line (subject to the printer -> host corruption fault)."""
+        data = (line + "\n").encode("latin-1", "replace")
+        if self.faults.fires("corrupt_tx"):
+            data = self.faults.flip_bit("corrupt_tx", data)
+        self.to_host.send([data])
+
+    # -- the main loop ---------------------------------------------------------------------
+
+    def _serve(self) -> None:
+        """Read lines into the queue while it has room; run the next command if idle."""
+        limit = self.config.max_cmd_size - 1
+        while len(self._queue) < self.config.bufsize and self._rx:
+            end = self._rx.find(b"\n")
+            stop = end if end >= 0 else len(self._rx)
+            room = max(0, limit - len(self._partial))
+            self._partial += self._rx[: min(stop, room)]
+            del self._rx[: end + 1 if end >= 0 else stop]
+            if end < 0:
+                break
+            line = bytes(self._partial)
+            self._partial.clear()
+            if line:
+                self._process_line(line)
+        if not self._running and self._queue:
+            self._start_next()
+
+    def _process_line(self, raw: bytes) -> None:
+        if self.faults.fires("corrupt_rx"):
+            raw = self.faults.flip_bit("corrupt_rx", raw)
+        check = check_line(raw, self.last_n)
+        if check.error:
+            self.errors += 1
+            self.emit(f"Error:{check.error}{self.last_n}")
+            self._rx.clear()
+            self._partial.clear()
+            self.emit(f"Resend: {self.last_n + 1}")
+            if self.config.ok_after_resend:
+                self._ok()
+            return
+        self.last_n = check.last_n
+        if not check.command:
+            return
+        self._queue.append((check.command, check.number))
+        spurious = check.number is not None and "M110" not in check.command
+        if spurious and self.faults.fires("resend"):
+            self.emit(f"Resend: {self.last_n}")
+        if spurious and self.faults.fires("refuse"):
+            self.emit(f"Error:{ERR_CHECKSUM}{self.last_n}")
+            self.emit(f"Resend: {self.last_n + 1}")
+            if self.config.ok_after_resend:
+                self._ok()
+
+    def _start_next(self) -> None:
+        if self.faults.fires("reset"):
+            self._reset()
+            return
+        self._running = True
+        delay = self.exec_s
+        if self.faults.fires("busy"):
+            for k in range(self.faults.randint("busy", 1, 5)):
+                self.clock.at(self.clock.now + k * self.config.keepalive_s,
+                              lambda: self.emit(BUSY))
+                delay += self.config.keepalive_s
+        boot = self._boot_id
+        self.clock.at(self.clock.now + delay, lambda: self._finish(boot))
+
+    def _finish(self, boot: int) -> None:
+        if boot != self._boot_id:
+            return  # a reset cut the command short
+        command, _ = self._queue.popleft()
+        self._running = False
+        code = command.split(" ", 1)[0]
+        if _known(code):
+            self.executed.append(command)  # an unknown command runs as nothing, as in Marlin
+        if code == "M105":
+            self._ok(TEMPERATURES)
+        elif code == "M115":
+            self.emit(f"FIRMWARE_NAME:{FIRMWARE_NAME} PROTOCOL_VERSION:1.0")
+            self.emit(f"Cap:EMERGENCY_PARSER:{int(self.config.emergency_parser)}")
+            self._ok()
+        else:
+            if not _known(code):
+                self.emit(f'echo:Unknown command: "{command}"')
+            self._ok()
+        self._serve()
+
+    def _ok(self, suffix: str = "") -> None:
+        if self.faults.fires("drop_ok"):
+            return
+        if suffix or not self.config.advanced_ok:
+            self.emit("ok" + suffix)
+        else:
+            self.emit(f"ok P15 B{self.config.bufsize - len(self._queue)}")
+
+    def _reset(self) -> None:
+        """Everything volatile lost; ``start`` once booted (bytes meanwhile are lost)."""
+        self.resets += 1
+        self._boot_id += 1
+        self._rx.clear()
+        self._partial.clear()
+        self._queue.clear()
+        self._running = False
+        self.last_n = 0
+        self._booting_until = self.clock.now + self.config.boot_delay_s
+        self.clock.at(self._booting_until, lambda: self.emit("start"))
+
+
+def _known(code: str) -> bool:
+    return len(code) > 1 and code[0] in "GMT" and code[1:].isdigit()
