@@ -1,0 +1,105 @@
+"""The fleet view against a real mosquitto: synthetic printers, a last will, counts, filter."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from brokers import HOST, Broker, start_broker
+from textual.widgets import DataTable, Static
+
+from tui.fleet import FleetApp, FleetScreen
+from tui.fleet_model import RANKS
+from tui.sources import MqttSource
+
+REPO = Path(__file__).resolve().parents[1]
+# index % 6 -> state, for the twelve printers p0000..p0011
+STATES = "printing,idle,paused,error,printing,heating"
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[Broker]:
+    running = start_broker(tmp_path / "broker")
+    yield running
+    running.stop()
+
+
+def publisher(broker: Broker, *args: str) -> subprocess.Popen[bytes]:
+    """Synthetic printers publishing their status once (retained), connections kept open."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "bench.fleetpub", "--broker", f"{HOST}:{broker.port}",
+         "--prefix", "p", "--rate", "0", "--hold", "120", *args],
+        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+
+
+async def until(predicate: Callable[[], bool], timeout: float = 15.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not predicate():
+        if asyncio.get_running_loop().time() > deadline:
+            raise AssertionError("condition not met in time")
+        await asyncio.sleep(0.02)
+
+
+def rows(app: FleetApp) -> list[tuple[str, str]]:
+    """(printer, state) of every row, top to bottom."""
+    table = app.screen.query_one("#fleet", DataTable)
+    return [(str(table.get_row_at(i)[0]), str(table.get_row_at(i)[1]))
+            for i in range(table.row_count)]
+
+
+def counts_line(app: FleetApp) -> str:
+    return str(app.screen.query_one("#counts", Static).render())
+
+
+@pytest.mark.parametrize("size", [(80, 24), (160, 50)])
+def test_fleet_sorts_problems_first_shows_a_lost_printer_offline_and_filters(
+    broker: Broker, size: tuple[int, int]
+) -> None:
+    many = publisher(broker, "--count", "12", "--states", STATES)
+    doomed = publisher(broker, "--count", "1", "--first", "50", "--will", "--states", "printing")
+
+    async def scenario() -> None:
+        app = FleetApp(MqttSource(HOST, broker.port), refresh_s=0.05)
+        async with app.run_test(size=size) as pilot:
+            assert isinstance(app.screen, FleetScreen)
+            await until(lambda: len(rows(app)) == 13)
+            await until(lambda: dict(rows(app)).get("p0050") == "printing")
+            states = [state for _, state in rows(app)]
+            assert states[:2] == ["error", "error"]
+            assert [RANKS[s] for s in states] == sorted(RANKS[s] for s in states)
+            assert "printing 5" in counts_line(app) and "error 2" in counts_line(app)
+
+            doomed.kill()  # its TCP connection drops: the broker publishes its last will
+            doomed.wait(timeout=10)
+            await until(lambda: dict(rows(app)).get("p0050") == "offline")
+            order = rows(app)
+            assert [state for _, state in order[:3]] == ["error", "error", "offline"]
+            assert order[2][0] == "p0050"
+            assert "offline 1" in counts_line(app) and "printing 4" in counts_line(app)
+
+            await pilot.press("slash", *"paus")
+            await until(lambda: len(rows(app)) == 2)
+            assert {state for _, state in rows(app)} == {"paused"}
+            assert "2" in counts_line(app) and "shown" in counts_line(app)
+            await pilot.press("escape")
+            await until(lambda: len(rows(app)) == 13)
+
+            await pilot.press("slash", *"p0050", "enter")
+            await until(lambda: rows(app) == [("p0050", "offline")])
+            await pilot.press("escape")
+            await until(lambda: len(rows(app)) == 13)
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        for proc in (many, doomed):
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait(timeout=10)
