@@ -103,3 +103,53 @@ def test_fleet_sorts_problems_first_shows_a_lost_printer_offline_and_filters(
             if proc.poll() is None:
                 proc.kill()
             proc.wait(timeout=10)
+
+
+def start_daemon(folder: Path, broker: Broker, printer: str, user: str, secret: str,
+                 hosts: str = "") -> subprocess.Popen[bytes]:
+    """`hostd run` on the simulated printer, bridged to ``broker`` with commands allowed."""
+    folder.mkdir(parents=True, exist_ok=True)
+    where = f"hosts = [{hosts}]\n" if hosts else f"host = \"{HOST}\"\nport = {broker.port}\n"
+    (folder / "hostd.toml").write_text(
+        "[jobs]\nfolder = \"jobs\"\nsettle_s = 0.2\n[state]\nfolder = \"var\"\n"
+        f"[printer]\nid = \"{printer}\"\n[simulator]\ntime_scale = 0\nbaud = 0\n"
+        f"[mqtt]\nenabled = true\n{where}username = \"{user}\"\npassword = \"{secret}\"\n"
+        "allow_commands = true\n"
+    )
+    return subprocess.Popen(
+        [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+         "run", "--config", str(folder / "hostd.toml")],
+        cwd=folder, env={**os.environ, "PYTHONPATH": str(REPO)},
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+
+
+def test_enter_opens_the_printer_over_mqtt_and_shows_its_refusal(tmp_path: Path) -> None:
+    from textual.widgets import RichLog
+
+    from tui.fleet_printer import FleetPrinterScreen
+
+    broker = start_broker(tmp_path / "broker", users={"farm": "pw-9"})
+    daemon = start_daemon(tmp_path / "d", broker, "farm7", "farm", "pw-9")
+
+    async def scenario() -> None:
+        app = FleetApp(MqttSource(HOST, broker.port, "farm", "pw-9"), refresh_s=0.05)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(lambda: rows(app) == [("farm7", "idle")], timeout=40)
+            await pilot.press("enter")
+            await until(lambda: isinstance(app.screen, FleetPrinterScreen))
+            screen = app.screen
+            await until(lambda: "IDLE" in str(screen.query_one("#state", Static).render()))
+            await pilot.press("p")  # nothing is printing: the daemon refuses on its event topic
+            log = screen.query_one("#events", RichLog)
+            await until(lambda: any("refused pause: no job is printing" in str(line)
+                                    for line in log.lines))
+            await pilot.press("escape")
+            await until(lambda: isinstance(app.screen, FleetScreen))
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        daemon.kill()
+        daemon.wait(timeout=10)
+        broker.stop()

@@ -132,7 +132,7 @@ class FleetScreen(Screen[None]):
         table, model, query = self.table, self.model, self.query_text
         stamps: list[float] = []
         reorder = False
-        for printer in dirty:
+        for printer in sorted(dirty):
             entry = model.entries[printer]
             cells = row_cells(printer, entry)
             old = self._shown.get(printer)
@@ -164,7 +164,8 @@ class FleetScreen(Screen[None]):
 
     def _sort(self) -> None:
         table = self.table
-        current = self.cursor_printer()
+        # the cursor stays on its printer, or at the top (the worst problem) when there
+        current = self.cursor_printer() if table.cursor_row > 0 else None
         table.sort("printer", key=lambda name: self.model.sort_key(str(name)))
         if current is not None and current in self._shown:
             table.move_cursor(row=table.get_row_index(current), scroll=False)
@@ -179,7 +180,7 @@ class FleetScreen(Screen[None]):
     def _show_counts(self) -> None:
         counts = self.model.counts()
         total = len(self.model.entries)
-        parts = [f"[b]{total}[/b] printers"]
+        parts = [f"[b]{total}[/b] printers on {self.source.label}"]
         if self.query_text:
             parts[0] += f" ([b]{len(self._shown)}[/b] shown for '{self.query_text}')"
         for state in COUNTED:
@@ -238,8 +239,8 @@ class FleetApp(App[None]):
         self.source = source
         self.refresh_s = refresh_s
 
-    def get_default_screen(self) -> Screen[Any]:
-        return FleetScreen(self.source, refresh_s=self.refresh_s)
+    def on_mount(self) -> None:
+        self.push_screen(FleetScreen(self.source, refresh_s=self.refresh_s))
 
     def on_open_printer(self, message: OpenPrinter) -> None:
         self.push_screen(printer_screen(self.source.for_printer(message.printer_id),
