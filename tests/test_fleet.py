@@ -11,10 +11,11 @@ from pathlib import Path
 
 import pytest
 from brokers import HOST, Broker, start_broker
-from textual.widgets import DataTable, Static
+from textual.widgets import Static
 
 from tui.fleet import FleetApp, FleetScreen
 from tui.fleet_model import RANKS
+from tui.fleet_table import FleetTable
 from tui.sources import MqttSource
 
 REPO = Path(__file__).resolve().parents[1]
@@ -49,9 +50,8 @@ async def until(predicate: Callable[[], bool], timeout: float = 15.0) -> None:
 
 def rows(app: FleetApp) -> list[tuple[str, str]]:
     """(printer, state) of every row, top to bottom."""
-    table = app.screen.query_one("#fleet", DataTable)
-    return [(str(table.get_row_at(i)[0]), str(table.get_row_at(i)[1]))
-            for i in range(table.row_count)]
+    table = app.screen.query_one("#fleet", FleetTable)
+    return [table.row_at(i)[:2] for i in range(table.row_count)]
 
 
 def counts_line(app: FleetApp) -> str:

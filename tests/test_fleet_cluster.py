@@ -103,3 +103,20 @@ def test_a_print_goes_on_when_its_nats_node_stops_and_the_fleet_sees_it_through_
         assert states == ["queued", "slicing", "heating", "printing", "done"]  # undisturbed
     finally:
         cluster.stop()
+
+
+def test_mqtt_hosts_are_read_and_checked(tmp_path: Path) -> None:
+    import pytest
+
+    from hostd.config import ConfigError, config_from_mapping
+
+    config = config_from_mapping({"mqtt": {"port": 1884, "hosts": ["a:1", "b", "c.farm:65535"]}},
+                                 tmp_path)
+    assert config.mqtt.brokers == (("a", 1), ("b", 1884), ("c.farm", 65535))
+    assert config_from_mapping({"mqtt": {"host": "x", "port": 2}}, tmp_path).mqtt.brokers == (
+        ("x", 2),)
+    for bad, reason in [("a:1", "a list"), (["a:0"], "1..65535"), (["a:b"], "1..65535"),
+                        (["a b"], "not host"), ([":5"], "not host"), ([3], "a list")]:
+        with pytest.raises(ConfigError, match=reason) as caught:
+            config_from_mapping({"mqtt": {"hosts": bad}}, tmp_path)
+        assert caught.value.key == "mqtt.hosts"

@@ -7,11 +7,10 @@ import time
 from collections.abc import AsyncIterator
 from typing import Any
 
-from textual.widgets import DataTable
-
 from bench.fleetpub import snapshot
 from hostd.api import ControlError
 from tui.fleet import FleetApp
+from tui.fleet_table import FleetTable
 from tui.sources import AvailabilityItem, EventItem, StatusItem
 
 NOW = 1_764_000_000.0
@@ -46,7 +45,7 @@ class FixedFleet:
 
 
 async def _loaded(pilot: Any) -> None:
-    table = pilot.app.screen.query_one("#fleet", DataTable)
+    table = pilot.app.screen.query_one("#fleet", FleetTable)
     while table.row_count < 20:
         await pilot.pause(0.05)
     await pilot.pause(0.1)

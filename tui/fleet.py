@@ -5,15 +5,15 @@ from __future__ import annotations
 import time
 from typing import Any, ClassVar, Protocol
 
-from rich.text import Text
 from textual.app import App, ComposeResult
 from textual.binding import Binding
 from textual.message import Message
 from textual.screen import Screen
-from textual.widgets import DataTable, Footer, Input, Static
+from textual.widgets import Footer, Input, Static
 
-from tui.fleet_model import COLUMNS, COUNTED, FleetModel, matches, row_cells
+from tui.fleet_model import COUNTED, FleetModel, matches, row_cells
 from tui.fleet_printer import printer_screen
+from tui.fleet_table import FleetTable, header_text
 from tui.sources import AvailabilityItem, EventItem, Source, StatusItem
 
 STYLES = {
@@ -42,27 +42,20 @@ class OpenPrinter(Message):
         self.printer_id = printer_id
 
 
-def _styled(column: str, value: str) -> str | Text:
-    if column == "state":
-        return Text(value, style=STYLES.get(value, "bold red"))
-    if column == "progress" and value:
-        return Text(value, style="cyan")
-    return value
-
-
 class FleetScreen(Screen[None]):
     """The fleet table, its per-state counts and a filter; redrawn a few times a second.
 
     Status messages only update the model; a timer applies what changed to the
-    table: changed cells in place, and a re-sort only when a printer's place
-    changes (a new printer, another state, the filter).
+    table: a changed row is redrawn if it is on screen, and the rows are sorted
+    again only when a printer's place changes (a new printer, another state, the
+    filter).
     """
 
     CSS = """
     #counts { height: 1; padding: 0 1; background: $boost; }
     #filter { display: none; height: 3; }
     #filter.shown { display: block; }
-    #fleet { height: 1fr; }
+    #columns { height: 1; text-style: bold; color: $text-muted; }
     #note { height: 1; padding: 0 1; color: $text-muted; }
     """
     BINDINGS: ClassVar[list[Binding]] = [
@@ -80,27 +73,26 @@ class FleetScreen(Screen[None]):
         self.note = ""
         self.collect_stamps = False  # True: rows_shown() gets each shown status' timestamp
         self._shown: dict[str, tuple[str, ...]] = {}
+        self._header_width = 0
 
     def compose(self) -> ComposeResult:
         yield Static("waiting for printers...", id="counts")
         yield Input(placeholder="filter by name, job or state; Enter keeps it, Esc clears",
                     id="filter")
-        yield DataTable(id="fleet", cursor_type="row", zebra_stripes=True)
+        yield Static("", id="columns")
+        yield FleetTable(id="fleet")
         yield Static("", id="note")
         yield Footer()
 
     @property
-    def table(self) -> DataTable[Any]:
-        return self.query_one("#fleet", DataTable)
+    def table(self) -> FleetTable:
+        return self.query_one("#fleet", FleetTable)
 
     def on_mount(self) -> None:
-        table = self.table
-        for key, label, width in COLUMNS:
-            table.add_column(label, key=key, width=width)
         self.sub_title = self.source.label
         self.set_interval(self.refresh_s, self.flush)
         self.run_worker(self._pump(), name="fleet-pump", exclusive=True)
-        table.focus()
+        self.table.focus()
 
     async def _pump(self) -> None:
         model = self.model
@@ -125,36 +117,35 @@ class FleetScreen(Screen[None]):
 
     def flush(self) -> None:
         """Apply the changes since the last flush to the table and the counts."""
-        dirty = self.model.take_dirty()
         self.query_one("#note", Static).update(self.note)
+        table = self.table
+        if table.size.width != self._header_width:
+            self._header_width = table.size.width
+            self.query_one("#columns", Static).update(header_text(table.size.width))
+        dirty = self.model.take_dirty()
         if not dirty:
             return
-        table, model, query = self.table, self.model, self.query_text
+        model, query, shown = self.model, self.query_text, self._shown
         stamps: list[float] = []
         reorder = False
-        for printer in sorted(dirty):
+        for printer in dirty:
             entry = model.entries[printer]
             cells = row_cells(printer, entry)
-            old = self._shown.get(printer)
-            visible = not query or matches(printer, entry, query)
-            if visible and entry.snapshot is not None:
+            old = shown.get(printer)
+            if query and not matches(printer, entry, query):
+                if old is not None:
+                    del shown[printer]
+                    reorder = True
+                continue
+            if entry.snapshot is not None:
                 stamps.append(entry.snapshot.ts)
-            if old is None and visible:
-                table.add_row(*(_styled(k, v) for (k, _, _), v in zip(COLUMNS, cells, strict=True)),
-                              key=printer)
-                self._shown[printer] = cells
+            if old is None or old[1] != cells[1]:
                 reorder = True
-            elif old is not None and not visible:
-                table.remove_row(printer)
-                del self._shown[printer]
-            elif old is not None and old != cells:
-                for (key, _, _), before, after in zip(COLUMNS, old, cells, strict=True):
-                    if before != after:
-                        table.update_cell(printer, key, _styled(key, after))
-                reorder = reorder or old[1] != cells[1]
-                self._shown[printer] = cells
+            if old != cells:
+                shown[printer] = cells
+                table.update_row(printer, cells)
         if reorder:
-            self._sort()
+            table.set_rows(sorted(shown, key=model.sort_key), shown)
         self._show_counts()
         if self.collect_stamps and stamps:
             self.call_after_refresh(self.rows_shown, stamps)
@@ -162,20 +153,9 @@ class FleetScreen(Screen[None]):
     def rows_shown(self, stamps: list[float]) -> None:
         """Called after the screen shows statuses stamped ``stamps`` (for measurements)."""
 
-    def _sort(self) -> None:
-        table = self.table
-        # the cursor stays on its printer, or at the top (the worst problem) when there
-        current = self.cursor_printer() if table.cursor_row > 0 else None
-        table.sort("printer", key=lambda name: self.model.sort_key(str(name)))
-        if current is not None and current in self._shown:
-            table.move_cursor(row=table.get_row_index(current), scroll=False)
-
     def cursor_printer(self) -> str | None:
         """The id of the printer under the cursor, if any."""
-        table = self.table
-        if table.row_count == 0:
-            return None
-        return str(table.coordinate_to_cell_key(table.cursor_coordinate).row_key.value)
+        return self.table.cursor_printer()
 
     def _show_counts(self) -> None:
         counts = self.model.counts()
@@ -190,18 +170,11 @@ class FleetScreen(Screen[None]):
 
     def rebuild(self) -> None:
         """Refill the table from the model (after the filter changed)."""
-        table, model = self.table, self.model
-        current = self.cursor_printer()
-        table.clear()
-        self._shown.clear()
-        self.model.take_dirty()
-        for printer in model.ordered(self.query_text):
-            cells = row_cells(printer, model.entries[printer])
-            table.add_row(*(_styled(k, v) for (k, _, _), v in zip(COLUMNS, cells, strict=True)),
-                          key=printer)
-            self._shown[printer] = cells
-        if current is not None and current in self._shown:
-            table.move_cursor(row=table.get_row_index(current))
+        model = self.model
+        model.take_dirty()
+        order = model.ordered(self.query_text)
+        self._shown = {printer: row_cells(printer, model.entries[printer]) for printer in order}
+        self.table.set_rows(order, self._shown)
         self._show_counts()
 
     def action_filter(self) -> None:
@@ -225,8 +198,8 @@ class FleetScreen(Screen[None]):
             message.input.remove_class("shown")
         self.table.focus()
 
-    def on_data_table_row_selected(self, message: DataTable.RowSelected) -> None:
-        self.post_message(OpenPrinter(str(message.row_key.value)))
+    def on_fleet_table_chosen(self, message: FleetTable.Chosen) -> None:
+        self.post_message(OpenPrinter(message.printer))
 
 
 class FleetApp(App[None]):
@@ -239,8 +212,12 @@ class FleetApp(App[None]):
         self.source = source
         self.refresh_s = refresh_s
 
+    def fleet_screen(self) -> FleetScreen:
+        """The fleet screen this app opens on."""
+        return FleetScreen(self.source, refresh_s=self.refresh_s)
+
     def on_mount(self) -> None:
-        self.push_screen(FleetScreen(self.source, refresh_s=self.refresh_s))
+        self.push_screen(self.fleet_screen())
 
     def on_open_printer(self, message: OpenPrinter) -> None:
         self.push_screen(printer_screen(self.source.for_printer(message.printer_id),
