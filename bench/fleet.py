@@ -37,6 +37,7 @@ sys.path.insert(0, str(ROOT / "tests"))
 from brokers import HOST, start_broker, start_nats_cluster  # noqa: E402
 
 from bench.fleet_term import Terminal  # noqa: E402
+from tui.mqtt_wire import WireClient  # noqa: E402
 
 MODEL = ROOT / "tests" / "data" / "cube20_xyz.stl"
 PYTHON_ENV = {**os.environ, "PYTHONPATH": str(ROOT)}
@@ -53,6 +54,7 @@ class Figures:
     lag_p50: float | None = None
     lag_p95: float | None = None
     lag_n: int = 0
+    direct_p95: float | None = None  # a bare subscriber's lag p95, s
     dash_cpu: float = 0.0  # % of one core
     daemon_cpu: list[float] = field(default_factory=list)  # % of one core, each daemon
     daemon_mqtt: list[float] = field(default_factory=list)  # % of one core, each daemon
@@ -65,27 +67,33 @@ class Figures:
                if self.daemon_cpu else "-")
         mqtt = (f"{statistics.mean(self.daemon_mqtt):.2f} % (max {max(self.daemon_mqtt):.2f})"
                 if self.daemon_mqtt else "-")
+        direct = f"{self.direct_p95:.3f} s" if self.direct_p95 is not None else "-"
         return (f"| {self.name} | {self.broker} | {self.printers} | {self.msgs_per_s:.0f} | "
-                f"{lag} | {self.dash_cpu:.1f} % | {cpu} | {mqtt} |")
+                f"{direct} | {lag} | {self.dash_cpu:.1f} % | {cpu} | {mqtt} |")
 
 
-HEADER = ("| scenario | broker | printers | status msgs/s | fleet lag p50 / p95 (samples) | "
-          "fleet view CPU | daemon CPU (mean) | daemon MQTT CPU (mean) |\n"
-          "|---|---|---|---|---|---|---|---|")
+HEADER = ("| scenario | broker | printers | status msgs/s | bare subscriber lag p95 | "
+          "fleet lag p50 / p95 (samples) | fleet view CPU | daemon CPU (mean) | "
+          "daemon MQTT CPU (mean) |\n"
+          "|---|---|---|---|---|---|---|---|---|")
 
 
-async def _count(port: int, window: float) -> float:
-    """Status messages per second reaching a subscriber of ``hostd/+/status``."""
+async def _count(port: int, window: float) -> tuple[float, list[float]]:
+    """Status messages per second reaching a subscriber of ``hostd/+/status``, and the
+    lag of each from its timestamp (the broker's own delivery lag, for comparison)."""
     count = 0
-    async with aiomqtt.Client(HOST, port) as client:
-        await client.subscribe("hostd/+/status", qos=0)
+    lags: list[float] = []
+    async with WireClient(HOST, port, client_id="bench-counter") as client:
+        client.subscribe("hostd/+/status", qos=0)
         start = time.monotonic()
         with contextlib.suppress(TimeoutError):
             async with asyncio.timeout(window):
-                async for message in client.messages:
+                async for message in client.messages():
                     if not message.retain:
                         count += 1
-        return count / (time.monotonic() - start)
+                        if count % 10 == 0:
+                            lags.append(time.time() - json.loads(message.payload)["ts"])
+        return count / (time.monotonic() - start), lags
 
 
 async def _wait_states(port: int, ids: set[str], state: str, timeout: float) -> None:
@@ -121,7 +129,10 @@ def measure_window(figures: Figures, count_port: int, dash: Terminal, lags: Path
         proc.send_signal(signal.SIGUSR1)
     cpu0 = [proctree.cpu_seconds(p.pid) for p in daemons]
     dash0, t0 = proctree.cpu_seconds(dash.pid), time.monotonic()
-    figures.msgs_per_s = asyncio.run(_count(count_port, window))
+    figures.msgs_per_s, direct = asyncio.run(_count(count_port, window))
+    direct.sort()
+    if direct:
+        figures.direct_p95 = direct[min(len(direct) - 1, int(len(direct) * 0.95))]
     elapsed = time.monotonic() - t0
     figures.dash_cpu = 100 * (proctree.cpu_seconds(dash.pid) - dash0) / elapsed
     figures.daemon_cpu = [100 * (proctree.cpu_seconds(p.pid) - c) / elapsed

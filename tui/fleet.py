@@ -74,6 +74,7 @@ class FleetScreen(Screen[None]):
         self.collect_stamps = False  # True: rows_shown() gets each shown status' timestamp
         self._shown: dict[str, tuple[str, ...]] = {}
         self._header_width = 0
+        self._texts: dict[str, str] = {}
 
     def compose(self) -> ComposeResult:
         yield Static("waiting for printers...", id="counts")
@@ -117,11 +118,11 @@ class FleetScreen(Screen[None]):
 
     def flush(self) -> None:
         """Apply the changes since the last flush to the table and the counts."""
-        self.query_one("#note", Static).update(self.note)
+        self._set_text("#note", self.note)
         table = self.table
         if table.size.width != self._header_width:
             self._header_width = table.size.width
-            self.query_one("#columns", Static).update(header_text(table.size.width))
+            self._set_text("#columns", header_text(table.size.width))
         dirty = self.model.take_dirty()
         if not dirty:
             return
@@ -166,7 +167,13 @@ class FleetScreen(Screen[None]):
         for state in COUNTED:
             if counts[state] or state in ("error", "offline", "printing", "idle"):
                 parts.append(f"[{STYLES[state]}]{state}[/] {counts[state]}")
-        self.query_one("#counts", Static).update("  ".join(parts))
+        self._set_text("#counts", "  ".join(parts))
+
+    def _set_text(self, selector: str, text: str) -> None:
+        """Update a one-line Static only when its text changes (an update lays out again)."""
+        if self._texts.get(selector) != text:
+            self._texts[selector] = text
+            self.query_one(selector, Static).update(text)
 
     def rebuild(self) -> None:
         """Refill the table from the model (after the filter changed)."""

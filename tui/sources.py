@@ -149,33 +149,34 @@ class MqttSource:
 
     async def fleet_stream(self) -> AsyncIterator[StatusItem | EventItem | AvailabilityItem]:
         """Status, events and availability of every printer followed, across reconnects."""
-        import aiomqtt
+        from tui.mqtt_wire import WireClient, WireError
 
         rng = random.Random()
         failures = 0
+        who = self.printer or "+"
         for host, port in itertools.cycle(self.brokers):
+            client = WireClient(
+                host, port, client_id=f"hostd-tui-{rng.getrandbits(48):012x}",
+                username=self.username, password=self.password,
+                tls=ssl.create_default_context() if self.tls else None,
+            )
             try:
-                async with aiomqtt.Client(
-                    host, port, username=self.username, password=self.password,
-                    tls_context=ssl.create_default_context() if self.tls else None,
-                    keepalive=15, timeout=10,
-                ) as client:
+                async with client:
                     self._client = client
                     self.connected_to = f"{host}:{port}"
                     failures = 0
-                    who = self.printer or "+"
-                    await client.subscribe(f"hostd/{who}/status", qos=0)  # newest wins anyway
-                    await client.subscribe(f"hostd/{who}/online", qos=1)
-                    await client.subscribe(f"hostd/{who}/event", qos=1)
-                    async for message in client.messages:
-                        item = _decode(str(message.topic), message.payload)
+                    client.subscribe(f"hostd/{who}/status", qos=0)  # the newest wins anyway
+                    client.subscribe(f"hostd/{who}/online", qos=1)
+                    client.subscribe(f"hostd/{who}/event", qos=1)
+                    async for message in client.messages():
+                        item = _decode(message.topic, message.payload)
                         if item is not None:
                             yield item
-            except aiomqtt.MqttError as exc:
+            except WireError as exc:
+                yield StatusItem("", Snapshot(state="offline", error=str(exc)))
+            finally:
                 self._client = None
                 self.connected_to = ""
-                reason = f"broker {host}:{port}: {exc}"
-                yield StatusItem("", Snapshot(state="offline", error=reason))
             failures += 1
             # the next node at once after a drop; a growing pause once every node refused
             ceiling = min(10.0, 0.5 * 2 ** max(0, failures // len(self.brokers)))
@@ -184,14 +185,13 @@ class MqttSource:
 
     async def command(self, printer: str, cmd: str, **args: Any) -> None:
         """Publish a command to ``hostd/<printer>/cmd``; a refusal comes back as an event."""
-        if self._client is None:
+        client = self._client
+        if client is None:
             raise ControlError("not connected to the broker")
         request = {"cmd": cmd, **args, "id": f"tui-{next(self._requests)}"}
-        import aiomqtt
-
         try:
-            await self._client.publish(f"hostd/{printer}/cmd", json.dumps(request), qos=1)
-        except aiomqtt.MqttError as exc:
+            await client.publish(f"hostd/{printer}/cmd", json.dumps(request).encode(), qos=1)
+        except OSError as exc:
             raise ControlError(f"not sent: {exc}") from exc
 
 
