@@ -64,7 +64,12 @@ def build_parser() -> argparse.ArgumentParser:
     group = p.add_mutually_exclusive_group()
     group.add_argument("--config", metavar="FILE")
     group.add_argument("--socket", metavar="PATH")
-    group.add_argument("--mqtt", metavar="HOST[:PORT]")
+    group.add_argument("--mqtt", metavar="HOST[:PORT]",
+                       help="the fleet view on a broker (a cluster: HOST:PORT,HOST:PORT,...)")
+    p.add_argument("--username", default="", help="broker user name (with --mqtt)")
+    p.add_argument("--password", default=None,
+                   help="broker password (with --mqtt; default: $HOSTD_MQTT_PASSWORD)")
+    p.add_argument("--tls", action="store_true", help="connect to the broker over TLS")
 
     p = sub.add_parser("status", help="one status snapshot from the running daemon")
     p.add_argument("--json", action="store_true", help="print the raw JSON snapshot")

@@ -72,6 +72,12 @@ class MqttConfig:
     allow_commands: bool = False
     homeassistant: bool = False
     keepalive: int = 30
+    hosts: tuple[tuple[str, int], ...] = ()  # brokers tried in turn; empty: (host, port)
+
+    @property
+    def brokers(self) -> tuple[tuple[str, int], ...]:
+        """The brokers to connect to, in order: ``hosts``, else ``host`` and ``port``."""
+        return self.hosts or ((self.host, self.port),)
 
 
 @dataclass(frozen=True)
@@ -156,6 +162,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             allow_commands=mqtt.flag("allow_commands", False),
             homeassistant=mqtt.flag("homeassistant", False),
             keepalive=mqtt.integer("keepalive", 30, 5, 3600),
+            hosts=_broker_list(mqtt, "hosts", mqtt.values.get("port", 1883)),
         ),
         runner=RunnerConfig(
             lookahead=runner.integer("lookahead", 4, 1, 64),
@@ -185,6 +192,24 @@ def _anchor_files(settings: SliceSettings, cwd: Path) -> SliceSettings:
         return settings
     path = _folder(cwd, settings.infill_file)
     return replace(settings, infill_file=str(path))
+
+
+def _broker_list(section: _Section, key: str, default_port: Any) -> tuple[tuple[str, int], ...]:
+    """``hosts = ["host[:port]", ...]`` as (host, port) pairs; a missing port is ``port``."""
+    value = section._get(key, [])
+    if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
+        raise section._fail(key, f'expected a list of "host[:port]" strings, got {value!r}')
+    found = []
+    for item in value:
+        host, colon, port = item.strip().rpartition(":")
+        if not colon:
+            host, port = item.strip(), str(default_port)
+        if not host or any(ch.isspace() or ch in "/[]" for ch in host):
+            raise section._fail(key, f"{item!r} is not host or host:port")
+        if not port.isdigit() or not 1 <= int(port) <= 65535:
+            raise section._fail(key, f"{item!r}: the port must be a number in 1..65535")
+        found.append((host, int(port)))
+    return tuple(found)
 
 
 def _folder(cwd: Path, text: str) -> Path:

@@ -41,6 +41,11 @@ class MqttSettings(Protocol):
     homeassistant: bool
     keepalive: int
 
+    @property
+    def brokers(self) -> tuple[tuple[str, int], ...]:
+        """(host, port) of each broker to try in turn (``mqtt.hosts``, else host and port)."""
+        ...
+
 
 class MqttSetupError(ValueError):
     """The MQTT settings cannot work (for example an unreadable CA file)."""
@@ -158,6 +163,7 @@ class MqttBridge:
         self._events = _EventFeed()
         # set while a session is up: connected, announced and subscribed
         self.connected = asyncio.Event()
+        self.broker: tuple[str, int] | None = None  # the broker of the current or last session
 
     async def run(self) -> None:
         """Bridge until cancelled; returns at once when MQTT is not enabled."""
@@ -177,11 +183,11 @@ class MqttBridge:
         async for item in self._hub.events():
             self._events.put(item)
 
-    def _client(self) -> aiomqtt.Client:
+    def _client(self, host: str, port: int) -> aiomqtt.Client:
         settings = self._settings
         return aiomqtt.Client(
-            settings.host,
-            settings.port,
+            host,
+            port,
             username=settings.username or None,
             password=settings.password or None,
             identifier=f"hostd-{self._printer_id}",
@@ -192,11 +198,20 @@ class MqttBridge:
         )
 
     async def _stay_connected(self) -> None:
-        attempt = 0
+        """Connect, run a session, and on a drop fail over to the next broker of the list.
+
+        After a session that was up, the next broker is tried after a short jittered
+        pause (the first backoff step); while none answers, the pause grows once per
+        round of the whole list.
+        """
+        brokers = list(self._settings.brokers)
+        index = attempt = 0
         while True:
+            host, port = brokers[index % len(brokers)]
             try:
-                async with self._client() as client:
-                    log.info("MQTT connected to %s:%s", self._settings.host, self._settings.port)
+                async with self._client(host, port) as client:
+                    log.info("MQTT connected to %s:%s", host, port)
+                    self.broker = (host, port)
                     try:
                         await self._session(client)
                     except asyncio.CancelledError:
@@ -204,15 +219,16 @@ class MqttBridge:
                         raise
             except* (aiomqtt.MqttError, OSError) as group:
                 log.warning("MQTT connection to %s:%s lost or refused: %s",
-                            self._settings.host, self._settings.port, group.exceptions[0])
+                            host, port, group.exceptions[0])
             except* Exception:  # a bridge bug must not stop the printer: log and reconnect
                 log.exception("MQTT bridge failed; reconnecting")
             finally:
                 if self.connected.is_set():  # a full session: start the backoff over
                     attempt = 0
                 self.connected.clear()
-            delay = self._backoff.delay(attempt, self._rng)
+            delay = self._backoff.delay(attempt // len(brokers), self._rng)
             attempt += 1
+            index += 1
             await asyncio.sleep(delay)
 
     async def _say_offline(self, client: aiomqtt.Client) -> None:

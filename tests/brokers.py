@@ -1,4 +1,4 @@
-"""A real MQTT broker for the tests: mosquitto on a free loopback port (amqtt when absent)."""
+"""Real MQTT brokers for the tests on loopback: mosquitto (amqtt when absent), a nats cluster."""
 
 from __future__ import annotations
 
@@ -170,3 +170,134 @@ def start_broker(
     broker = Broker(folder, free_port(), dict(users or {}), tls, kind)
     broker.start()
     return broker
+
+
+def nats_binary() -> str | None:
+    """The nats-server executable (Debian's package installs /usr/sbin/nats-server), or None."""
+    found = shutil.which("nats-server")
+    if found:
+        return found
+    return "/usr/sbin/nats-server" if os.access("/usr/sbin/nats-server", os.X_OK) else None
+
+
+@dataclass
+class NatsNode:
+    """One nats-server of a cluster: MQTT listener, JetStream, routes to the others."""
+
+    folder: Path
+    name: str
+    client_port: int
+    route_port: int
+    mqtt_port: int
+    process: subprocess.Popen[bytes] | None = None
+
+    @property
+    def log_file(self) -> Path:
+        return self.folder / f"{self.name}.log"
+
+    def configure(self, routes: list[int]) -> Path:
+        """Write this node's configuration file (MQTT needs a server name and JetStream)."""
+        store = self.folder / f"{self.name}-jetstream"
+        conf = self.folder / f"{self.name}.conf"
+        others = ", ".join(f'"nats-route://{HOST}:{port}"' for port in routes)
+        conf.write_text(
+            f"server_name: {self.name}\n"
+            f"listen: {HOST}:{self.client_port}\n"
+            f'jetstream {{ store_dir: "{store}" }}\n'
+            f"cluster {{\n  name: hostd\n  listen: {HOST}:{self.route_port}\n"
+            f"  routes: [{others}]\n}}\n"
+            # replicas on all three nodes: a stream must keep its quorum when one node stops
+            f"mqtt {{ listen: {HOST}:{self.mqtt_port}, stream_replicas: 3 }}\n"
+        )
+        return conf
+
+    def start(self) -> None:
+        """Start the node (it joins the cluster through its routes)."""
+        binary = nats_binary()
+        assert binary is not None
+        log = self.log_file.open("ab")
+        self.process = subprocess.Popen([binary, "-c", str(self.folder / f"{self.name}.conf")],
+                                        stdout=log, stderr=log, cwd=self.folder)
+        log.close()
+
+    def stop(self) -> None:
+        """Stop the node by its PID (SIGTERM: a clean shutdown) and wait for it."""
+        if self.process is None or self.process.poll() is not None:
+            return
+        self.process.send_signal(signal.SIGTERM)
+        try:
+            self.process.wait(timeout=15)
+        except subprocess.TimeoutExpired:
+            self.process.kill()
+            self.process.wait(timeout=10)
+
+
+@dataclass
+class NatsCluster:
+    """Three nats-server nodes on loopback forming one JetStream cluster with MQTT."""
+
+    nodes: list[NatsNode]
+
+    def hosts(self) -> list[str]:
+        """``host:port`` of each node's MQTT listener."""
+        return [f"{HOST}:{node.mqtt_port}" for node in self.nodes]
+
+    def stop(self) -> None:
+        for node in self.nodes:
+            node.stop()
+
+
+def start_nats_cluster(folder: Path, size: int = 3, timeout: float = 60.0) -> NatsCluster:
+    """Start a ``size``-node nats-server cluster and wait until MQTT works on every node.
+
+    Skips the test when nats-server is not installed (``make test`` installs it).
+    Ready means a retained QoS 1 message published on the first node is read back
+    on every node.
+    """
+    if nats_binary() is None:
+        pytest.skip("nats-server is not installed (apt-get install nats-server; make test does)")
+    folder.mkdir(parents=True, exist_ok=True)
+    nodes = [NatsNode(folder, f"n{i + 1}", free_port(), free_port(), free_port())
+             for i in range(size)]
+    for node in nodes:
+        node.configure([other.route_port for other in nodes if other is not node])
+    cluster = NatsCluster(nodes)
+    for node in nodes:
+        node.start()
+    try:
+        _wait_cluster_ready(cluster, timeout)
+    except BaseException:
+        cluster.stop()
+        raise
+    return cluster
+
+
+def _wait_cluster_ready(cluster: NatsCluster, timeout: float) -> None:
+    import asyncio
+
+    import aiomqtt
+
+    async def round_trip() -> None:
+        first = cluster.nodes[0].mqtt_port
+        async with aiomqtt.Client(HOST, first, timeout=3) as client:
+            await client.publish("hostd-test/ready", "1", qos=1, retain=True)
+        for node in cluster.nodes:
+            async with aiomqtt.Client(HOST, node.mqtt_port, timeout=3) as client:
+                await client.subscribe("hostd-test/ready", qos=1)
+                async with asyncio.timeout(5):
+                    async for _message in client.messages:
+                        break
+
+    deadline = time.monotonic() + timeout
+    while True:
+        for node in cluster.nodes:
+            if node.process is not None and node.process.poll() is not None:
+                raise RuntimeError(f"nats-server {node.name} exited: "
+                                   f"{node.log_file.read_text()[-2000:]}")
+        try:
+            asyncio.run(round_trip())
+            return
+        except (aiomqtt.MqttError, OSError, TimeoutError):
+            if time.monotonic() > deadline:
+                raise RuntimeError("the nats cluster did not become ready") from None
+            time.sleep(0.5)

@@ -3,7 +3,11 @@
 from __future__ import annotations
 
 import asyncio
+import dataclasses
+import itertools
 import json
+import random
+import ssl
 from collections.abc import AsyncIterator
 from dataclasses import dataclass
 from typing import Any, Protocol
@@ -25,6 +29,14 @@ class EventItem:
 
     printer: str
     event: dict[str, Any]
+
+
+@dataclass(frozen=True)
+class AvailabilityItem:
+    """A printer's ``online`` topic: True on ``online``, False on its last will (``offline``)."""
+
+    printer: str
+    online: bool
 
 
 class Source(Protocol):
@@ -85,47 +97,143 @@ class SocketSource:
             return await client.request(cmd, **args)
 
 
-class MqttSource:
-    """A fleet of printers over an MQTT broker (topics ``hostd/<printer>/...``)."""
+def parse_brokers(text: str, default_port: int = 1883) -> list[tuple[str, int]]:
+    """``HOST[:PORT][,HOST[:PORT]...]`` as (host, port) pairs; ValueError names a bad entry."""
+    brokers: list[tuple[str, int]] = []
+    for entry in (part.strip() for part in text.split(",")):
+        host, colon, port = entry.rpartition(":") if entry.count(":") == 1 else ("", "", "")
+        host = host if colon else entry
+        if not host or any(ch.isspace() for ch in host):
+            raise ValueError(f"broker {entry!r}: expected HOST or HOST:PORT")
+        if colon and not (port.isdigit() and 1 <= int(port) <= 65535):
+            raise ValueError(f"broker {entry!r}: the port must be a number in 1..65535")
+        brokers.append((host, int(port) if colon else default_port))
+    return brokers
 
-    def __init__(self, host: str, port: int = 1883, username: str = "", password: str = "") -> None:
-        self.host = host
-        self.port = port
+
+class MqttSource:
+    """Printers over an MQTT broker (topics ``hostd/<printer>/...``): a fleet or one printer.
+
+    ``brokers`` are tried in turn (a cluster's nodes): when the connection drops
+    or is refused, the next one is tried after a short jittered pause that grows
+    while none answers. With ``printer`` set, only that printer is followed and its
+    last will (``offline``) arrives as a status with state ``offline``.
+    """
+
+    def __init__(
+        self,
+        host: str | list[tuple[str, int]],
+        port: int = 1883,
+        username: str = "",
+        password: str = "",
+        *,
+        tls: bool = False,
+        printer: str | None = None,
+    ) -> None:
+        self.brokers = [(host, port)] if isinstance(host, str) else list(host)
+        if not self.brokers:
+            raise ValueError("no MQTT broker given")
+        self.host, self.port = self.brokers[0]
         self.username = username or None
         self.password = password or None
-        self.label = f"mqtt {host}:{port}"
+        self.tls = tls
+        self.printer = printer
+        names = ",".join(f"{h}:{p}" for h, p in self.brokers)
+        self.label = f"mqtt {names}" + (f" · {printer}" if printer else "")
+        self.connected_to = ""
         self._client: Any = None
+        self._requests = itertools.count(1)
+
+    def for_printer(self, printer: str) -> MqttSource:
+        """A source following one printer of this fleet (its own connection)."""
+        return MqttSource(self.brokers, username=self.username or "",
+                          password=self.password or "", tls=self.tls, printer=printer)
 
     async def stream(self) -> AsyncIterator[StatusItem | EventItem]:
-        """Status and events of every printer on the broker; reconnects with a pause."""
-        import aiomqtt
+        """Status and events; a printer's last will arrives as an ``offline`` status."""
+        last: dict[str, Snapshot] = {}
+        async for item in self.fleet_stream():
+            if isinstance(item, AvailabilityItem):
+                if item.online:
+                    continue
+                before = last.get(item.printer, Snapshot())
+                gone = "offline: its connection to the broker was lost"
+                yield StatusItem(item.printer, dataclasses.replace(
+                    before, state="offline", error=gone))
+                continue
+            if isinstance(item, StatusItem) and item.printer:
+                last[item.printer] = item.snapshot
+            yield item
 
-        while True:
+    async def fleet_stream(self) -> AsyncIterator[StatusItem | EventItem | AvailabilityItem]:
+        """Status, events and availability of every printer followed, across reconnects."""
+        from tui.mqtt_wire import WireClient, WireError
+
+        rng = random.Random()
+        failures = 0
+        who = self.printer or "+"
+        for host, port in itertools.cycle(self.brokers):
+            client = WireClient(
+                host, port, client_id=f"hostd-tui-{rng.getrandbits(48):012x}",
+                username=self.username, password=self.password,
+                tls=ssl.create_default_context() if self.tls else None,
+            )
             try:
-                async with aiomqtt.Client(
-                    self.host, self.port, username=self.username, password=self.password
-                ) as client:
+                async with client:
                     self._client = client
-                    await client.subscribe("hostd/+/status")
-                    await client.subscribe("hostd/+/event")
-                    async for message in client.messages:
-                        parts = str(message.topic).split("/")
-                        payload = json.loads(bytes(message.payload or b"{}"))
-                        if parts[-1] == "status":
-                            yield StatusItem(parts[1], Snapshot.from_dict(payload))
-                        else:
-                            yield EventItem(parts[1], payload)
-            except (aiomqtt.MqttError, json.JSONDecodeError, UnicodeDecodeError):
+                    self.connected_to = f"{host}:{port}"
+                    failures = 0
+                    client.subscribe(f"hostd/{who}/status", qos=0)  # the newest wins anyway
+                    client.subscribe(f"hostd/{who}/online", qos=1)
+                    client.subscribe(f"hostd/{who}/event", qos=1)
+                    async for message in client.messages():
+                        item = _decode(message.topic, message.payload)
+                        if item is not None:
+                            yield item
+            except WireError as exc:
+                yield StatusItem("", Snapshot(state="offline", error=str(exc)))
+            finally:
                 self._client = None
-                yield StatusItem("", Snapshot(state="offline", error="broker not reachable"))
-            await asyncio.sleep(2.0)
+                self.connected_to = ""
+            failures += 1
+            # the next node at once after a drop; a growing pause once every node refused
+            ceiling = min(10.0, 0.5 * 2 ** max(0, failures // len(self.brokers)))
+            await asyncio.sleep(rng.uniform(ceiling / 4, ceiling / 2))
+        raise AssertionError("unreachable")  # pragma: no cover
 
     async def command(self, printer: str, cmd: str, **args: Any) -> None:
-        """Publish a command to ``hostd/<printer>/cmd`` (the daemon answers on ``event``)."""
-        if self._client is None:
+        """Publish a command to ``hostd/<printer>/cmd``; a refusal comes back as an event."""
+        client = self._client
+        if client is None:
             raise ControlError("not connected to the broker")
-        await self._client.publish(f"hostd/{printer}/cmd", json.dumps({"cmd": cmd, **args}))
+        request = {"cmd": cmd, **args, "id": f"tui-{next(self._requests)}"}
+        try:
+            await client.publish(f"hostd/{printer}/cmd", json.dumps(request).encode(), qos=1)
+        except OSError as exc:
+            raise ControlError(f"not sent: {exc}") from exc
 
     async def query(self, printer: str, cmd: str, **args: Any) -> dict[str, Any]:
         """MQTT carries no replies to read: always :class:`Unanswered`."""
         raise Unanswered(f"{cmd}: needs the daemon's control socket (hostd tui --socket)")
+
+
+def _decode(topic: str, payload: Any) -> StatusItem | EventItem | AvailabilityItem | None:
+    """One message of ``hostd/<printer>/<kind>`` as an item; a malformed status as an error."""
+    parts = topic.split("/")
+    if len(parts) != 3:
+        return None
+    printer, kind = parts[1], parts[2]
+    raw = bytes(payload or b"")
+    if kind == "online":
+        return AvailabilityItem(printer, raw.strip() == b"online")
+    try:
+        data = json.loads(raw or b"{}")
+        if not isinstance(data, dict):
+            raise ValueError("not a JSON object")
+        if kind == "event":
+            return EventItem(printer, data)
+        return StatusItem(printer, Snapshot.from_dict(data))
+    except (ValueError, TypeError, AttributeError, RecursionError) as exc:
+        if kind != "status":
+            return None
+        return StatusItem(printer, Snapshot(state="error", error=f"unreadable status: {exc}"))

@@ -1,21 +1,35 @@
-"""`hostd tui`: the terminal dashboard over the control socket or MQTT."""
+"""`hostd tui`: the terminal dashboard over the control socket, or the fleet view over MQTT."""
 
 from __future__ import annotations
 
 import argparse
+import os
 
+from hostd.cli import UsageError
 from hostd.commands.target import socket_path
 
 
 def run(args: argparse.Namespace) -> int:
-    """Open the dashboard on one printer's socket, or on a fleet's MQTT broker."""
-    from tui.app import Dashboard
-    from tui.sources import MqttSource, SocketSource
+    """Open the dashboard on one printer's socket, or the fleet view on an MQTT broker."""
+    from tui.sources import MqttSource, SocketSource, parse_brokers
 
+    mqtt_only = args.username or args.password is not None or args.tls
     if args.mqtt:
-        host, _, port = args.mqtt.partition(":")
-        source = MqttSource(host, int(port or 1883))
-    else:
-        source = SocketSource(str(socket_path(args)))
-    Dashboard(source).run()
+        from tui.fleet import FleetApp
+
+        try:
+            brokers = parse_brokers(args.mqtt)
+        except ValueError as exc:
+            raise UsageError(f"--mqtt: {exc}") from exc
+        password = args.password
+        if password is None:
+            password = os.environ.get("HOSTD_MQTT_PASSWORD", "")
+        FleetApp(MqttSource(brokers, username=args.username, password=password,
+                            tls=args.tls)).run()
+        return 0
+    if mqtt_only:
+        raise UsageError("--username, --password and --tls go with --mqtt HOST[:PORT]")
+    from tui.app import Dashboard
+
+    Dashboard(SocketSource(str(socket_path(args)))).run()
     return 0

@@ -1,0 +1,155 @@
+"""The fleet view against a real mosquitto: synthetic printers, a last will, counts, filter."""
+
+from __future__ import annotations
+
+import asyncio
+import os
+import subprocess
+import sys
+from collections.abc import Callable, Iterator
+from pathlib import Path
+
+import pytest
+from brokers import HOST, Broker, start_broker
+from textual.widgets import Static
+
+from tui.fleet import FleetApp, FleetScreen
+from tui.fleet_model import RANKS
+from tui.fleet_table import FleetTable
+from tui.sources import MqttSource
+
+REPO = Path(__file__).resolve().parents[1]
+# index % 6 -> state, for the twelve printers p0000..p0011
+STATES = "printing,idle,paused,error,printing,heating"
+
+
+@pytest.fixture
+def broker(tmp_path: Path) -> Iterator[Broker]:
+    running = start_broker(tmp_path / "broker")
+    yield running
+    running.stop()
+
+
+def publisher(broker: Broker, *args: str) -> subprocess.Popen[bytes]:
+    """Synthetic printers publishing their status once (retained), connections kept open."""
+    return subprocess.Popen(
+        [sys.executable, "-m", "bench.fleetpub", "--broker", f"{HOST}:{broker.port}",
+         "--prefix", "p", "--rate", "0", "--hold", "120", *args],
+        cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+
+
+async def until(predicate: Callable[[], bool], timeout: float = 15.0) -> None:
+    deadline = asyncio.get_running_loop().time() + timeout
+    while not predicate():
+        if asyncio.get_running_loop().time() > deadline:
+            raise AssertionError("condition not met in time")
+        await asyncio.sleep(0.02)
+
+
+def rows(app: FleetApp) -> list[tuple[str, str]]:
+    """(printer, state) of every row, top to bottom."""
+    table = app.screen.query_one("#fleet", FleetTable)
+    return [table.row_at(i)[:2] for i in range(table.row_count)]
+
+
+def counts_line(app: FleetApp) -> str:
+    return str(app.screen.query_one("#counts", Static).render())
+
+
+@pytest.mark.parametrize("size", [(80, 24), (160, 50)])
+def test_fleet_sorts_problems_first_shows_a_lost_printer_offline_and_filters(
+    broker: Broker, size: tuple[int, int]
+) -> None:
+    many = publisher(broker, "--count", "12", "--states", STATES)
+    doomed = publisher(broker, "--count", "1", "--first", "50", "--will", "--states", "printing")
+
+    async def scenario() -> None:
+        app = FleetApp(MqttSource(HOST, broker.port), refresh_s=0.05)
+        async with app.run_test(size=size) as pilot:
+            assert isinstance(app.screen, FleetScreen)
+            await until(lambda: len(rows(app)) == 13)
+            await until(lambda: dict(rows(app)).get("p0050") == "printing")
+            states = [state for _, state in rows(app)]
+            assert states[:2] == ["error", "error"]
+            assert [RANKS[s] for s in states] == sorted(RANKS[s] for s in states)
+            assert "printing 5" in counts_line(app) and "error 2" in counts_line(app)
+
+            doomed.kill()  # its TCP connection drops: the broker publishes its last will
+            doomed.wait(timeout=10)
+            await until(lambda: dict(rows(app)).get("p0050") == "offline")
+            order = rows(app)
+            assert [state for _, state in order[:3]] == ["error", "error", "offline"]
+            assert order[2][0] == "p0050"
+            assert "offline 1" in counts_line(app) and "printing 4" in counts_line(app)
+
+            await pilot.press("slash", *"paus")
+            await until(lambda: len(rows(app)) == 2)
+            assert {state for _, state in rows(app)} == {"paused"}
+            assert "2" in counts_line(app) and "shown" in counts_line(app)
+            await pilot.press("escape")
+            await until(lambda: len(rows(app)) == 13)
+
+            await pilot.press("slash", *"p0050", "enter")
+            await until(lambda: rows(app) == [("p0050", "offline")])
+            await pilot.press("escape")
+            await until(lambda: len(rows(app)) == 13)
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        for proc in (many, doomed):
+            if proc.poll() is None:
+                proc.kill()
+            proc.wait(timeout=10)
+
+
+def start_daemon(folder: Path, broker: Broker, printer: str, user: str, secret: str,
+                 hosts: str = "") -> subprocess.Popen[bytes]:
+    """`hostd run` on the simulated printer, bridged to ``broker`` with commands allowed."""
+    folder.mkdir(parents=True, exist_ok=True)
+    where = f"hosts = [{hosts}]\n" if hosts else f"host = \"{HOST}\"\nport = {broker.port}\n"
+    (folder / "hostd.toml").write_text(
+        "[jobs]\nfolder = \"jobs\"\nsettle_s = 0.2\n[state]\nfolder = \"var\"\n"
+        f"[printer]\nid = \"{printer}\"\n[simulator]\ntime_scale = 0\nbaud = 0\n"
+        f"[mqtt]\nenabled = true\n{where}username = \"{user}\"\npassword = \"{secret}\"\n"
+        "allow_commands = true\n"
+    )
+    return subprocess.Popen(
+        [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+         "run", "--config", str(folder / "hostd.toml")],
+        cwd=folder, env={**os.environ, "PYTHONPATH": str(REPO)},
+        stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+    )
+
+
+def test_enter_opens_the_printer_over_mqtt_and_shows_its_refusal(tmp_path: Path) -> None:
+    from textual.widgets import RichLog
+
+    from tui.fleet_printer import FleetPrinterScreen
+
+    broker = start_broker(tmp_path / "broker", users={"farm": "pw-9"})
+    daemon = start_daemon(tmp_path / "d", broker, "farm7", "farm", "pw-9")
+
+    async def scenario() -> None:
+        app = FleetApp(MqttSource(HOST, broker.port, "farm", "pw-9"), refresh_s=0.05)
+        async with app.run_test(size=(80, 24)) as pilot:
+            await until(lambda: rows(app) == [("farm7", "idle")], timeout=40)
+            await pilot.press("enter")
+            await until(lambda: isinstance(app.screen, FleetPrinterScreen))
+            screen = app.screen
+            await until(lambda: "IDLE" in str(screen.query_one("#state", Static).render()))
+            await pilot.press("p")  # nothing is printing: the daemon refuses on its event topic
+            log = screen.query_one("#events", RichLog)
+            await until(lambda: any("refused pause: no job is printing" in str(line)
+                                    for line in log.lines))
+            await pilot.press("escape")
+            await until(lambda: isinstance(app.screen, FleetScreen))
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        daemon.kill()
+        daemon.wait(timeout=10)
+        broker.stop()

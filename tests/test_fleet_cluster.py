@@ -1,0 +1,122 @@
+"""`mqtt.hosts` failover: between two mosquittos, and across a three-node nats-server cluster."""
+
+from __future__ import annotations
+
+import asyncio
+import signal
+import time
+from pathlib import Path
+from typing import Any
+
+import aiomqtt
+from brokers import HOST, start_broker, start_nats_cluster
+from conftest import DATA, sim_config
+from test_fleet import rows, until
+
+from hostd.api import Snapshot
+from hostd.config import MqttConfig
+from hostd.jobstore import JobStore
+from hostd.mqtt import Backoff, MqttBridge
+from hostd.status import CommandError, StatusHub
+from tui.fleet import FleetApp, FleetScreen
+from tui.sources import MqttSource
+
+
+class Refuse:
+    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
+        raise CommandError("not in this test")
+
+
+def test_the_bridge_fails_over_to_the_next_broker_of_mqtt_hosts(tmp_path: Path) -> None:
+    first, second = start_broker(tmp_path / "a"), start_broker(tmp_path / "b")
+    config = MqttConfig(enabled=True, hosts=((HOST, first.port), (HOST, second.port)))
+    hub = StatusHub(Snapshot(state="idle"))
+    bridge = MqttBridge(config, "fo1", hub, Refuse(), status_interval_s=0.1,
+                        backoff=Backoff(initial_s=0.1, maximum_s=1.0))
+
+    async def scenario() -> None:
+        task = asyncio.create_task(bridge.run())
+        async with asyncio.timeout(20):
+            await bridge.connected.wait()
+        assert bridge.broker == (HOST, first.port)
+        async with aiomqtt.Client(HOST, second.port) as watcher:
+            await watcher.subscribe("hostd/fo1/status", qos=1)
+            first.stop()
+            hub.update(state="printing")
+            async with asyncio.timeout(20):
+                async for message in watcher.messages:
+                    if Snapshot.from_dict(__import__("json").loads(message.payload)).state \
+                            == "printing":
+                        break
+        assert bridge.broker == (HOST, second.port)
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        first.stop()
+        second.stop()
+
+
+def test_a_print_goes_on_when_its_nats_node_stops_and_the_fleet_sees_it_through_another(
+    tmp_path: Path, daemon: Any
+) -> None:
+    cluster = start_nats_cluster(tmp_path / "nats")
+    try:
+        hosts = ", ".join(f'"{host}"' for host in cluster.hosts())
+        hostd = daemon(sim_config(time_scale=0.01, extra=(
+            f'[printer]\nid = "cl1"\n[mqtt]\nenabled = true\nhosts = [{hosts}]\n')))
+        hostd.drop(DATA / "cube20_xyz.stl", "cube.stl")
+        back_after: list[float] = []
+
+        async def scenario() -> None:
+            watcher = cluster.nodes[2]  # the fleet view stays on the third node
+            app = FleetApp(MqttSource([(HOST, watcher.mqtt_port)]), refresh_s=0.05)
+            async with app.run_test(size=(100, 30)):
+                await until(lambda: dict(rows(app)).get("cl1") == "printing", timeout=90)
+                assert f"MQTT connected to {cluster.hosts()[0]}" in hostd.run_log()
+                screen = app.screen
+                assert isinstance(screen, FleetScreen)
+
+                def newest_ts() -> float:
+                    snap = screen.model.entries["cl1"].snapshot
+                    return snap.ts if snap is not None else 0.0
+
+                node = cluster.nodes[0]  # the daemon's node stops mid-print
+                assert node.process is not None
+                stopped = time.time()
+                node.process.send_signal(signal.SIGTERM)
+                await until(lambda: newest_ts() > stopped + 0.5
+                            and dict(rows(app)).get("cl1") == "printing", timeout=5.0)
+                back_after.append(time.time() - stopped)
+                await asyncio.to_thread(node.stop)
+
+        asyncio.run(scenario())
+        assert back_after and back_after[0] < 5.0
+        assert f"MQTT connected to {cluster.hosts()[1]}" in hostd.run_log()
+        done = hostd.jobs / "done" / "cube.summary.txt"
+        hostd.wait_for(done.exists, 180, "the job done")
+        store = JobStore(hostd.state / "jobs.sqlite3")
+        states = [entry.to_state for entry in store.history("1")]
+        store.close()
+        assert states == ["queued", "slicing", "heating", "printing", "done"]  # undisturbed
+    finally:
+        cluster.stop()
+
+
+def test_mqtt_hosts_are_read_and_checked(tmp_path: Path) -> None:
+    import pytest
+
+    from hostd.config import ConfigError, config_from_mapping
+
+    config = config_from_mapping({"mqtt": {"port": 1884, "hosts": ["a:1", "b", "c.farm:65535"]}},
+                                 tmp_path)
+    assert config.mqtt.brokers == (("a", 1), ("b", 1884), ("c.farm", 65535))
+    assert config_from_mapping({"mqtt": {"host": "x", "port": 2}}, tmp_path).mqtt.brokers == (
+        ("x", 2),)
+    for bad, reason in [("a:1", "a list"), (["a:0"], "1..65535"), (["a:b"], "1..65535"),
+                        (["a b"], "not host"), ([":5"], "not host"), ([3], "a list")]:
+        with pytest.raises(ConfigError, match=reason) as caught:
+            config_from_mapping({"mqtt": {"hosts": bad}}, tmp_path)
+        assert caught.value.key == "mqtt.hosts"

@@ -1,0 +1,62 @@
+"""The fleet screen fed with fixed data, compared with its stored SVG (pytest-textual-snapshot)."""
+
+from __future__ import annotations
+
+import asyncio
+import time
+from collections.abc import AsyncIterator
+from typing import Any
+
+from bench.fleetpub import snapshot
+from hostd.api import ControlError
+from tui.fleet import FleetApp
+from tui.fleet_table import FleetTable
+from tui.sources import AvailabilityItem, EventItem, StatusItem
+
+NOW = 1_764_000_000.0
+STATES = ("printing", "idle", "printing", "paused", "error", "printing", "heating", "printing")
+
+
+class FixedFleet:
+    """Twenty printers with set statuses, one lost (its last will), one refusal; then quiet."""
+
+    label = "mqtt broker.farm:1883"
+
+    def fleet_stream(self) -> AsyncIterator[StatusItem | EventItem | AvailabilityItem]:
+        return self._items()
+
+    async def _items(self) -> AsyncIterator[StatusItem | EventItem | AvailabilityItem]:
+        for index in range(20):
+            state = STATES[index % len(STATES)]
+            yield StatusItem(f"farm-{index:02d}", snapshot(index, NOW, state, NOW - 3600))
+        yield AvailabilityItem("farm-05", False)
+        reason = "commands are disabled (mqtt.allow_commands = false)"
+        yield EventItem("farm-03", {"event": "error", "cmd": "resume", "ts": NOW, "reason": reason})
+        await asyncio.Event().wait()
+
+    def stream(self) -> Any:
+        raise NotImplementedError
+
+    async def command(self, printer: str, cmd: str, **args: Any) -> None:
+        raise ControlError("fixed data")
+
+    def for_printer(self, printer: str) -> Any:
+        raise NotImplementedError
+
+
+async def _loaded(pilot: Any) -> None:
+    table = pilot.app.screen.query_one("#fleet", FleetTable)
+    while table.row_count < 20:
+        await pilot.pause(0.05)
+    await pilot.pause(0.1)
+
+
+def test_fleet_screen(snap_compare: Any, monkeypatch: Any) -> None:
+    monkeypatch.setenv("TZ", "UTC")  # the refusal's time of day is shown
+    time.tzset()
+    try:
+        assert snap_compare(FleetApp(FixedFleet(), refresh_s=0.05), terminal_size=(100, 26),
+                            run_before=_loaded)
+    finally:
+        monkeypatch.undo()
+        time.tzset()
