@@ -179,6 +179,8 @@ def test_pause_resume_cancel_and_queue_commands(daemon, tmp_path):
         reference += commands(plan.layer_gcode(index))
     job_lines = first[:start] + first[start + 8:]
     assert job_lines == reference[:len(job_lines)]
+    # the simulator reports Cap:ARCS:1, so gcode.arcs = "auto" printed arcs
+    assert any(line.startswith(("G2 ", "G3 ")) for line in job_lines)
     assert len(reference) > len(job_lines) > start
 
 
