@@ -23,17 +23,23 @@ _MIN_XY_MOVE = 1e-6  # mm: shorter moves count as extruding in place (priming)
 # IoU means nothing at that size, so such a layer counts as having no outer wall
 MIN_WALL_AREA = 0.4 * 0.4
 # a move in XY that feeds filament (relative E > 0), optionally numbered with a checksum
-_EXTRUDING_LINE = re.compile(r"^(?:N\d+\s+)?G[01]\s(?=[^;*]*[XY]-?\.?\d)[^;*]*\bE(\d*\.?\d+)")
+_EXTRUDING_LINE = re.compile(r"^(?:N\d+\s+)?G[0-3]\s(?=[^;*]*[XY]-?\.?\d)[^;*]*\bE(\d*\.?\d+)")
+# arcs are read as chords of at most this angle (radians) and length (mm)
+ARC_STEP_RAD = np.pi / 90
+ARC_STEP_MM = 0.25
 
 
 @dataclass(frozen=True)
 class Moves:
-    """Every G0/G1/G2/G3 move of a file, in order (arcs as chords).
+    """Every G0/G1/G2/G3 move of a file, in order (arcs as short chords).
 
     Arrays have shape (n,), dtype float64 unless stated, lengths in mm:
     ``x0, y0`` the start of each move, ``x, y, z`` its end, ``de`` the filament
     fed during it (negative for retraction), ``type_id`` (int32) the index in
     ``types`` of the last ``;TYPE:`` comment before it (-1 before the first).
+    An arc (G2/G3 with I and J) is read as chords of at most 2 degrees and
+    0.25 mm sharing its E by length; ``first`` (bool) is False for every
+    chord of an arc but its first, so ``first.sum()`` counts G-code moves.
     """
 
     x0: np.ndarray
@@ -44,6 +50,7 @@ class Moves:
     de: np.ndarray
     type_id: np.ndarray
     types: tuple[str, ...]
+    first: np.ndarray | None = None
 
     @property
     def xy_length(self) -> np.ndarray:
@@ -67,7 +74,7 @@ class GcodeStats:
 
     layers: int  # distinct Z levels (0.01 mm) at which material is laid
     filament_mm: float  # filament fed by extruding moves, mm
-    moves: int  # G0/G1 moves
+    moves: int  # G0/G1/G2/G3 moves (an arc counts once)
 
 
 def is_extruding_line(line: str) -> bool:
@@ -116,7 +123,7 @@ def parse_moves(lines: Iterable[str]) -> Moves:
     """
     st = _State()
     types: dict[str, int] = {}
-    rows: list[tuple[float, float, float, float, float, float, int]] = []
+    rows: list[tuple[float, ...]] = []
     for raw in lines:
         stripped = raw.strip()
         if stripped.startswith(";TYPE:"):
@@ -130,7 +137,10 @@ def parse_moves(lines: Iterable[str]) -> Moves:
         if cmd in ("G0", "G1", "G2", "G3", "G00", "G01", "G02", "G03"):
             words = _words(code)
             if words.keys() & {"X", "Y", "Z", "E"}:  # feed-rate-only lines are no moves
-                rows.append(_move(st, words))
+                if cmd in ("G2", "G3", "G02", "G03") and words.keys() & {"I", "J"}:
+                    rows += _arc(st, words, clockwise=cmd in ("G2", "G02"))
+                else:
+                    rows.append(_move(st, words))
         elif cmd == "G92":
             words = _words(code)
             for axis in ("X", "Y", "Z", "E"):
@@ -150,17 +160,17 @@ def parse_moves(lines: Iterable[str]) -> Moves:
             named = [a for a in ("X", "Y", "Z") if a in code.upper()[3:]]
             for axis in named or ("X", "Y", "Z"):
                 st.pos[axis] = 0.0
-    arr = np.asarray(rows, dtype=np.float64).reshape(-1, 7)
+    arr = np.asarray(rows, dtype=np.float64).reshape(-1, 8)
     return Moves(
         x0=arr[:, 0], y0=arr[:, 1], x=arr[:, 2], y=arr[:, 3], z=arr[:, 4], de=arr[:, 5],
         type_id=arr[:, 6].astype(np.int32),
         types=tuple(sorted(types, key=types.__getitem__)),
+        first=arr[:, 7] > 0,
     )
 
 
-def _move(st: _State, words: dict[str, float]) -> tuple[float, float, float, float, float,
-                                                           float, int]:
-    """Apply one move to the state; return (x0, y0, x, y, z, de, type_id)."""
+def _move(st: _State, words: dict[str, float]) -> tuple[float, ...]:
+    """Apply one move to the state; return (x0, y0, x, y, z, de, type_id, 1)."""
     x0, y0 = st.pos["X"], st.pos["Y"]
     for axis in ("X", "Y", "Z"):
         if axis in words:
@@ -173,7 +183,31 @@ def _move(st: _State, words: dict[str, float]) -> tuple[float, float, float, flo
         else:
             de = words["E"] - st.pos["E"]
             st.pos["E"] = words["E"]
-    return (x0, y0, st.pos["X"], st.pos["Y"], st.pos["Z"], de, st.type_id)
+    return (x0, y0, st.pos["X"], st.pos["Y"], st.pos["Z"], de, st.type_id, 1.0)
+
+
+def _arc(st: _State, words: dict[str, float], clockwise: bool) -> list[tuple[float, ...]]:
+    """Apply one G2/G3 (I, J from the start to the centre) to the state; its chords as rows
+    of :func:`_move` (an end equal to the start is a full circle)."""
+    x0, y0, z0 = st.pos["X"], st.pos["Y"], st.pos["Z"]
+    cx, cy = x0 + words.get("I", 0.0), y0 + words.get("J", 0.0)
+    whole = _move(st, {k: v for k, v in words.items() if k in "XYZE"})
+    x1, y1, z1, de = whole[2], whole[3], whole[4], whole[5]
+    r = float(np.hypot(x0 - cx, y0 - cy))
+    a0 = float(np.arctan2(y0 - cy, x0 - cx))
+    turn = (float(np.arctan2(y1 - cy, x1 - cx)) - a0) % (2 * np.pi)
+    sweep = -((2 * np.pi - turn) % (2 * np.pi)) if clockwise else turn
+    if abs(sweep) < 1e-12:
+        sweep = -2 * np.pi if clockwise else 2 * np.pi
+    n = max(1, int(np.ceil(max(abs(sweep) / ARC_STEP_RAD, abs(sweep) * r / ARC_STEP_MM))))
+    t = np.arange(1, n + 1) / n
+    xs, ys = cx + r * np.cos(a0 + sweep * t), cy + r * np.sin(a0 + sweep * t)
+    xs[-1], ys[-1] = x1, y1
+    px = np.concatenate(([x0], xs))
+    py = np.concatenate(([y0], ys))
+    zs = z0 + (z1 - z0) * t
+    return [(px[k], py[k], px[k + 1], py[k + 1], zs[k], de / n, whole[6], float(k == 0))
+            for k in range(n)]
 
 
 def read_moves(path: str | Path) -> Moves:
@@ -189,7 +223,7 @@ def stats(moves: Moves) -> GcodeStats:
     return GcodeStats(
         layers=int(keys.size),
         filament_mm=float(moves.de[ext].sum()),
-        moves=int(moves.de.size),
+        moves=int(moves.de.size if moves.first is None else moves.first.sum()),
     )
 
 

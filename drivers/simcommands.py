@@ -112,12 +112,40 @@ def _numbers(params: Params) -> dict[str, float]:
 
 
 def _move(fw: Firmware, params: Params) -> bool:
-    length, duration = fw.motion.move(_numbers(params))
+    delta, speed, duration = fw.motion.move_delta(_numbers(params))
     if duration > 0.0:
         fw.stats["moves"] += 1
         fw.times["motion"] += duration
-        fw.times["distance_mm"] += length
-        fw.plan_move(duration)
+        fw.times["distance_mm"] += duration * speed
+        fw.plan_move(delta, speed)
+    return True
+
+
+def _arc(clockwise: bool) -> Handler:
+    def handler(fw: Firmware, params: Params) -> bool:
+        try:
+            chords, length, duration = fw.motion.arc(
+                _numbers(params), clockwise, fw.planner.settings
+            )
+        except ValueError as exc:
+            fw.emit(f"echo:{exc}")
+            return True
+        if duration > 0.0:
+            fw.stats["moves"] += 1
+            fw.stats["arcs"] += 1
+            fw.stats["arc_segments"] += len(chords)
+            fw.times["motion"] += duration
+            fw.times["distance_mm"] += length
+            for delta, speed in chords:
+                fw.plan_move(delta, speed)
+        return True
+
+    return handler
+
+
+def _buffer_monitor(fw: Firmware, params: Params) -> bool:
+    """M576 [S<seconds>]: report the buffer figures now (auto-reporting is not modelled)."""
+    fw.emit(fw.buffer_report())
     return True
 
 
@@ -252,8 +280,8 @@ def _nothing(fw: Firmware, params: Params) -> bool:
 _HANDLERS: dict[str, Handler] = {
     "G0": _move,
     "G1": _move,
-    "G2": _move,  # arcs: timed as the chord to their end point
-    "G3": _move,
+    "G2": _arc(clockwise=True),
+    "G3": _arc(clockwise=False),
     "G4": _dwell,
     "G28": _home,
     "G90": _modes(True, None),
@@ -272,6 +300,7 @@ _HANDLERS: dict[str, Handler] = {
     "M113": _keepalive,
     "M220": _feed_percent,
     "M400": _sync,
+    "M576": _buffer_monitor,
     "M410": _quickstop,
     "M112": _kill,
     "M108": _nothing,

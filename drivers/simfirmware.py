@@ -17,10 +17,11 @@ from collections.abc import Callable
 from drivers import simcommands
 from drivers.faults import FaultInjector
 from drivers.heater import BED, HOTEND, Heater, format_temperatures
+from drivers.planner import MarlinPlanner, PlannerSettings, move_block
 from drivers.simclock import SimClock
 from drivers.simconfig import SimulatorConfig
 from drivers.simlines import ERR_CHECKSUM, check_line
-from drivers.simmotion import Motion, Planner
+from drivers.simmotion import Motion
 
 ERR_KILLED = "Error:Printer halted. kill() called!"
 BUSY = "echo:busy: processing"
@@ -54,7 +55,7 @@ class Firmware:
         self.hotend = Heater(HOTEND, config.ambient_c)
         self.bed = Heater(BED, config.ambient_c)
         self.motion = Motion()
-        self.planner = Planner(config.planner_blocks)
+        self.planner = MarlinPlanner(PlannerSettings(blocks=max(1, config.planner_blocks)))
         self.keepalive_s = config.keepalive_s
         self.autoreport_s = 0.0
         self.autoreport_changed = threading.Event()
@@ -324,16 +325,27 @@ class Firmware:
                 step = min(step, self._busy_next - now)
             self.clock.wait(step, self._interrupt)
 
-    def plan_move(self, duration: float) -> None:
-        """Add a block to the planner, waiting while it is full (no planner: move now)."""
+    def plan_move(self, delta: tuple[float, ...], speed: float) -> None:
+        """Add a move (X, Y, Z, E mm at ``speed`` mm/s) to the planner, waiting while it is
+        full (no planner: the move runs now, from rest to rest)."""
+        planned = move_block(delta, speed, self.planner.settings, self.planner.previous)
+        if planned is None:
+            return
+        block, self.planner.previous = planned
         if self.config.planner_blocks == 0:
-            self.wait_sim(duration)
+            self.planner.previous = None
+            self.wait_sim(block.length / block.speed)
             return
         now = self.clock.now()
         free_at = self.planner.next_free_at(now)
         if free_at > now:
             self.wait_sim(free_at - now)
-        self.planner.add(self.clock.now(), duration)
+        self.planner.add_block(self.clock.now(), block)
+
+    def buffer_report(self) -> str:
+        """Marlin's buffer monitoring line (``M576 P.. B.. PU.. PD.. BU.. BD..``)."""
+        report = self.planner.report(self.clock.now())
+        return report.line(self.config.bufsize - len(self._queue))
 
     def synchronize(self) -> None:
         """Marlin's ``planner.synchronize()``: wait until every block has been executed."""

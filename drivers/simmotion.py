@@ -1,10 +1,12 @@
-"""Motion model of the simulated printer: positions, modes, move durations and the planner."""
+"""Motion model of the simulated printer: positions, modes, moves and arcs as planner blocks."""
 
 from __future__ import annotations
 
+import itertools
 import math
-from collections import deque
 from dataclasses import dataclass
+
+from drivers.planner import PlannerSettings, arc_segments
 
 AXES = ("X", "Y", "Z", "E")
 
@@ -23,9 +25,10 @@ class MotionLimits:
 class Motion:
     """Tool position and the G90/G91/M82/M83 modes; computes each move's duration.
 
-    Acceleration is not modelled: a move lasts its length divided by its feedrate
-    (F in mm/min, modal), slowed so that no axis exceeds its maximum speed, and scaled
-    by the M220 feedrate percentage.
+    A move's *nominal* duration is its length divided by its feedrate (F in mm/min,
+    modal), slowed so that no axis exceeds its maximum speed, and scaled by the M220
+    feedrate percentage; acceleration and corners are the planner's
+    (``drivers.planner``), which gets each move's vector and speed.
     """
 
     def __init__(self, limits: MotionLimits | None = None) -> None:
@@ -53,6 +56,51 @@ class Motion:
 
     def move(self, params: dict[str, float]) -> tuple[float, float]:
         """G0/G1 to ``params``; returns (length in mm, duration in simulated s)."""
+        delta = self._advance(params)
+        return self._timed(delta)
+
+    def move_delta(self, params: dict[str, float]) -> tuple[tuple[float, ...], float, float]:
+        """G0/G1 to ``params``; returns the move (X, Y, Z, E mm), its speed (mm/s, the
+        feedrate scaled by M220) and its nominal duration (length / speed, s)."""
+        delta = self._advance(params)
+        length, duration = self._timed(delta)
+        speed = length / duration if duration > 0.0 else 0.0
+        return tuple(delta.get(a, 0.0) for a in AXES), speed, duration
+
+    def arc(
+        self, params: dict[str, float], clockwise: bool, settings: PlannerSettings
+    ) -> tuple[list[tuple[tuple[float, ...], float]], float, float]:
+        """G2/G3 to ``params`` around start + (I, J) in the XY plane, cut into chords as
+        Marlin's ``plan_arc`` does; Z and E are shared out by chord length.
+
+        Returns each chord as (move X, Y, Z, E mm; speed mm/s), the arc's length (mm)
+        and its nominal duration (s). Raises ValueError without I and J (R arcs are
+        not supported) or with a zero radius.
+        """
+        if "I" not in params and "J" not in params:
+            raise ValueError("arc without I and J (R arcs are not supported)")
+        start = (self.position["X"], self.position["Y"], self.position["Z"],
+                 self.position["E"])
+        centre = (start[0] + params.get("I", 0.0), start[1] + params.get("J", 0.0))
+        if math.hypot(centre[0] - start[0], centre[1] - start[1]) < 1e-6:
+            raise ValueError("arc with zero radius")
+        delta = self._advance({k: v for k, v in params.items() if k in AXES or k == "F"})
+        end = (start[0] + delta.get("X", 0.0), start[1] + delta.get("Y", 0.0))
+        points = arc_segments(start[:2], end, centre, clockwise, settings)
+        xy = [start[:2], *points]
+        lengths = [math.dist(a, b) for a, b in itertools.pairwise(xy)]
+        arc_length = sum(lengths)
+        dz, de = delta.get("Z", 0.0), delta.get("E", 0.0)
+        speed = self.feedrate * self.feed_percent / 100.0
+        chords = []
+        for (a, b), length in zip(itertools.pairwise(xy), lengths, strict=True):
+            share = length / arc_length if arc_length > 0.0 else 1.0
+            chords.append(((b[0] - a[0], b[1] - a[1], dz * share, de * share), speed))
+        total = math.hypot(arc_length, dz) if arc_length > 0.0 else abs(de)
+        return chords, total, (total / speed if speed > 0.0 else 0.0)
+
+    def _advance(self, params: dict[str, float]) -> dict[str, float]:
+        """Apply the feedrate and targets of ``params``; the change of each axis named."""
         if params.get("F", 0.0) > 0.0:
             self.feedrate = params["F"] / 60.0
         delta: dict[str, float] = {}
@@ -63,6 +111,10 @@ class Motion:
             target = params[axis] if absolute else self.position[axis] + params[axis]
             delta[axis] = target - self.position[axis]
             self.position[axis] = target
+        return delta
+
+    def _timed(self, delta: dict[str, float]) -> tuple[float, float]:
+        """Length (mm) and nominal duration (s) of a move: length / feedrate, axis limits."""
         xyz = math.sqrt(sum(delta.get(a, 0.0) ** 2 for a in "XYZ"))
         length = xyz if xyz > 0.0 else abs(delta.get("E", 0.0))
         if length <= 0.0:
@@ -87,41 +139,3 @@ class Motion:
             + xy / self.limits.homing_xy
             + z / self.limits.homing_z
         )
-
-
-class Planner:
-    """Marlin's block buffer as a queue of block end times in simulated seconds."""
-
-    def __init__(self, capacity: int) -> None:
-        self.capacity = capacity
-        self._ends: deque[float] = deque()
-
-    def _prune(self, now: float) -> None:
-        while self._ends and self._ends[0] <= now:
-            self._ends.popleft()
-
-    def free(self, now: float) -> int:
-        """Free blocks at ``now``."""
-        self._prune(now)
-        return max(0, self.capacity - len(self._ends))
-
-    def next_free_at(self, now: float) -> float:
-        """Simulated time when a block will be free (``now`` if one is)."""
-        self._prune(now)
-        if len(self._ends) < self.capacity:
-            return now
-        return self._ends[len(self._ends) - self.capacity]
-
-    def idle_at(self, now: float) -> float:
-        """Simulated time when every planned block will have been executed."""
-        self._prune(now)
-        return self._ends[-1] if self._ends else now
-
-    def add(self, now: float, duration: float) -> None:
-        """Append a block of ``duration`` s that starts when the previous one ends."""
-        start = max(now, self._ends[-1]) if self._ends else now
-        self._ends.append(start + duration)
-
-    def clear(self) -> None:
-        """Drop every block (quick stop, reset)."""
-        self._ends.clear()

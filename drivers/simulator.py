@@ -20,7 +20,12 @@ class SimStats:
     """Counters of one run. Times are simulated seconds (multiply by time_scale for wall).
 
     ``faults`` maps a fault kind to how often it fired, ``fault_chances`` to how often it
-    was drawn; ``errors`` counts line errors answered with a resend.
+    was drawn; ``errors`` counts line errors answered with a resend. ``motion_s`` is the
+    moves' nominal time (length / feedrate); ``planned_s`` the time of the blocks the
+    planner has executed, with acceleration and corners. ``underruns`` counts the times the
+    planner ran empty while moves were still coming (not after a dwell, homing or heating)
+    and ``starved_s`` the time it stood empty then; ``arcs`` G2/G3 moves and
+    ``arc_segments`` the chords they were cut into.
     """
 
     lines: int
@@ -41,6 +46,11 @@ class SimStats:
     bytes_out: int
     faults: dict[str, int]
     fault_chances: dict[str, int]
+    planned_s: float = 0.0
+    underruns: int = 0
+    starved_s: float = 0.0
+    arcs: int = 0
+    arc_segments: int = 0
 
 
 class SimulatedPrinter:
@@ -191,6 +201,11 @@ class SimulatedPrinter:
             bytes_out=self._wire.bytes_out,
             faults=dict(fw.faults.fired),
             fault_chances=dict(fw.faults.chances),
+            planned_s=fw.planner.motion_s,
+            underruns=fw.planner.underruns,
+            starved_s=fw.planner.starved_s,
+            arcs=s["arcs"],
+            arc_segments=s["arc_segments"],
         )
 
     # --- callbacks from the threads ---------------------------------------------------

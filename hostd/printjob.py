@@ -22,6 +22,7 @@ from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
 from hostd.status import StatusHub
+from slicer.arcs import for_printer
 from slicer.errors import ModelError
 from slicer.fea.tailor import tailored_plan
 from slicer.gcode import header_lines, summarize
@@ -73,7 +74,7 @@ class PrintJob:
         resume = job.resume_from is not None and job.resume_from > 0
         try:
             first = job.resume_from if resume else 0
-            self.source = await self._source(job, first or 0, resume)
+            self.source = await self._source(job, first or 0, resume, link)
             output = await asyncio.to_thread(
                 open_output, self.partial, job.gcode_bytes if resume else 0
             )
@@ -113,12 +114,16 @@ class PrintJob:
         self.intake.finish(self.store.get(job.id))
         return "done"
 
-    async def _source(self, job: Job, first: int, resume: bool) -> LayerSource:
+    async def _source(self, job: Job, first: int, resume: bool, link: Streamer) -> LayerSource:
         if job.kind == "gcode":
             if resume:
                 raise ModelError("a G-code job cannot be resumed mid-file")
             return await asyncio.to_thread(FileSource, Path(job.path))
-        settings = SliceSettings.from_mapping(job.settings)
+        # the printer is known before slicing: arcs if its M115 reported Cap:ARCS:1
+        # (gcode.arcs = "auto"), and the line budget of its wire (gcode.baud = 0)
+        printer = self.config.printer
+        baud = self.config.simulator.baud if printer.port == "sim" else printer.baud
+        settings = for_printer(SliceSettings.from_mapping(job.settings), link.capable, baud)
         started = time.monotonic()
         plan, tailoring = await asyncio.to_thread(
             tailored_plan, Path(job.path), settings, self.config.printer.bed,

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from slicer.budget import Moves, budget_moves
 from slicer.layer import Path
 from slicer.motion import packed_runs_time, run_time, segment_times
 from slicer.settings import SliceSettings
@@ -98,17 +99,18 @@ def layer_code(
     pts, starts, ends = _pack([p.coords for p in paths])
     n = len(paths)
     speeds = np.array([wall_f if p.kind.startswith("WALL") else fill_f for p in paths])
-    # extrusion moves: every point but each path's first
-    move = np.ones(len(pts), dtype=bool)
-    move[starts] = False
-    seg = np.diff(pts, axis=0, prepend=pts[:1])
     widths = np.array([settings.line_width if p.width is None else p.width for p in paths])
-    e = np.hypot(seg[:, 0], seg[:, 1]) * e_per_mm * np.repeat(widths, ends - starts)
+    # the emitted moves: simplified within the resolution, arcs where they fit
+    mv = budget_moves(pts, starts, ends, speeds, settings)
+    # extrusion moves: every point but each path's first
+    move = np.ones(len(mv.pts), dtype=bool)
+    move[mv.starts] = False
+    e = mv.length * e_per_mm * np.repeat(widths, mv.ends - mv.starts)
     filament = float(e[move].sum())
-    g1 = format_moves("G1 ", pts[move], e[move])
+    g1 = _format_layer_moves(mv, move, e)
     # each path's moves in g1: [first_move, last_move)
-    last_move = np.cumsum(ends - starts - 1)
-    first_move = last_move - (ends - starts - 1)
+    last_move = np.cumsum(mv.ends - mv.starts - 1)
+    first_move = last_move - (mv.ends - mv.starts - 1)
 
     travel_a = pts[ends[:-1] - 1]
     travel_b = pts[starts[1:]]
@@ -151,9 +153,26 @@ def layer_code(
             lines.append(f";TYPE:{kind}")
         a, b = firsts[k], lasts[k]
         if b > a:
-            lines.append(f"G1 F{feeds[k]} {g1[a][3:]}")
+            lines.append(f"{g1[a][:3]}F{feeds[k]} {g1[a][3:]}")
             lines.extend(g1[a + 1 : b])
     return LayerCode(lines, filament, time_s, z_line)
+
+
+def _format_layer_moves(mv: Moves, move: np.ndarray, e: np.ndarray) -> list[str]:
+    """The lines of every move (points where ``move``): ``G1 X Y E``, or ``G2``/``G3`` (clockwise,
+    counter-clockwise) ``X Y I J E`` for arcs, I and J from the move's start to the centre."""
+    xy, ee, arc, ccw = mv.pts[move], e[move], mv.arc[move], mv.ccw[move]
+    if not arc.any():
+        return format_moves("G1 ", xy, ee)
+    out = np.empty(len(xy), dtype=object)
+    line = ~arc
+    out[line] = format_moves("G1 ", xy[line], ee[line])
+    before = np.flatnonzero(move) - 1  # each move starts at the point before it
+    ij = mv.centre[move] - mv.pts[before]
+    for head, sel in (("G2 ", arc & ~ccw), ("G3 ", arc & ccw)):
+        if sel.any():
+            out[sel] = format_moves(head, xy[sel], ee[sel], ij[sel])
+    return out.tolist()
 
 
 # Moves are formatted as bytes by table lookups (a Python ``%`` per number
@@ -171,29 +190,36 @@ def _words(texts: list[str]) -> np.ndarray:
 _WHOLE = _words([f"{s}{q}" for s in ("", "-") for q in range(1000)]).reshape(2, 1000)
 _FRAC3 = _words([f".{r:03d}" for r in range(1000)])
 _DIGITS2 = _words([f"{r:02d}" for r in range(100)])
-_SPACE_Y, _SPACE_E, _NEWLINE = _words([" Y", " E", "\n"])
+_SPACE_Y, _SPACE_E, _NEWLINE, _SPACE_I, _SPACE_J = _words([" Y", " E", "\n", " I", " J"])
 
 
-def format_moves(head: str, xy: np.ndarray, e: np.ndarray | None = None) -> list[str]:
-    """The lines ``head + "X%.3f Y%.3f" % (x, y)``, with ``" E%.5f" % e`` when ``e`` is
-    given, of many moves, byte for byte.
+def format_moves(
+    head: str, xy: np.ndarray, e: np.ndarray | None = None, ij: np.ndarray | None = None
+) -> list[str]:
+    """The lines ``head + "X%.3f Y%.3f" % (x, y)``, with ``" I%.3f J%.3f" % (i, j)`` when
+    ``ij`` is given and ``" E%.5f" % e`` when ``e`` is given, of many moves, byte for byte.
 
-    ``head`` ASCII text (e.g. ``"G1 "``); ``xy`` (m, 2) mm, ``e`` (m,) mm. Falls
-    back to Python formatting when a value is not finite or has more than
+    ``head`` ASCII text (e.g. ``"G1 "``); ``xy`` and ``ij`` (m, 2) mm, ``e`` (m,) mm.
+    Falls back to Python formatting when a value is not finite or has more than
     three whole digits once rounded.
     """
+    if ij is not None:
+        xy = np.column_stack([xy, ij])
     xy_units = _rounded(xy, 3)
     e_units = _rounded(e, 5) if e is not None else None
     if xy_units is None or (e is not None and e_units is None):
-        template = head + "X%.3f Y%.3f" + (" E%.5f" if e is not None else "") + "\n"
+        template = (head + "X%.3f Y%.3f" + (" I%.3f J%.3f" if ij is not None else "")
+                    + (" E%.5f" if e is not None else "") + "\n")
         columns = [xy] if e is None else [xy, e]
         flat = np.column_stack(columns).ravel().tolist()
         return ((template * len(xy)) % tuple(flat)).splitlines()
     text = head + "X"
     lead = _words([text[i : i + 4] for i in range(0, len(text), 4)])
     h = len(lead)
-    # head, X and Y (whole and fraction each, " Y" between), E (" E" and three), newline
-    width = h + 5 + (4 if e is not None else 0) + 1
+    # head, X and Y (whole and fraction each, " Y" between), I and J likewise,
+    # E (" E" and three), newline
+    h_e = h + 5 + (6 if ij is not None else 0)
+    width = h_e + (4 if e is not None else 0) + 1
     words = np.empty((len(xy), width), dtype=_WORD)
     words[:, :h] = lead
     sign, units = xy_units
@@ -202,12 +228,19 @@ def format_moves(head: str, xy: np.ndarray, e: np.ndarray | None = None) -> list
     words[:, h + 2] = _SPACE_Y
     words[:, h + 3] = _WHOLE[sign[:, 1], units[:, 1] // 1000]
     words[:, h + 4] = _FRAC3[units[:, 1] % 1000]
+    if ij is not None:
+        words[:, h + 5] = _SPACE_I
+        words[:, h + 6] = _WHOLE[sign[:, 2], units[:, 2] // 1000]
+        words[:, h + 7] = _FRAC3[units[:, 2] % 1000]
+        words[:, h + 8] = _SPACE_J
+        words[:, h + 9] = _WHOLE[sign[:, 3], units[:, 3] // 1000]
+        words[:, h + 10] = _FRAC3[units[:, 3] % 1000]
     if e_units is not None:
         sign, units = e_units
-        words[:, h + 5] = _SPACE_E
-        words[:, h + 6] = _WHOLE[sign, units // 100000]
-        words[:, h + 7] = _FRAC3[units % 100000 // 100]
-        words[:, h + 8] = _DIGITS2[units % 100]
+        words[:, h_e] = _SPACE_E
+        words[:, h_e + 1] = _WHOLE[sign, units // 100000]
+        words[:, h_e + 2] = _FRAC3[units % 100000 // 100]
+        words[:, h_e + 3] = _DIGITS2[units % 100]
     words[:, -1] = _NEWLINE
     return words.tobytes().translate(None, b"\0").decode("ascii").splitlines()
 

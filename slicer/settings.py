@@ -20,6 +20,7 @@ INFILL_FIELDS = (
 WALL_ORDERS = ("outer_first", "inner_first")
 STRESS_VARIANTS = ("A", "B")  # Eq. 14 with sigma(x, y, z), or sigma along the long axis
 MASS_MATCHES = ("", "linear")
+ARC_MODES = ("auto", "on", "off")
 
 
 class SettingsError(ValueError):
@@ -91,6 +92,11 @@ class SliceSettings:
     fan_speed: float = 1.0
     fan_first_layer: int = 1
     skip_heating: bool = False
+    resolution: float = 0.025
+    gcode_arcs: str = "auto"
+    gcode_baud: int = 0
+    gcode_coarse_resolution: float = 0.05
+    gcode_planner_blocks: int = 16
 
     @classmethod
     def from_mapping(
@@ -217,11 +223,17 @@ _SPECS: dict[str, _Spec] = {
     "fan_speed": _Spec(float, 0.0, 1.0),
     "fan_first_layer": _Spec(int, 0, 1000),
     "skip_heating": _Spec(bool),
+    "resolution": _Spec(float, 0.0, 1.0),
+    "gcode.arcs": _Spec(str, choices=ARC_MODES),
+    "gcode.baud": _Spec(int, 0, 10_000_000),
+    "gcode.coarse_resolution": _Spec(float, 0.0, 1.0),
+    "gcode.planner_blocks": _Spec(int, 1, 256),
 }
 
 SETTING_KEYS: tuple[str, ...] = tuple(_SPECS)
 
 __all__ = [
+    "ARC_MODES",
     "INFILL_FIELDS",
     "SETTING_KEYS",
     "SettingsError",

@@ -165,3 +165,17 @@ def test_worst_layers_are_listed_by_height() -> None:
     assert worst[0][0] == pytest.approx(0.4)
     assert worst[0][1] == pytest.approx(50 / 150)
     assert len(agreement.per_layer) == 2
+
+
+def test_arcs_are_read_as_chords_on_their_circle() -> None:
+    lines = ["G90", "M83", "G0 X20 Y10", "G2 X20 Y10 I-10 J0 E3", "G3 X10 Y0 I-10 J0 E1.5"]
+    moves = g.parse_moves(lines)
+    arcs = slice(1, None)
+    r = np.hypot(moves.x[arcs] - 10.0, moves.y[arcs] - 10.0)
+    assert np.allclose(r, 10.0)
+    # a full turn, then three quarters of one
+    assert moves.xy_length[arcs].sum() == pytest.approx(3.5 * np.pi * 10.0, rel=1e-3)
+    assert moves.de.sum() == pytest.approx(4.5)
+    assert (moves.x[-1], moves.y[-1]) == (10.0, 0.0)
+    assert g.stats(moves).moves == 3
+    assert g.is_extruding_line("G2 X20 Y10 I-10 J0 E3")

@@ -13,6 +13,7 @@ from conftest import DATA, HOSTD, ROOT, commands_of, executed_job_lines, sim_con
 
 from drivers.protocol import strip_comment
 from hostd.api import ControlClient
+from slicer.arcs import for_printer
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -80,7 +81,7 @@ def test_kill_9_at_random_instants_then_resume_reproduces_the_print(daemon) -> N
     hostd.wait_for(lambda: (done / "dogbone.summary.txt").exists(), 60, "the resumed job done")
     assert hostd.stop() == 0
 
-    settings = SliceSettings()
+    settings = for_printer(SliceSettings(), {"ARCS"})  # the simulator reports ARCS
     plan = SlicePlan.from_file(MODEL, settings)
     reference = [c for c in map(strip_comment, plan.start_gcode()) if c]
     layers = []

@@ -16,6 +16,7 @@ from conftest import DATA, HOSTD, ROOT, commands_of, executed_job_lines, sim_con
 from drivers.protocol import strip_comment
 from hostd.api import ControlClient, ControlError, Snapshot
 from hostd.jobstore import JobStore
+from slicer.arcs import for_printer
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -106,7 +107,7 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     assert store.cancelled_objects("1") == [(1, first_cancelled)]
     store.close()
 
-    base = SliceSettings()
+    base = for_printer(SliceSettings(), {"ARCS"})  # the simulator reports ARCS
     plan = SlicePlan.from_file(model, base)
     dense = plan.with_settings(SliceSettings.from_mapping({"infill.density": 0.6}, base=base))
     expected = commands(plan.start_gcode())
@@ -171,12 +172,15 @@ def test_pause_resume_cancel_and_queue_commands(daemon, tmp_path):
     start = first.index("G91")
     unpark = ["G91", "G1 Z-5.00 F600", "G90", "M83"]
     assert first[start:start + 8] == park + unpark
-    plan = SlicePlan.from_file(DATA / "dogbone_100x30x5.stl", SliceSettings())
+    plan = SlicePlan.from_file(DATA / "dogbone_100x30x5.stl",
+                               for_printer(SliceSettings(), {"ARCS"}))
     reference = commands(plan.start_gcode())
     for index in range(plan.layer_count):
         reference += commands(plan.layer_gcode(index))
     job_lines = first[:start] + first[start + 8:]
     assert job_lines == reference[:len(job_lines)]
+    # the simulator reports Cap:ARCS:1, so gcode.arcs = "auto" printed arcs
+    assert any(line.startswith(("G2 ", "G3 ")) for line in job_lines)
     assert len(reference) > len(job_lines) > start
 
 

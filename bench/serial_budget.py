@@ -1,0 +1,209 @@
+"""Serial budget: does the G-code keep a Marlin planner fed over the wire? Lines, underruns.
+
+For each model, infill field and print speed it slices (a) ours with arcs and the
+line budget of the wire (``gcode.arcs=on``, ``gcode.baud`` = the wire's baud) and
+(b) ours without arcs, and takes (c) PrusaSlicer's G-code of the same model at
+the same speed. Each is fed to the simulated Marlin (``drivers.feedsim``, a
+16-block planner with Marlin's defaults, on a virtual clock) over a wire of
+115200 and 250000 baud by our link (send-ahead window of 4 lines and 127
+bytes); PrusaSlicer's also by (d) a send-and-wait host. Per run: G-code lines
+and bytes, underruns (planner empty), stalls (a block that must brake to a stop
+because nothing is queued behind it), starved seconds, the print's time and the
+time lost against the same G-code on an endless wire. And the outer-wall IoU of
+(a) against (b).
+
+Usage (from the repository root):
+    .venv/bin/python bench/serial_budget.py            # bunny; linear, wave; 100, 150 mm/s
+    .venv/bin/python bench/serial_budget.py --full     # every shared model, field and speed
+    .venv/bin/python bench/serial_budget.py --models candle_stand --fields wave --speeds 60
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import tempfile
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench import gcodeparse
+from bench.peers import prusaslicer
+from drivers.feedsim import simulate_feed
+from slicer.plan import SlicePlan
+from slicer.settings import INFILL_FIELDS, SliceSettings
+
+ROOT = Path(__file__).resolve().parents[1]
+MODELS = ROOT.parent / "shared" / "models"
+OUT = ROOT / "bench" / "out"
+BAUDS = (115200, 250000)
+SPEEDS = (60.0, 100.0, 150.0)
+DEFAULT = {"models": ("bunny",), "fields": ("linear", "wave"), "speeds": (100.0, 150.0)}
+SKIP_MODELS = ("bad_triangle_soup",)
+# our settings equal to the peers' (see bench/peers.py)
+OURS = {
+    "layer_height": 0.2, "first_layer_height": 0.2, "line_width": 0.4, "perimeters": 2,
+    "top_layers": 3, "bottom_layers": 3, "infill.density": 0.2, "filament_diameter": 1.75,
+}
+EXPRESSION = "sin(x / 4) * 3 + y + 0.3 * d"
+_PRUSA_SPEEDS = ("--perimeter-speed", "--external-perimeter-speed", "--small-perimeter-speed",
+                 "--infill-speed", "--solid-infill-speed", "--top-solid-infill-speed",
+                 "--gap-fill-speed")
+
+
+@dataclass
+class Row:
+    """One G-code fed over one wire."""
+
+    model: str
+    field: str
+    speed: float
+    baud: int
+    variant: str  # a: ours with arcs, b: ours without, c: PrusaSlicer, d: PrusaSlicer sent-and-wait
+    lines: int
+    bytes: int
+    underruns: int
+    stalls: int
+    starved_s: float
+    print_s: float
+    lost_s: float  # print_s less the same G-code's time on an endless wire
+
+
+def _field_settings(field: str, workdir: Path) -> dict[str, object]:
+    values: dict[str, object] = {"infill.field": field}
+    if field == "expression":
+        values["infill.expression"] = EXPRESSION
+    if field == "stress":
+        # a smooth made-up stress over the bed, in the model's frame (x, y, value)
+        path = workdir / "stress.csv"
+        if not path.exists():
+            import numpy as np
+
+            g = np.arange(-150.0, 151.0, 10.0)
+            x, y = np.meshgrid(g, g)
+            v = 1.5 + np.sin(x / 25.0) * np.cos(y / 25.0)
+            np.savetxt(path, np.column_stack([x.ravel(), y.ravel(), v.ravel()]), delimiter=",")
+        values["infill.file"] = str(path)
+    return values
+
+
+def _slice(geometry: SlicePlan, values: dict[str, object]) -> list[str]:
+    plan = geometry.with_settings(SliceSettings.from_mapping(values, base=geometry.settings))
+    lines = plan.start_gcode()
+    for i in range(plan.layer_count):
+        lines += plan.layer_gcode(i)
+    return lines + plan.end_gcode()
+
+
+def _prusa(model: Path, speed: float, workdir: Path) -> list[str] | None:
+    peer = prusaslicer()
+    if peer is None:
+        return None
+    out = workdir / f"{model.stem}_{speed:g}_prusa.gcode"
+    if not out.exists():
+        command = peer.command(model, out)
+        for opt in _PRUSA_SPEEDS:
+            command[1:1] = [opt, f"{speed:g}"]
+        import subprocess
+
+        done = subprocess.run(command, capture_output=True, text=True, timeout=900, check=False)
+        if done.returncode != 0:
+            print(f"  PrusaSlicer failed on {model.name}: {done.stderr.strip()[-200:]}")
+            return None
+    return out.read_text().splitlines()
+
+
+def _feed_rows(
+    lines: list[str], key: tuple[str, str, float], variant: str, bauds: tuple[int, ...],
+    send_and_wait: bool = False,
+) -> list[Row]:
+    ideal = simulate_feed(lines, 0).print_s
+    rows = []
+    for baud in bauds:
+        r = simulate_feed(lines, baud, send_and_wait=send_and_wait)
+        rows.append(Row(*key, baud, variant, r.lines, r.bytes, r.underruns, r.stalls,
+                        round(r.starved_s, 3), round(r.print_s, 1), round(r.print_s - ideal, 1)))
+        print(f"  {key[0]:>13} {key[1]:>10} {key[2]:5g} {baud:6d} {variant}"
+              f" {r.lines:8d} lines {r.bytes / 1e6:6.2f} MB  underruns {r.underruns:5d}"
+              f"  stalls {r.stalls:6d}  print {r.print_s:8.1f} s  lost {r.print_s - ideal:7.1f} s",
+              flush=True)
+    return rows
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
+    parser.add_argument("--full", action="store_true", help="every model, field and speed")
+    parser.add_argument("--models", default="", help="comma-separated model stems")
+    parser.add_argument("--fields", default="", help="comma-separated infill fields")
+    parser.add_argument("--speeds", default="", help="comma-separated speeds, mm/s")
+    parser.add_argument("--no-peer", action="store_true", help="leave PrusaSlicer out")
+    parser.add_argument("--resolution", type=float, default=None,
+                        help="our resolution, mm (default: the setting's default)")
+    parser.add_argument("--out", type=Path, default=OUT / "serial_budget.json")
+    args = parser.parse_args(argv)
+    every = sorted(p.stem for p in MODELS.glob("*.stl") if p.stem not in SKIP_MODELS)
+    models = (args.models.split(",") if args.models
+              else every if args.full else list(DEFAULT["models"]))
+    fields = (args.fields.split(",") if args.fields
+              else list(INFILL_FIELDS) if args.full else list(DEFAULT["fields"]))
+    speeds = ([float(s) for s in args.speeds.split(",")] if args.speeds
+              else list(SPEEDS) if args.full else list(DEFAULT["speeds"]))
+    rows: list[Row] = []
+    ious: list[dict[str, object]] = []
+    with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
+        work = Path(tmp)
+        for stem in models:
+            model = MODELS / f"{stem}.stl"
+            ours = {**OURS, **({} if args.resolution is None else {"resolution": args.resolution})}
+            geometry = SlicePlan.from_file(model, SliceSettings.from_mapping(ours),
+                                           bed=(200.0, 200.0, 200.0))
+            for speed in speeds:
+                if not args.no_peer:
+                    prusa = _prusa(model, speed, work)
+                    if prusa is not None:
+                        rows += _feed_rows(prusa, (stem, "prusa", speed), "c", BAUDS)
+                        rows += _feed_rows(prusa, (stem, "prusa", speed), "d", BAUDS, True)
+                for field in fields:
+                    base = {**_field_settings(field, work), "print_speed": speed,
+                            "wall_speed": speed}
+                    key = (stem, field, speed)
+                    plain = _slice(geometry, {**base, "gcode.arcs": "off"})
+                    rows += _feed_rows(plain, key, "b", BAUDS)
+                    plain_moves = gcodeparse.parse_moves(plain)
+                    for baud in BAUDS:
+                        arcs = _slice(geometry, {**base, "gcode.arcs": "on", "gcode.baud": baud})
+                        rows += _feed_rows(arcs, key, "a", (baud,))
+                        agreement = gcodeparse.wall_agreement(
+                            gcodeparse.parse_moves(arcs), plain_moves, align=False)
+                        ious.append({"model": stem, "field": field, "speed": speed, "baud": baud,
+                                     "outer_wall_iou": round(agreement.mean_iou, 5)})
+                        print(f"  outer-wall IoU (a) against (b): {agreement.mean_iou:.5f}")
+    _summary(rows, ious)
+    args.out.parent.mkdir(parents=True, exist_ok=True)
+    args.out.write_text(json.dumps({"rows": [asdict(r) for r in rows], "iou": ious}, indent=1))
+    print(f"written {args.out}")
+    return 0
+
+
+def _summary(rows: list[Row], ious: list[dict[str, object]]) -> None:
+    """The targets: lines against PrusaSlicer's, underruns where none are allowed, IoU."""
+    prusa = {(r.model, r.speed): r.lines for r in rows if r.variant == "c"}
+    ours = [r for r in rows if r.variant == "a"]
+    over = [r for r in ours if (r.model, r.speed) in prusa and r.lines > prusa[r.model, r.speed]]
+    print(f"\nwith arcs, line count above PrusaSlicer's: {len(over)} of {len(ours)} runs")
+    for r in over:
+        print(f"  {r.model} {r.field} {r.speed:g} mm/s: {r.lines} > {prusa[r.model, r.speed]}")
+    strict = [r for r in ours if (r.baud, r.speed) in ((250000, 150.0), (115200, 100.0))]
+    bad = [r for r in strict if r.underruns]
+    print(f"underruns at 250000/150 and 115200/100 (ours with arcs): {len(bad)} of "
+          f"{len(strict)} runs with any; stalls there: {sum(r.stalls for r in strict)}")
+    if ious:
+        print(f"outer-wall IoU with arcs against without: min "
+              f"{min(float(i['outer_wall_iou']) for i in ious):.5f}")
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,179 @@
+"""The line budget: a layer's paths as few moves as the tolerance allows, and the wire allows.
+
+Every path is cut into pieces at its ends and at the ends of the arcs fitted
+to it (:mod:`slicer.arcs`, when arcs are on); the pieces that are not arcs are
+simplified (Douglas-Peucker, shapely, one vectorised call) within
+``resolution``. Then, when the link's baud rate is known (``gcode.baud``),
+each run of ``gcode.planner_blocks`` consecutive moves that would take less
+time to print than the wire needs to carry its lines marks its pieces, and
+those pieces alone are simplified again within ``gcode.coarse_resolution``.
+Pieces keep their ends, so paths start and end where they did.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from slicer.arcs import Arcs, arcs_wanted, fit_arcs
+from slicer.settings import SliceSettings
+
+# bytes a move line takes on the wire with its line number and checksum (about 30
+# characters of G1 X Y E and 10 of framing), and the share of the wire a host keeps busy
+LINE_BYTES = 40.0
+WIRE_SHARE = 0.8
+
+
+@dataclass(frozen=True)
+class Moves:
+    """A layer's emitted geometry: ``pts`` (m, 2) mm, path ``i`` being
+    ``pts[starts[i]:ends[i]]``; the move into point ``j`` is an arc where ``arc[j]``,
+    around ``centre[j]`` (m, 2) mm, counter-clockwise where ``ccw[j]``, ``length[j]`` mm
+    long (for lines: the chord)."""
+
+    pts: np.ndarray
+    starts: np.ndarray
+    ends: np.ndarray
+    arc: np.ndarray
+    centre: np.ndarray
+    ccw: np.ndarray
+    length: np.ndarray
+
+
+def line_rate(settings: SliceSettings) -> float:
+    """Move lines a second the link carries (0.0 when its baud rate is unknown)."""
+    return WIRE_SHARE * settings.gcode_baud / 10.0 / LINE_BYTES
+
+
+def budget_moves(
+    pts: np.ndarray, starts: np.ndarray, ends: np.ndarray, speeds: np.ndarray,
+    settings: SliceSettings,
+) -> Moves:
+    """The moves of the packed paths ``pts[starts[i]:ends[i]]`` ((m, 2) mm), printed at
+    ``speeds[i]`` mm/s, within the settings' tolerances (see the module docstring)."""
+    tol = settings.resolution
+    arcs = fit_arcs(pts, starts, ends, tol) if arcs_wanted(settings) and tol > 0 else None
+    pa, pb, arc_of = _pieces(pts, starts, ends, arcs)
+    keep = _simplified(pts, pa, pb, arc_of, np.full(len(pa), tol))
+    rate = line_rate(settings)
+    coarse = max(settings.gcode_coarse_resolution, tol)
+    if rate > 0 and coarse > tol:
+        hot = _too_fast(pts, keep, starts, ends, speeds, rate, settings.gcode_planner_blocks)
+        piece_of = np.searchsorted(pa, np.flatnonzero(hot), "right") - 1
+        redo = np.zeros(len(pa), dtype=bool)
+        redo[piece_of] = True
+        redo &= arc_of < 0
+        if redo.any():
+            tols = np.where(redo, coarse, tol)
+            keep = _simplified(pts, pa, pb, arc_of, tols)
+    return _moves(pts, keep, starts, ends, pa, arc_of, arcs)
+
+
+def _pieces(
+    pts: np.ndarray, starts: np.ndarray, ends: np.ndarray, arcs: Arcs | None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Pieces ``[pa[k], pb[k]]`` (point indices, inclusive) of every path, cut at path
+    ends and arc ends; ``arc_of[k]`` the arc a piece is (-1: a line piece)."""
+    cuts = [starts, ends - 1]
+    if arcs is not None and len(arcs):
+        cuts += [arcs.first, arcs.last]
+    brk = np.unique(np.concatenate(cuts))
+    path = np.searchsorted(starts, brk, "right") - 1
+    same = path[1:] == path[:-1]
+    pa, pb = brk[:-1][same], brk[1:][same]
+    arc_of = np.full(len(pa), -1, dtype=np.int64)
+    if arcs is not None and len(arcs):
+        k = np.clip(np.searchsorted(arcs.first, pa), 0, len(arcs) - 1)
+        hit = (arcs.first[k] == pa) & (arcs.last[k] == pb)
+        arc_of[hit] = k[hit]
+    return pa, pb, arc_of
+
+
+def _simplified(
+    pts: np.ndarray, pa: np.ndarray, pb: np.ndarray, arc_of: np.ndarray, tols: np.ndarray
+) -> np.ndarray:
+    """Which points are kept: (m,) bool. Line pieces are simplified within ``tols[k]`` mm;
+    arc pieces keep their ends only; points outside every piece (single-point paths) stay."""
+    keep = np.ones(len(pts), dtype=bool)
+    n = pb - pa + 1
+    inner = np.repeat(pa, n) + (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+    keep[inner] = False
+    keep[pa] = True
+    keep[pb] = True
+    lines = np.flatnonzero((arc_of < 0) & (n > 2) & (tols > 0))
+    plain = np.flatnonzero((arc_of < 0) & (n > 2) & (tols <= 0))
+    for k in plain.tolist():
+        keep[pa[k] : pb[k] + 1] = True
+    if len(lines) == 0:
+        return keep
+    ln = n[lines]
+    owner = np.repeat(np.arange(len(lines)), ln)
+    idx = np.repeat(pa[lines], ln) + (np.arange(ln.sum()) - np.repeat(np.cumsum(ln) - ln, ln))
+    # the point's index rides along as a third coordinate, so kept points are found
+    # exactly (simplification only drops vertices, it never moves one)
+    xyz = np.column_stack([pts[idx], idx.astype(np.float64)])
+    geoms = shapely.linestrings(xyz, indices=owner)
+    simple = np.empty(len(geoms), dtype=object)
+    for tol in np.unique(tols[lines]).tolist():
+        sel = tols[lines] == tol
+        simple[sel] = shapely.simplify(geoms[sel], tol, preserve_topology=False)
+    kept = shapely.get_coordinates(simple, include_z=True)[:, 2]
+    keep[kept.astype(np.int64)] = True
+    return keep
+
+
+def _too_fast(
+    pts: np.ndarray, keep: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+    speeds: np.ndarray, rate: float, blocks: int,
+) -> np.ndarray:
+    """Points whose move lies in a run of ``blocks`` consecutive moves that prints faster
+    than ``blocks / rate`` seconds: (m,) bool over ``pts``."""
+    hot = np.zeros(len(pts), dtype=bool)
+    idx = np.flatnonzero(keep)
+    path = np.searchsorted(starts, idx, "right") - 1
+    move = np.ones(len(idx), dtype=bool)
+    move[np.searchsorted(idx, starts)] = False  # a path's first point ends no move
+    step = np.hypot(*np.diff(pts[idx], axis=0, prepend=pts[idx[:1]]).T)
+    dur = np.where(move, step / speeds[path], 0.0)
+    mv = np.flatnonzero(move)
+    if len(mv) < blocks:
+        return hot
+    t = np.concatenate(([0.0], np.cumsum(dur[mv])))
+    window = t[blocks:] - t[:-blocks]  # time of moves w..w+blocks-1
+    fast = window < blocks / rate
+    if not fast.any():
+        return hot
+    # every move inside a fast window
+    mark = np.zeros(len(mv) + 1, dtype=np.int64)
+    np.add.at(mark, np.flatnonzero(fast), 1)
+    np.add.at(mark, np.flatnonzero(fast) + blocks, -1)
+    inside = np.cumsum(mark)[:-1] > 0
+    hot[idx[mv[inside]]] = True
+    return hot
+
+
+def _moves(
+    pts: np.ndarray, keep: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+    pa: np.ndarray, arc_of: np.ndarray, arcs: Arcs | None,
+) -> Moves:
+    """The kept points as :class:`Moves`, with the arc data of each arc's end point."""
+    idx = np.flatnonzero(keep)
+    out = pts[idx]
+    new_starts = np.searchsorted(idx, starts)
+    new_ends = np.searchsorted(idx, ends)
+    seg = np.diff(out, axis=0, prepend=out[:1])
+    length = np.hypot(seg[:, 0], seg[:, 1])
+    arc = np.zeros(len(idx), dtype=bool)
+    centre = np.zeros((len(idx), 2))
+    ccw = np.zeros(len(idx), dtype=bool)
+    is_arc = arc_of >= 0
+    if arcs is not None and is_arc.any():
+        k = arc_of[is_arc]
+        at = np.searchsorted(idx, arcs.last[k])
+        arc[at] = True
+        centre[at] = arcs.centre[k]
+        ccw[at] = arcs.ccw[k]
+        length[at] = arcs.length[k]
+    return Moves(out, new_starts, new_ends, arc, centre, ccw, length)

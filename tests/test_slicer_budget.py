@@ -1,0 +1,146 @@
+"""The line budget: simplification within the resolution, arcs, the wire-aware coarsening."""
+
+from __future__ import annotations
+
+import math
+import re
+
+import numpy as np
+import pytest
+import shapely
+import trimesh
+
+from slicer.arcs import for_printer
+from slicer.budget import budget_moves, line_rate
+from slicer.gcode import _pack
+from slicer.plan import SlicePlan
+from slicer.settings import SettingsError, SliceSettings
+
+_ARC = re.compile(r"^G([23]) (?:F\d+ )?X(\S+) Y(\S+) I(\S+) J(\S+) E(\S+)$")
+_MOVE = re.compile(r"^G[0123] (?:F\d+ )?X(\S+) Y(\S+)")
+
+
+def _plan(**values) -> SlicePlan:
+    mesh = trimesh.creation.cylinder(radius=12.0, height=3.0, sections=256)
+    settings = SliceSettings.from_mapping({"infill.field": "wave", **values})
+    return SlicePlan.from_mesh(mesh.vertices, mesh.faces, settings)
+
+
+def _moves(plan: SlicePlan, i: int):
+    paths = plan.layer_toolpaths(i)
+    pts, starts, ends = _pack([p.coords for p in paths])
+    speeds = np.full(len(paths), plan.settings.print_speed)
+    return paths, budget_moves(pts, starts, ends, speeds, plan.settings)
+
+
+def test_walls_stay_within_the_resolution_of_the_level_set() -> None:
+    plan = _plan(**{"gcode.arcs": "off"})
+    tol = plan.settings.resolution
+    paths, mv = _moves(plan, 5)
+    assert len(mv.pts) < 0.7 * sum(len(p.coords) for p in paths)  # it does drop points
+    for k, path in enumerate(paths):
+        if not path.kind.startswith("WALL"):
+            continue
+        exact = shapely.linestrings(path.coords)
+        simple = shapely.linestrings(mv.pts[mv.starts[k] : mv.ends[k]])
+        assert shapely.hausdorff_distance(exact, simple, densify=0.05) <= tol + 1e-9
+        assert np.array_equal(simple.coords[0], path.coords[0])  # seams stay put
+
+
+def test_zero_resolution_keeps_every_point() -> None:
+    plan = _plan(**{"gcode.arcs": "off", "resolution": 0.0})
+    paths, mv = _moves(plan, 5)
+    pts, _, _ = _pack([p.coords for p in paths])
+    assert np.array_equal(mv.pts, pts)
+
+
+def _arcs_of(lines: list[str]):
+    """Each G2/G3 of G-code lines: start, end, centre, ccw, E."""
+    pos = None
+    for line in lines:
+        arc = _ARC.match(line)
+        if arc:
+            g, x, y, i, j, e = arc.groups()
+            end = (float(x), float(y))
+            yield pos, end, (pos[0] + float(i), pos[1] + float(j)), g == "3", float(e)
+        move = _MOVE.match(line)
+        if move:
+            pos = (float(move.group(1)), float(move.group(2)))
+
+
+def _sweep(start, end, centre, ccw) -> float:
+    a0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
+    a1 = math.atan2(end[1] - centre[1], end[0] - centre[0])
+    sweep = (a1 - a0) % (2 * math.pi) if ccw else (a0 - a1) % (2 * math.pi)
+    return sweep or 2 * math.pi
+
+
+def test_arcs_lie_on_the_contour_they_replace_and_extrude_by_length() -> None:
+    plan = _plan(**{"gcode.arcs": "on"})
+    tol = plan.settings.resolution
+    i = 5
+    lines = plan.layer_gcode(i)
+    contour = shapely.multilinestrings([shapely.linestrings(p.coords)
+                                        for p in plan.layer_toolpaths(i)])
+    e_per_mm = plan.layer_height(i) * plan.settings.line_width / plan.settings.filament_area
+    arcs = list(_arcs_of(lines))
+    assert len(arcs) > 10
+    for start, end, centre, ccw, e in arcs:
+        r = math.dist(start, centre)
+        sweep = _sweep(start, end, centre, ccw)
+        t = np.linspace(0.0, 1.0, 50)
+        a0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
+        ang = a0 + (1 if ccw else -1) * sweep * t
+        x, y = centre[0] + r * np.cos(ang), centre[1] + r * np.sin(ang)
+        far = shapely.distance(contour, shapely.points(x, y)).max()
+        assert far <= tol + 0.002  # plus the rounding of X, Y, I and J to 0.001 mm
+        assert e == pytest.approx(r * sweep * e_per_mm, rel=2e-3, abs=1e-5)
+
+
+def test_arcs_cut_lines_and_bytes() -> None:
+    without = _plan(**{"gcode.arcs": "off"})
+    with_arcs = without.with_settings(SliceSettings.from_mapping({"gcode.arcs": "on"},
+                                                                 base=without.settings))
+    moves = [sum(1 for line in p.layer_gcode(5) if line.startswith("G")) for p in
+             (without, with_arcs)]
+    assert moves[1] < 0.7 * moves[0]
+
+
+def test_arc_output_is_the_same_alone_and_in_sequence() -> None:
+    first = _plan(**{"gcode.arcs": "on"})
+    run = [first.layer_gcode(i) for i in range(first.layer_count)]
+    again = _plan(**{"gcode.arcs": "on"})
+    for i in reversed(range(again.layer_count)):
+        assert again.layer_gcode(i) == run[i]
+
+
+def test_the_wire_budget_coarsens_only_fast_runs() -> None:
+    base = {"gcode.arcs": "off", "print_speed": 150.0, "wall_speed": 150.0}
+    free = _plan(**base)
+    slow = free.with_settings(SliceSettings.from_mapping({"gcode.baud": 9600},
+                                                         base=free.settings))
+    paths, loose = _moves(free, 5)
+    _, tight = _moves(slow, 5)
+    assert line_rate(slow.settings) == pytest.approx(0.8 * 960 / 40)
+    assert len(tight.pts) < len(loose.pts)
+    coarse = slow.settings.gcode_coarse_resolution
+    for k, path in enumerate(paths):
+        exact = shapely.linestrings(path.coords)
+        simple = shapely.linestrings(tight.pts[tight.starts[k] : tight.ends[k]])
+        assert shapely.hausdorff_distance(exact, simple, densify=0.05) <= coarse + 1e-9
+    # a wire fast enough for every run changes nothing
+    fast = free.with_settings(SliceSettings.from_mapping({"gcode.baud": 10_000_000},
+                                                         base=free.settings))
+    assert np.array_equal(_moves(fast, 5)[1].pts, loose.pts)
+
+
+def test_auto_follows_the_firmware_capabilities() -> None:
+    auto = SliceSettings()
+    assert auto.gcode_arcs == "auto"
+    assert for_printer(auto, {"ARCS", "EEPROM"}).gcode_arcs == "on"
+    assert for_printer(auto, {"EEPROM"}).gcode_arcs == "off"
+    off = SliceSettings.from_mapping({"gcode.arcs": "off"})
+    assert for_printer(off, {"ARCS"}).gcode_arcs == "off"
+    assert for_printer(auto, set(), 115200).gcode_baud == 115200
+    with pytest.raises(SettingsError, match=r"gcode\.arcs"):
+        SliceSettings.from_mapping({"gcode.arcs": "yes"})
