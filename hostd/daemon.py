@@ -208,7 +208,7 @@ class Daemon:
                 from hostd.mqtt import MqttBridge
 
                 bridge = MqttBridge(self.config.mqtt, self.config.printer.id, self.hub,
-                                    self.controller)
+                                    self.controller, extras=self.addons.mqtt_extras)
                 group.create_task(bridge.run(), name="mqtt")
             if _available("hostd.sdnotify"):
                 from hostd import sdnotify
