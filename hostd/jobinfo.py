@@ -210,17 +210,17 @@ def layer_png(text: str, title: str, size: int = 480,
     if frame is None:
         if len(segments):
             xs, ys = segments[:, [0, 2]], segments[:, [1, 3]]
-            frame = (xs.min() - 3, ys.min() - 3, xs.max() + 3, ys.max() + 3)
+            frame = (xs.min() - 3, ys.min() - 3, xs.max() + 3, ys.max() + 8)  # room for the title
         else:
             frame = (0.0, 0.0, 10.0, 10.0)
     xmin, ymin, xmax, ymax = frame
     scale = size / max(xmax - xmin, ymax - ymin, 1e-6)
     width, height = max(1, round((xmax - xmin) * scale)), max(1, round((ymax - ymin) * scale))
-    image = Image.new("RGB", (width, height + 18), (250, 250, 247))
+    image = Image.new("RGB", (width, height), (250, 250, 247))
     draw = ImageDraw.Draw(image)
     px = np.empty_like(segments)
     px[:, [0, 2]] = (segments[:, [0, 2]] - xmin) * scale
-    px[:, [1, 3]] = (ymax - segments[:, [1, 3]]) * scale + 18
+    px[:, [1, 3]] = (ymax - segments[:, [1, 3]]) * scale
     line = max(1, round(0.4 * scale * 0.8))
     for (x0, y0, x1, y1), kind in zip(px.tolist(), kinds, strict=True):
         draw.line((x0, y0, x1, y1), fill=_COLOURS.get(kind, (90, 90, 90)), width=line)
