@@ -7,7 +7,6 @@ import concurrent.futures
 import contextlib
 import logging
 import os
-import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -22,6 +21,7 @@ from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
 from hostd.status import StatusHub
+from slicer.annotate import annotate_file
 from slicer.errors import ModelError
 from slicer.gcode import header_lines, summarize
 from slicer.plan import SlicePlan
@@ -186,8 +186,7 @@ class PrintJob:
             with open(self.final, "w", encoding="utf-8", newline="\n") as out:
                 for line in header_lines(summary, settings):
                     out.write(line + "\n")
-                with open(self.partial, encoding="utf-8") as body:
-                    shutil.copyfileobj(body, out)
+                annotate_file(out, self.partial, self.schedule.base_plan, settings)
                 out.flush()
                 os.fsync(out.fileno())
             summary_text = (

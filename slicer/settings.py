@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -82,6 +83,8 @@ class SliceSettings:
     fan_speed: float = 1.0
     fan_first_layer: int = 1
     skip_heating: bool = False
+    gcode_thumbnails: str = "32x32,220x124"
+    gcode_labels: bool = True
 
     @classmethod
     def from_mapping(
@@ -102,6 +105,9 @@ class SliceSettings:
         merged = dataclasses.replace(base or cls(), **changes)
         if merged.first_layer_height <= 0:
             raise SettingsError("first_layer_height", "must be positive")
+        if not _THUMBNAILS.fullmatch(merged.gcode_thumbnails):
+            raise SettingsError("gcode.thumbnails", f"{merged.gcode_thumbnails!r}: expected sizes"
+                                " such as \"32x32,220x124\" (1..1024 px each), or \"\" for none")
         return merged
 
     def to_mapping(self) -> dict[str, Any]:
@@ -201,7 +207,11 @@ _SPECS: dict[str, _Spec] = {
     "fan_speed": _Spec(float, 0.0, 1.0),
     "fan_first_layer": _Spec(int, 0, 1000),
     "skip_heating": _Spec(bool),
+    "gcode.thumbnails": _Spec(str),
+    "gcode.labels": _Spec(bool),
 }
+_SIZE = r"(?:[1-9]\d{0,2}|10[01]\d|102[0-4])"
+_THUMBNAILS = re.compile(rf"(?:{_SIZE}x{_SIZE}(?:,{_SIZE}x{_SIZE})*)?")
 
 SETTING_KEYS: tuple[str, ...] = tuple(_SPECS)
 
