@@ -14,6 +14,7 @@ from pathlib import Path
 from drivers.streamer import LinkError, Streamer
 from hostd.api import JobStatus
 from hostd.config import Config
+from hostd.eta import slicer_totals
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
 from hostd.jobstore import Job, JobStore
@@ -181,12 +182,14 @@ class PrintJob:
         elif self.runner.output_error is not None:
             summary_text = f"job {job.id} {job.name}: printed; {self.runner.output_error}\n"
         else:
-            summary = summarize(_lines(self.partial))
+            totals = slicer_totals(self.schedule)  # as `hostd slice` counts the same moves
+            summary = totals[0] if totals else summarize(_lines(self.partial))
             settings = self.schedule.base_settings if self.schedule else SliceSettings()
             with open(self.final, "w", encoding="utf-8", newline="\n") as out:
                 for line in header_lines(summary, settings):
                     out.write(line + "\n")
-                annotate_file(out, self.partial, self.schedule.base_plan, settings)
+                annotate_file(out, self.partial, self.schedule.base_plan, settings,
+                              totals[1] if totals else None)
                 out.flush()
                 os.fsync(out.fileno())
             summary_text = (

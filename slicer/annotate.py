@@ -89,15 +89,17 @@ def _end_position(lines: list[str], before: list[str]) -> list[str]:
 
 
 def annotate_program(
-    out: TextIO, read_body, plan, settings: SliceSettings, labels: ObjectLabels | None
+    out: TextIO, read_body, plan, settings: SliceSettings, labels: ObjectLabels | None,
+    times: list[float] | None = None,
 ) -> None:
     """Write a streamed program (``read_body()`` gives its lines, twice) with labels and M73.
 
-    The first reading times each layer (:func:`slicer.gcode.summarize`, as the
-    header's total); the second writes every part, each layer labelled and
-    given its ``M73``. One layer is held at a time.
+    ``times`` are the layers' seconds; without them a first reading times each
+    layer (:func:`slicer.gcode.summarize`). The last reading writes every part,
+    each layer labelled and given its ``M73``. One layer is held at a time.
     """
-    times = layer_times(_split(read_body()), settings)
+    if times is None:
+        times = layer_times(_split(read_body()), settings)
     total = sum(times)
     before = 0.0
     index = 0
@@ -114,8 +116,11 @@ def annotate_program(
         out.write("\n".join(part) + "\n")
 
 
-def annotate_file(out: TextIO, path, plan, settings: SliceSettings) -> None:
-    """After a header: the extras, then the program streamed to ``path``, annotated."""
+def annotate_file(
+    out: TextIO, path, plan, settings: SliceSettings, times: list[float] | None = None
+) -> None:
+    """After a header: the extras, then the program streamed to ``path``, annotated
+    (``times``: each layer's seconds, when known)."""
     labels = object_labels(plan, settings)
     extras = header_extras(plan, settings, labels)
     if extras:
@@ -126,4 +131,4 @@ def annotate_file(out: TextIO, path, plan, settings: SliceSettings) -> None:
             for line in handle:
                 yield line.rstrip("\n")
 
-    annotate_program(out, read_body, plan, settings, labels)
+    annotate_program(out, read_body, plan, settings, labels, times)
