@@ -132,12 +132,15 @@ class Snapshot:
     interrupted: tuple[InterruptedJob, ...] = ()
     error: str | None = None
     ts: float = field(default_factory=time.time)
+    # the last finished jobs, newest first: {id, name, outcome, ended, print_s, filament_g}
+    history: tuple[dict[str, Any], ...] = ()
 
     def to_dict(self) -> dict[str, Any]:
         """The snapshot as plain JSON-ready data (lists, dicts, numbers, strings)."""
         data = asdict(self)
         data["queue"] = list(self.queue)
         data["interrupted"] = [asdict(item) for item in self.interrupted]
+        data["history"] = [dict(item) for item in self.history]
         return data
 
     def to_json(self) -> str:
@@ -160,6 +163,7 @@ class Snapshot:
             interrupted=tuple(InterruptedJob(**item) for item in data.get("interrupted") or ()),
             error=data.get("error"),
             ts=float(data.get("ts", 0.0)),
+            history=tuple(dict(item) for item in data.get("history") or ()),
         )
 
 

@@ -79,6 +79,17 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("job", metavar="JOB")
     _add_target(p)
 
+    p = sub.add_parser("history", help="finished jobs and totals (newest first)")
+    fmt = p.add_mutually_exclusive_group()
+    fmt.add_argument("--json", action="store_true", help="every field of every job, and totals")
+    fmt.add_argument("--csv", action="store_true", help="one row per job")
+    p.add_argument("--limit", type=int, metavar="N", help="the last N jobs only")
+    p.add_argument("--config", metavar="FILE", help="daemon configuration (its state folder)")
+
+    p = sub.add_parser("reprint", help="queue a finished job again with its exact settings")
+    p.add_argument("job", metavar="JOB", help="job id, or name (the newest with that name)")
+    p.add_argument("--config", metavar="FILE", help="daemon configuration (TOML)")
+
     p = sub.add_parser("print", help="stream a G-code file (or an STL) to a printer")
     p.add_argument("file", metavar="FILE")
     p.add_argument("--port", required=True, metavar="PORT", help="serial device, or 'sim'")
@@ -118,6 +129,8 @@ _COMMANDS = {
     "resume": "hostd.commands.resume",
     "print": "hostd.commands.print_file",
     "simulate": "hostd.commands.simulate",
+    "history": "hostd.commands.history",
+    "reprint": "hostd.commands.reprint",
 }
 
 

@@ -89,6 +89,19 @@ class RunnerConfig:
 
 
 @dataclass(frozen=True)
+class NotifyConfig:
+    """Notifications through Apprise URLs (none = off), the events sent, the per-send timeout."""
+
+    urls: tuple[str, ...] = ()
+    events: tuple[str, ...] = ("done", "failed", "cancelled", "error", "paused", "first_layer")
+    timeout_s: float = 10.0
+    picture: bool = True
+
+
+NOTIFY_EVENTS = ("done", "failed", "cancelled", "error", "paused", "first_layer", "interrupted")
+
+
+@dataclass(frozen=True)
 class Config:
     """The whole daemon configuration."""
 
@@ -98,6 +111,7 @@ class Config:
     simulator: SimConfig = field(default_factory=SimConfig)
     mqtt: MqttConfig = field(default_factory=MqttConfig)
     runner: RunnerConfig = field(default_factory=RunnerConfig)
+    notify: NotifyConfig = field(default_factory=NotifyConfig)
     slicing: SliceSettings = field(default_factory=SliceSettings)
 
 
@@ -121,7 +135,7 @@ def load_config(path: str | Path | None = None, cwd: Path | None = None) -> Conf
 
 def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
     """Build a `Config` from parsed TOML, refusing unknown sections, keys and bad values."""
-    known = {"jobs", "state", "printer", "simulator", "mqtt", "runner", "slicing"}
+    known = {"jobs", "state", "printer", "simulator", "mqtt", "runner", "slicing", "notify"}
     for name, value in data.items():
         if name not in known:
             raise ConfigError(name, "unknown section")
@@ -133,6 +147,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
     sim = _Section(data.get("simulator", {}), "simulator")
     mqtt = _Section(data.get("mqtt", {}), "mqtt")
     runner = _Section(data.get("runner", {}), "runner")
+    notify = _Section(data.get("notify", {}), "notify")
     config = Config(
         jobs=JobsConfig(
             folder=_folder(cwd, jobs.text("folder", "jobs", empty=False)),
@@ -168,9 +183,15 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             lookahead=runner.integer("lookahead", 4, 1, 64),
             workers=runner.integer("workers", 2, 1, 32),
         ),
+        notify=NotifyConfig(
+            urls=notify.texts("urls", ()),
+            events=notify.choices("events", NotifyConfig.events, NOTIFY_EVENTS),
+            timeout_s=notify.number("timeout_s", 10.0, 0.1, 300.0),
+            picture=notify.flag("picture", True),
+        ),
         slicing=_anchor_files(slicing_settings(data.get("slicing", {}), None, "slicing"), cwd),
     )
-    for section in (jobs, state, printer, sim, mqtt, runner):
+    for section in (jobs, state, printer, sim, mqtt, runner, notify):
         section.refuse_unknown()
     return config
 
@@ -249,6 +270,24 @@ class _Section:
         value = self.text(key, default, empty=False)
         if any(ch in value for ch in "/#+ \t\n") or not value.isprintable():
             raise self._fail(key, f"{value!r} may not contain spaces, '/', '#' or '+'")
+        return value
+
+    def texts(self, key: str, default: tuple[str, ...]) -> tuple[str, ...]:
+        value = self._get(key, list(default))
+        if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
+            raise self._fail(key, f"expected a list of strings, got {value!r}")
+        for item in value:
+            if not item.strip():
+                raise self._fail(key, "an entry is empty")
+        return tuple(value)
+
+    def choices(
+        self, key: str, default: tuple[str, ...], allowed: tuple[str, ...]
+    ) -> tuple[str, ...]:
+        value = self.texts(key, default)
+        for item in value:
+            if item not in allowed:
+                raise self._fail(key, f"unknown {item!r}; choose from {', '.join(allowed)}")
         return value
 
     def flag(self, key: str, default: bool) -> bool:

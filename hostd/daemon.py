@@ -12,6 +12,7 @@ from pathlib import Path
 
 from drivers.responses import Response
 from drivers.streamer import LinkError, Streamer
+from hostd.addons import Addons
 from hostd.api import InterruptedJob, PrinterInfo, Snapshot, Temperature, Temps
 from hostd.config import Config
 from hostd.controller import DaemonController
@@ -45,6 +46,7 @@ class Daemon:
             Snapshot(state="offline", printer=PrinterInfo(config.printer.id, config.printer.port))
         )
         self.intake = Intake(config, self.store, self.hub)
+        self.addons = Addons(config, self.store, self.hub)
         self.current: PrintJob | None = None
         self.controller = DaemonController(
             self.store, self.hub, self.intake, lambda: self.current, self.queue_changed
@@ -89,6 +91,7 @@ class Daemon:
             for signum in (signal.SIGINT, signal.SIGTERM):
                 loop.remove_signal_handler(signum)
             self._notify("STOPPING=1")
+            self.addons.close()
             self.store.close()
             log.info("stopped")
 
@@ -206,7 +209,7 @@ class Daemon:
                 from hostd.mqtt import MqttBridge
 
                 bridge = MqttBridge(self.config.mqtt, self.config.printer.id, self.hub,
-                                    self.controller)
+                                    self.controller, extras=self.addons.mqtt_extras)
                 group.create_task(bridge.run(), name="mqtt")
             if _available("hostd.sdnotify"):
                 from hostd import sdnotify

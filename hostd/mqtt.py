@@ -16,7 +16,7 @@ from typing import Any, Protocol
 import aiomqtt
 
 from hostd.api import Snapshot
-from hostd.homeassistant import discovery_messages
+from hostd.homeassistant import HA_STATUS_TOPIC, DeviceTopics, discovery_messages
 from hostd.status import CommandError, Controller, StatusHub
 
 log = logging.getLogger(__name__)
@@ -45,6 +45,12 @@ class MqttSettings(Protocol):
     def brokers(self) -> tuple[tuple[str, int], ...]:
         """(host, port) of each broker to try in turn (``mqtt.hosts``, else host and port)."""
         ...
+
+
+class ExtraPublisher(Protocol):
+    """Publishes more retained topics on each session (``hostd.mqtt_extras.MqttExtras``)."""
+
+    async def publish(self, client: aiomqtt.Client) -> None: ...
 
 
 class MqttSetupError(ValueError):
@@ -149,6 +155,7 @@ class MqttBridge:
         status_interval_s: float = 1.0,
         backoff: Backoff | None = None,
         rng: random.Random | None = None,
+        extras: ExtraPublisher | None = None,
     ) -> None:
         self._settings = settings
         self._printer_id = printer_id
@@ -157,6 +164,7 @@ class MqttBridge:
         self._interval = status_interval_s
         self._backoff = backoff or Backoff()
         self._rng = rng or random.Random()
+        self._extras = extras
         self.topics = Topics.for_printer(printer_id)
         self._tls = tls_context(settings)
         self._status = _StatusFeed(hub.current)
@@ -246,15 +254,22 @@ class MqttBridge:
         await client.subscribe(self.topics.cmd, qos=1)
         await client.publish(self.topics.online, "online", qos=1, retain=True)
         if self._settings.homeassistant:
-            for topic, payload in discovery_messages(
-                self._printer_id, self.topics.status, self.topics.online
-            ):
-                await client.publish(topic, payload, qos=1, retain=True)
+            await client.subscribe(HA_STATUS_TOPIC, qos=1)
+            await self._announce(client)
         self.connected.set()
         async with asyncio.TaskGroup() as group:
             group.create_task(self._publish_status(client), name="mqtt-publish-status")
             group.create_task(self._publish_events(client), name="mqtt-publish-events")
             group.create_task(self._listen(client), name="mqtt-commands")
+            if self._extras is not None:
+                group.create_task(self._extras.publish(client), name="mqtt-extras")
+
+    async def _announce(self, client: aiomqtt.Client) -> None:
+        """Home Assistant's device discovery (retained); again whenever Home Assistant starts."""
+        commands = self._settings.allow_commands and bool(self._settings.username)
+        topics = DeviceTopics.for_printer(self._printer_id)
+        for topic, payload in discovery_messages(self._printer_id, topics, commands):
+            await client.publish(topic, payload, qos=1, retain=True)
 
     async def _send_status(self, client: aiomqtt.Client, snapshot: Snapshot) -> None:
         await client.publish(self.topics.status, snapshot.to_json(), qos=1, retain=True)
@@ -304,6 +319,10 @@ class MqttBridge:
 
     async def _listen(self, client: aiomqtt.Client) -> None:
         async for message in client.messages:
+            if message.topic.matches(HA_STATUS_TOPIC):
+                if message.payload == b"online":
+                    await self._announce(client)
+                continue
             if not message.topic.matches(self.topics.cmd):
                 continue
             answer = await self.execute(message.payload, retained=message.retain)

@@ -7,7 +7,6 @@ import concurrent.futures
 import contextlib
 import logging
 import os
-import shutil
 import time
 from collections.abc import Iterator
 from pathlib import Path
@@ -15,6 +14,7 @@ from pathlib import Path
 from drivers.streamer import LinkError, Streamer
 from hostd.api import JobStatus
 from hostd.config import Config
+from hostd.eta import slicer_totals
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
 from hostd.jobstore import Job, JobStore
@@ -22,6 +22,7 @@ from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
 from hostd.status import StatusHub
+from slicer.annotate import annotate_file
 from slicer.arcs import for_printer
 from slicer.errors import ModelError
 from slicer.fea.tailor import tailored_plan
@@ -192,13 +193,14 @@ class PrintJob:
         elif self.runner.output_error is not None:
             summary_text = f"job {job.id} {job.name}: printed; {self.runner.output_error}\n"
         else:
-            summary = summarize(_lines(self.partial))
+            totals = slicer_totals(self.schedule)  # as `hostd slice` counts the same moves
+            summary = totals[0] if totals else summarize(_lines(self.partial))
             settings = self.schedule.base_settings if self.schedule else SliceSettings()
             with open(self.final, "w", encoding="utf-8", newline="\n") as out:
                 for line in header_lines(summary, settings):
                     out.write(line + "\n")
-                with open(self.partial, encoding="utf-8") as body:
-                    shutil.copyfileobj(body, out)
+                annotate_file(out, self.partial, self.schedule.base_plan, settings,
+                              totals[1] if totals else None)
                 out.flush()
                 os.fsync(out.fileno())
             summary_text = (

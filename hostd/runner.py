@@ -15,6 +15,7 @@ from typing import IO, Any, Protocol
 
 from drivers.protocol import strip_comment
 from hostd.api import JobStatus
+from hostd.eta import EtaModel
 from hostd.jobstore import Job, JobStore
 from hostd.sources import LayerSource
 from hostd.status import StatusHub
@@ -118,6 +119,7 @@ class JobRunner:
         self._last_layer_at = 0.0
         self._last_publish = 0.0
         self.streaming_layer = first
+        self.eta = EtaModel(getattr(source, "schedule", None), self.layers, first)
 
     # -- commands -------------------------------------------------------------
 
@@ -217,6 +219,7 @@ class JobRunner:
             mark = marks.popleft()
             if mark.layer == PREAMBLE:
                 self._print_started = time.monotonic()
+                self.eta.start(self._print_started)
                 if self.state == "heating":
                     self._set_state("printing")
             elif mark.layer >= 0:
@@ -228,6 +231,7 @@ class JobRunner:
         self.completed = mark.layer
         self._layers_timed += 1
         self._last_layer_at = time.monotonic()
+        self.eta.layer_done(mark.layer, self._last_layer_at)
         if self.output_error is None:
             try:
                 self.store.checkpoint(self.job.id, mark.layer, self.lines_acked, mark.offset)
@@ -267,11 +271,8 @@ class JobRunner:
         """The job part of the status snapshot."""
         done = self.completed + 1
         progress = done / self.layers if self.layers else 0.0
-        eta = None
-        if self._print_started is not None and self._layers_timed:
-            now = time.monotonic()
-            per_layer = (self._last_layer_at - self._print_started) / self._layers_timed
-            eta = round(max(0.0, per_layer * (self.layers - done) - (now - self._last_layer_at)), 1)
+        eta = self.eta.remaining(time.monotonic())
+        eta = None if eta is None else round(eta, 1)
         return JobStatus(
             id=self.job.id,
             name=self.job.name,

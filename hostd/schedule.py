@@ -33,6 +33,8 @@ class LayerSchedule:
         self.cancelled: list[tuple[int, int]] = list(cancelled or [])
         self._plans: dict[SliceSettings, SlicePlan] = {settings: plan}
         self._lock = threading.Lock()
+        # layer -> (the slicer's estimated seconds, filament mm) of each layer sliced here
+        self.estimates: dict[int, tuple[float, float]] = {}
 
     @property
     def layer_count(self) -> int:
@@ -67,7 +69,9 @@ class LayerSchedule:
         new values are set right after the ``;LAYER:`` line (the slicer sets them
         only in the start block).
         """
-        lines = list(self.plan_at(layer).layer_gcode(layer, self.excluded_at(layer)))
+        code = self.plan_at(layer).layer_code(layer, self.excluded_at(layer))
+        self.estimates[layer] = (code.time_s, code.filament_mm)
+        lines = list(code.lines)
         if layer > 0 and any(first == layer for first, _changes in self.changes):
             extra = _retune_gcode(self.settings_at(layer - 1), self.settings_at(layer), layer)
             if extra:

@@ -4,11 +4,14 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+import logging
 import time
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 from typing import Any, Protocol
 
 from hostd.api import Snapshot
+
+log = logging.getLogger("hostd.status")
 
 
 class Controller(Protocol):
@@ -38,6 +41,7 @@ class StatusHub:
         self._current = initial or Snapshot()
         self._snapshot_queues: set[asyncio.Queue[Snapshot]] = set()
         self._event_queues: set[asyncio.Queue[dict[str, Any]]] = set()
+        self._listeners: list[Callable[[dict[str, Any]], None]] = []
 
     @property
     def current(self) -> Snapshot:
@@ -56,11 +60,24 @@ class StatusHub:
     def event(self, kind: str, **data: Any) -> dict[str, Any]:
         """Publish one job event ``{"event": kind, "ts": ..., **data}``."""
         item = {"event": kind, "ts": time.time(), **data}
+        for listener in self._listeners:
+            try:
+                listener(item)
+            except Exception:  # a listener's bug must not stop the producer
+                log.exception("event listener failed on %s", kind)
         for queue in self._event_queues:
             if queue.full():
                 queue.get_nowait()
             queue.put_nowait(item)
         return item
+
+    def listen(self, listener: Callable[[dict[str, Any]], None]) -> None:
+        """Call ``listener(event)`` at once for every event, in order, on the producer's thread.
+
+        For quick bookkeeping that must see the daemon as it is when the event
+        happens; anything slow belongs in a worker fed by the listener.
+        """
+        self._listeners.append(listener)
 
     async def snapshots(self) -> AsyncIterator[Snapshot]:
         """Every new snapshot from now on (the newest one when the reader lags)."""

@@ -231,6 +231,11 @@ class SlicePlan:
             return _multi(self._islands(i, excluded_bodies))
         return self._geo.outlines[i]
 
+    def layer_bodies(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+        """Layer ``i``'s outline polygons, (p,) shapely objects, and each one's body, (p,) int64."""
+        i = self._check(i)
+        return shapely.get_parts(self._geo.outlines[i]), self._geo.bodies(i)
+
     # ---- per layer ------------------------------------------------------
     @property
     def infill_field(self) -> InfillField:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import dataclasses
+import re
 from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
@@ -97,6 +98,8 @@ class SliceSettings:
     gcode_baud: int = 0
     gcode_coarse_resolution: float = 0.05
     gcode_planner_blocks: int = 16
+    gcode_thumbnails: str = "32x32,220x124"
+    gcode_labels: bool = True
 
     @classmethod
     def from_mapping(
@@ -117,6 +120,9 @@ class SliceSettings:
         merged = dataclasses.replace(base or cls(), **changes)
         if merged.first_layer_height <= 0:
             raise SettingsError("first_layer_height", "must be positive")
+        if not _THUMBNAILS.fullmatch(merged.gcode_thumbnails):
+            raise SettingsError("gcode.thumbnails", f"{merged.gcode_thumbnails!r}: expected sizes"
+                                " such as \"32x32,220x124\" (1..1024 px each), or \"\" for none")
         return merged
 
     def to_mapping(self) -> dict[str, Any]:
@@ -228,7 +234,11 @@ _SPECS: dict[str, _Spec] = {
     "gcode.baud": _Spec(int, 0, 10_000_000),
     "gcode.coarse_resolution": _Spec(float, 0.0, 1.0),
     "gcode.planner_blocks": _Spec(int, 1, 256),
+    "gcode.thumbnails": _Spec(str),
+    "gcode.labels": _Spec(bool),
 }
+_SIZE = r"(?:[1-9]\d{0,2}|10[01]\d|102[0-4])"
+_THUMBNAILS = re.compile(rf"(?:{_SIZE}x{_SIZE}(?:,{_SIZE}x{_SIZE})*)?")
 
 SETTING_KEYS: tuple[str, ...] = tuple(_SPECS)
 

@@ -130,11 +130,13 @@ def daemon(tmp_path: Path) -> Iterator[Callable[..., DaemonProcess]]:
 
 
 def commands_of(path: Path) -> list[str]:
-    """The commands of a G-code file, comments and blank lines dropped."""
+    """The commands of a G-code file, comments, blank lines and the lines written for other
+    hosts (M73 progress, object labels; never streamed) dropped."""
     from drivers.protocol import strip_comment
+    from slicer.annotate import is_annotation
 
     with open(path, encoding="utf-8") as handle:
-        return [command for command in map(strip_comment, handle) if command]
+        return [c for c in map(strip_comment, handle) if c and not is_annotation(c)]
 
 
 def executed_job_lines(log: Path) -> list[str]:

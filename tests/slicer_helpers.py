@@ -7,6 +7,8 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
+from slicer.annotate import is_annotation
+
 DATA = Path(__file__).resolve().parent / "data"
 
 
@@ -22,7 +24,8 @@ def box_stl(path: Path, extents=(20.0, 20.0, 10.0)) -> Path:
 
 
 def layer_blocks(lines: list[str]) -> dict[int, list[str]]:
-    """Split a whole program into its layers by ``;LAYER:N`` lines (up to ``;END``)."""
+    """Split a whole program into its layers by ``;LAYER:N`` lines (up to ``;END``); the
+    lines written for other hosts (M73, object labels) are left out."""
     blocks: dict[int, list[str]] = {}
     current: list[str] | None = None
     for line in lines:
@@ -30,7 +33,7 @@ def layer_blocks(lines: list[str]) -> dict[int, list[str]]:
             current = blocks.setdefault(int(line[7:]), [])
         elif line.startswith(";END"):
             current = None
-        if current is not None:
+        if current is not None and not is_annotation(line):
             current.append(line)
     return blocks
 

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import os
-import shutil
 import sys
 import tempfile
 import threading
@@ -15,6 +14,7 @@ from typing import TextIO
 
 from hostd.cli import UsageError
 from hostd.config import ConfigError, load_config
+from slicer.annotate import copy_layers, header_extras, object_labels
 from slicer.errors import ModelError
 from slicer.gcode import GcodeSummary, LayerCode, filament_grams, header_lines
 from slicer.plan import SlicePlan
@@ -229,9 +229,16 @@ def write_gcode(
     filament = 0.0
     seconds = 0.0
     n = plan.layer_count
+    labels = object_labels(plan, plan.settings)
+    lengths: list[int] = []
+    times: list[float] = []
     with tempfile.TemporaryFile("w+", encoding="ascii", newline="\n") as body:
         for i, (text, layer_filament, layer_time) in enumerate(iter_layer_texts(plan, workers)):
+            if labels is not None:
+                text = "\n".join(labels.label_layer(i, text.splitlines())) + "\n"
             body.write(text)
+            lengths.append(len(text))
+            times.append(layer_time)
             filament += layer_filament
             seconds += layer_time
             if progress:
@@ -243,8 +250,10 @@ def write_gcode(
         try:
             with os.fdopen(fd, "w", encoding="ascii", newline="\n") as fh:
                 fh.write("\n".join(header_lines(summary, plan.settings)) + "\n")
+                extras = header_extras(plan, plan.settings, labels)
+                fh.write("".join(line + "\n" for line in extras))
                 fh.write("\n".join(plan.start_gcode()) + "\n")
-                shutil.copyfileobj(body, fh, 1 << 20)
+                copy_layers(fh, body, lengths, times)
             os.replace(tmp, out)
         except BaseException:
             if os.path.exists(tmp):

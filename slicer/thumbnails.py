@@ -1,0 +1,110 @@
+"""PNG thumbnails of a sliced model, embedded in G-code the way PrusaSlicer does (base64 blocks)."""
+
+from __future__ import annotations
+
+import base64
+import io
+
+import numpy as np
+import shapely
+
+_LAYERS_DRAWN = 48  # layers stacked in the picture (evenly spaced)
+_LINE = 78  # base64 characters per comment line (PrusaSlicer's)
+_COS30, _SIN30 = 0.8660254037844386, 0.5
+
+
+def parse_sizes(text: str) -> list[tuple[int, int]]:
+    """``"32x32,220x124"`` -> [(32, 32), (220, 124)] (checked by the settings already)."""
+    sizes = []
+    for item in filter(None, text.split(",")):
+        width, height = item.lower().split("x")
+        sizes.append((int(width), int(height)))
+    return sizes
+
+
+def thumbnail_png(plan, width: int, height: int) -> bytes:
+    """An isometric picture of the model's layer outlines stacked, ``width`` x ``height`` px.
+
+    Transparent background; faces shaded from dark (bottom) to light (top).
+    Drawn at twice the size and scaled down, so small thumbnails stay smooth.
+    """
+    from PIL import Image, ImageDraw
+
+    scale_up = 2
+    w, h = width * scale_up, height * scale_up
+    n = plan.layer_count
+    picks = np.unique(np.linspace(0, n - 1, min(n, _LAYERS_DRAWN)).round().astype(int))
+    xmin, ymin, xmax, ymax = plan.bounds
+    ztop = plan.layer_z(n - 1) if n else 1.0
+    corners = np.array([[x, y, z] for x in (xmin, xmax) for y in (ymin, ymax) for z in (0, ztop)])
+    projected = _project(corners)
+    lo, hi = projected.min(axis=0), projected.max(axis=0)
+    span = np.maximum(hi - lo, 1e-6)
+    fit = min((w * 0.92) / span[0], (h * 0.92) / span[1])
+    offset = np.array([w, h]) / 2 - (lo + hi) / 2 * fit
+    image = Image.new("RGBA", (w, h), (0, 0, 0, 0))
+    draw = ImageDraw.Draw(image)
+    for rank, i in enumerate(picks.tolist()):
+        z = plan.layer_z(i)
+        shade = 0.55 + 0.45 * (rank + 1) / len(picks)
+        fill = (int(235 * shade), int(120 * shade), int(30 * shade), 255)
+        edge = (int(120 * shade), int(55 * shade), int(10 * shade), 255)
+        for poly in shapely.get_parts(plan.outline(i)):
+            ring = shapely.get_coordinates(poly.exterior)
+            xyz = np.column_stack([ring, np.full(len(ring), z)])
+            points = _project(xyz) * fit + offset
+            draw.polygon([tuple(p) for p in points.tolist()], fill=fill, outline=edge)
+    image = image.resize((width, height), Image.Resampling.LANCZOS)
+    out = io.BytesIO()
+    image.save(out, format="PNG", optimize=True)
+    return out.getvalue()
+
+
+def _project(xyz: np.ndarray) -> np.ndarray:
+    """Isometric screen coordinates (y down) of points, (n, 3) mm -> (n, 2)."""
+    sx = (xyz[:, 0] - xyz[:, 1]) * _COS30
+    sy = -(xyz[:, 0] + xyz[:, 1]) * _SIN30 - xyz[:, 2]
+    return np.column_stack([sx, sy])
+
+
+def thumbnail_block(png: bytes, width: int, height: int) -> list[str]:
+    """The comment lines of one thumbnail: ``; thumbnail begin WxH LEN``, base64, end."""
+    text = base64.b64encode(png).decode("ascii")
+    lines = [";", f"; thumbnail begin {width}x{height} {len(text)}"]
+    lines += [f"; {text[k:k + _LINE]}" for k in range(0, len(text), _LINE)]
+    lines += ["; thumbnail end", ";"]
+    return lines
+
+
+def thumbnail_lines(plan, sizes: str) -> list[str]:
+    """Every thumbnail block for the sizes of ``gcode.thumbnails`` (none for "")."""
+    lines: list[str] = []
+    for width, height in parse_sizes(sizes):
+        lines += thumbnail_block(thumbnail_png(plan, width, height), width, height)
+    return lines
+
+
+def read_thumbnails(lines: list[str]) -> list[tuple[int, int, bytes]]:
+    """The thumbnails embedded in G-code lines: (width, height, PNG bytes), in order.
+
+    Raises ValueError when a block's length does not match its header.
+    """
+    found = []
+    block: list[str] | None = None
+    header = (0, 0, 0)
+    for line in lines:
+        if line.startswith("; thumbnail begin "):
+            size, length = line.split()[3:5]
+            width, height = map(int, size.split("x"))
+            header = (width, height, int(length))
+            block = []
+        elif line.startswith("; thumbnail end") and block is not None:
+            text = "".join(block)
+            if len(text) != header[2]:
+                raise ValueError(f"thumbnail {header[0]}x{header[1]}: {len(text)} characters,"
+                                 f" the header says {header[2]}")
+            found.append((header[0], header[1], base64.b64decode(text)))
+            block = None
+        elif block is not None:
+            block.append(line[2:].strip())
+    return found

@@ -1,0 +1,163 @@
+"""G-code other hosts understand: thumbnails, object labels and M73, parsed back from the files."""
+
+from __future__ import annotations
+
+import base64
+import io
+import re
+import subprocess
+from pathlib import Path
+
+import pytest
+import shapely
+import trimesh
+from conftest import HOSTD, ROOT, commands_of, sim_config
+from PIL import Image
+from test_daemon import small_box
+
+from slicer.settings import SettingsError, SliceSettings
+
+_WORD = re.compile(r"([XYE])(-?[\d.]+)")
+
+
+def two_bodies(path: Path) -> Path:
+    """A 20 x 20 x 8 mm block and a 10 x 30 x 6 mm bar beside it, one STL."""
+    cube = trimesh.creation.box((20.0, 20.0, 8.0))
+    cube.apply_translation((-15.0, 0.0, 4.0))
+    bar = trimesh.creation.box((10.0, 30.0, 6.0))
+    bar.apply_translation((15.0, 0.0, 3.0))
+    trimesh.util.concatenate([cube, bar]).export(path)
+    return path
+
+
+def thumbnails(lines: list[str]) -> dict[tuple[int, int], Image.Image]:
+    """Every ``; thumbnail begin WxH LEN`` block decoded, checked against its length."""
+    found = {}
+    for k, line in enumerate(lines):
+        if line.startswith("; thumbnail begin "):
+            size, length = line.split()[3:5]
+            end = lines.index("; thumbnail end", k)
+            text = "".join(item[2:] for item in lines[k + 1:end])
+            assert len(text) == int(length)
+            image = Image.open(io.BytesIO(base64.b64decode(text)))
+            image.load()
+            assert image.format == "PNG"
+            width, height = map(int, size.split("x"))
+            found[(width, height)] = image
+    return found
+
+
+def objects(lines: list[str]) -> dict[str, shapely.Polygon]:
+    """The EXCLUDE_OBJECT_DEFINE outlines by name (and M486 T counts them)."""
+    defined = {}
+    for line in lines:
+        if line.startswith("EXCLUDE_OBJECT_DEFINE"):
+            words = dict(word.split("=", 1) for word in line.split()[1:])
+            points = [tuple(map(float, p.split(","))) for p in
+                      words["POLYGON"].strip("[]").split("],[")]
+            defined[words["NAME"]] = shapely.Polygon(points)
+            centre = tuple(map(float, words["CENTER"].split(",")))
+            assert defined[words["NAME"]].contains(shapely.Point(centre))
+    assert f"M486 T{len(defined)}" in lines
+    return defined
+
+
+def check_labelled_moves(lines: list[str], defined: dict[str, shapely.Polygon]) -> int:
+    """Every extruding move inside the layers lies between its object's start and end, and
+    within that object's outline; returns how many were checked."""
+    inside: str | None = None
+    marlin: int | None = None
+    x = y = None
+    checked = 0
+    in_layers = False
+    names = list(defined)
+    grown = {name: shapely.buffer(polygon, 0.5) for name, polygon in defined.items()}
+    for polygon in grown.values():
+        shapely.prepare(polygon)
+    for line in lines:
+        if line.startswith(";LAYER:"):
+            in_layers = True
+        elif line.startswith(";END"):
+            in_layers = False
+        if line.startswith("EXCLUDE_OBJECT_START"):
+            assert inside is None
+            inside = line.split("NAME=")[1]
+            assert marlin == names.index(inside)
+        elif line.startswith("EXCLUDE_OBJECT_END"):
+            assert line.split("NAME=")[1] == inside
+            inside = None
+        elif line.startswith("M486 S"):
+            marlin = int(line[6:])
+            assert inside is None  # S<n> just before the start, S-1 just after the end
+        elif line.startswith(("G0 ", "G1 ")):
+            words = dict(_WORD.findall(line.split(";")[0]))
+            nx, ny = float(words.get("X", x or 0)), float(words.get("Y", y or 0))
+            if in_layers and float(words.get("E", 0)) > 0 and (nx, ny) != (x, y):
+                assert inside is not None, line
+                assert shapely.contains_xy(grown[inside], nx, ny), line
+                checked += 1
+            x, y = nx, ny
+    assert inside is None
+    return checked
+
+
+def check_progress(lines: list[str]) -> None:
+    """M73 after every ``;LAYER:`` line: percent rising to 100, minutes falling to 0."""
+    marks = [(int(m[1]), int(m[2])) for m in
+             (re.fullmatch(r"M73 P(\d+) R(\d+)", line) for line in lines) if m]
+    layers = sum(line.startswith(";LAYER:") for line in lines)
+    assert len(marks) == layers + 1
+    percents, minutes = zip(*marks, strict=True)
+    assert list(percents) == sorted(percents) and percents[0] == 0 and percents[-1] == 100
+    assert list(minutes) == sorted(minutes, reverse=True) and minutes[-1] == 0
+    for k, line in enumerate(lines):
+        if line.startswith(";LAYER:"):
+            assert lines[k + 1].startswith("M73 P")
+
+
+def test_hostd_slice_writes_thumbnails_labels_and_progress(tmp_path: Path) -> None:
+    model = two_bodies(tmp_path / "pair.stl")
+    out = tmp_path / "pair.gcode"
+    result = subprocess.run(
+        [*HOSTD, "slice", str(model), "-o", str(out), "--quiet",
+         "--set", 'gcode.thumbnails="16x16,300x200"'],
+        capture_output=True, text=True, timeout=120, env={"PYTHONPATH": str(ROOT)},
+    )
+    assert result.returncode == 0, result.stderr
+    lines = out.read_text().splitlines()
+    pictures = thumbnails(lines)
+    assert {size: image.size for size, image in pictures.items()} == {
+        (16, 16): (16, 16), (300, 200): (300, 200)}
+    assert pictures[(300, 200)].getchannel("A").getextrema() == (0, 255)  # a part on clear
+    defined = objects(lines)
+    assert set(defined) == {"body_0", "body_1"}
+    assert check_labelled_moves(lines, defined) > 500
+    check_progress(lines)
+
+
+def test_the_daemon_done_file_carries_them_too_and_one_body_gets_no_labels(
+    daemon, tmp_path: Path
+) -> None:
+    hostd = daemon(sim_config())
+    hostd.drop(two_bodies(tmp_path / "pair.stl"), "pair.stl")
+    hostd.drop(small_box(tmp_path / "box.stl"), "cube.stl")
+    done = hostd.jobs / "done"
+    hostd.wait_for(lambda: (done / "cube.summary.txt").exists(), 120, "both printed")
+    lines = (done / "pair.gcode").read_text().splitlines()
+    assert set(thumbnails(lines)) == {(32, 32), (220, 124)}  # the default sizes
+    defined = objects(lines)
+    assert len(defined) == 2 and check_labelled_moves(lines, defined) > 500
+    check_progress(lines)
+    cube = (done / "cube.gcode").read_text().splitlines()
+    assert not any(line.startswith(("M486", "EXCLUDE_OBJECT")) for line in cube)
+    check_progress(cube)
+    # what was streamed is the file without the lines written for other hosts
+    assert len(commands_of(done / "pair.gcode")) < len([c for c in lines if c[:1] not in ";"])
+    assert hostd.stop() == 0
+
+
+def test_thumbnail_sizes_are_checked() -> None:
+    assert SliceSettings.from_mapping({"gcode.thumbnails": ""}).gcode_thumbnails == ""
+    for bad in ("32", "0x10", "10x2000", "32x32;64x64"):
+        with pytest.raises(SettingsError, match=r"gcode\.thumbnails"):
+            SliceSettings.from_mapping({"gcode.thumbnails": bad})
