@@ -45,6 +45,7 @@ EVENTS = (
     "interrupted",
     "object_cancelled",
     "error",
+    "repaired",
 )
 
 

@@ -41,6 +41,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
                    help="override one slicing setting (repeatable)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--profile", action="store_true",
+                   help="slice in one process and print the time of each stage")
 
     p = sub.add_parser("preview", help="draw one layer's toolpaths as PNG")
     p.add_argument("model", metavar="MODEL")
