@@ -7,8 +7,13 @@ ratio against PrusaSlicer, and the mean per-layer IoU of the outer wall against
 PrusaSlicer's. Then the scale case: the bunny subdivided twice (~1.1M faces), ours
 against CuraEngine.
 
+With ``--corpus`` it slices the shared models and the generated corpus
+(``bench/corpus.py``) instead, and prints one row per model with every target
+checked (time against the faster peer, filament, outer wall) and the worst ratio.
+
 Usage (from the repository root):
     .venv/bin/python bench/slice_vs_peers.py [--repeat 3] [--models bunny,cube20_xyz]
+    .venv/bin/python bench/slice_vs_peers.py --corpus [--models gear,vase_twisted]
 """
 
 from __future__ import annotations
@@ -24,7 +29,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from bench import gcodeparse
+from bench import corpus_table, gcodeparse
 from bench.measure import RunResult, ensure_gnu_time, run_measured
 from bench.peers import CACHE, Peer, available_peers
 
@@ -123,6 +128,20 @@ def model_paths(folder: Path, selected: str) -> list[Path]:
     if missing:
         raise SystemExit(f"unknown models: {', '.join(missing)} (in {folder})")
     return chosen
+
+
+def corpus_paths(shared: Path, selected: str) -> list[Path]:
+    """The shared models and the generated corpus (written when missing), smallest first."""
+    from bench.corpus import build
+
+    paths = sorted([*shared.glob("*.stl"), *build()], key=lambda p: (p.stat().st_size, p.name))
+    if not selected:
+        return paths
+    wanted = {s.strip().removesuffix(".stl") for s in selected.split(",") if s.strip()}
+    missing = sorted(wanted - {p.stem for p in paths})
+    if missing:
+        raise SystemExit(f"unknown models: {', '.join(missing)}")
+    return [p for p in paths if p.stem in wanted]
 
 
 def make_scale_model(source: Path, rounds: int = 2) -> Path:
@@ -283,6 +302,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--no-scale", action="store_true", help="skip the ~1M-face scale case")
     p.add_argument("--scale-only", action="store_true", help="only the scale case")
     p.add_argument("--out", type=Path, default=OUT, help="G-code and JSON results folder")
+    p.add_argument("--corpus", action="store_true",
+                   help="the shared models and the generated corpus, with the targets checked")
     return p.parse_args(argv)
 
 
@@ -298,6 +319,14 @@ def main(argv: list[str] | None = None) -> int:
     config = args.out / "bench-printer.toml"
     config.write_text(BED_TOML)
     results: dict[str, object] = {"ours_settings": OUR_SETTINGS}
+    if args.corpus:
+        rows = [measure_model(m, runners, args.repeat, args.timeout, config, gcode_dir,
+                              compare=m.stem != "bad_triangle_soup")
+                for m in corpus_paths(args.models_dir, args.models)]
+        print(corpus_table.table(rows))
+        results["corpus"] = [asdict(r) for r in rows]
+        (args.out / "corpus_vs_peers.json").write_text(json.dumps(results, indent=1))
+        return 0
     if not args.scale_only:
         rows = [measure_model(m, runners, args.repeat, args.timeout, config, gcode_dir,
                               compare=m.stem != "bad_triangle_soup")

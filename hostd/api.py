@@ -74,6 +74,7 @@ EVENTS = (
     "object_cancelled",
     "object_restored",
     "error",
+    "repaired",
 )
 
 

@@ -43,6 +43,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--load", metavar="FILE",
                    help="load case (TOML): stress infill from the built-in analysis")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--profile", action="store_true",
+                   help="slice in one process and print the time of each stage")
 
     p = sub.add_parser("tailor", help="Linear, Stress A and B G-codes at equal mass of a "
                        "folder's model and load case, pictures, predicted moduli")

@@ -140,6 +140,7 @@ class PrintJob:
         self.warned = plan.warnings_so_far
         for warning in self.warned:
             log.warning("job %s %s: %s", job.id, job.name, warning)
+            self.hub.event("repaired", id=job.id, name=job.name, message=warning)
         self.schedule = LayerSchedule(
             plan, settings, self.store.settings_changes(job.id),
             self.store.cancelled_objects(job.id),
@@ -156,6 +157,7 @@ class PrintJob:
         for warning in warnings:
             if warning not in self.warned:
                 log.warning("job %s %s: %s", job.id, job.name, warning)
+                self.hub.event("repaired", id=job.id, name=job.name, message=warning)
         self.warned = warnings
 
     def _park(self) -> Park:
@@ -214,6 +216,7 @@ class PrintJob:
         cancelled = self.schedule.cancelled if self.schedule else []
         summary_text += "".join(f"from layer {first}: {c}\n" for first, c in changes)
         summary_text += "".join(f"body {b} cancelled from layer {f}\n" for b, f in cancelled)
+        summary_text += "".join(f"model: {w}\n" for w in self.warned)
         write_text(self.final.with_name(f"{self.final.stem}.summary.txt"), summary_text)
         # the partial file stays until the job's folder is cleared: a crash before the
         # outcome is recorded resumes from it

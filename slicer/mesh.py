@@ -11,7 +11,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from slicer import repair
 from slicer.errors import ModelError
+from slicer.stl_ascii import read_ascii_corners
 
 # an open mesh whose open edges are at most this fraction of all edges is still
 # sliced (gaps closed per layer); beyond it the file is refused
@@ -58,7 +60,7 @@ def read_stl(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (v, 3) float64 mm and faces (f, 3) int64 of an ASCII or binary STL.
 
     Binary files are read straight into a float32 corner array in chunks (the
-    format is fixed 50-byte records), ASCII files by trimesh's STL reader;
+    format is fixed 50-byte records), ASCII files by :mod:`slicer.stl_ascii`;
     identical corners are then merged exactly (bitwise equal coordinates, as
     STL writers repeat them). Raises ModelError for a missing, empty or
     non-STL file, or coordinates that are not finite.
@@ -74,7 +76,10 @@ def read_stl(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     kind = _stl_kind(head, size)
     if kind is None:
         raise ModelError("not an STL file (neither binary STL nor ASCII 'solid ... facet')")
-    corners = _read_binary(path, (size - 84) // 50) if kind == "binary" else _read_ascii(path)
+    if kind == "binary":
+        corners = _read_binary(path, (size - 84) // 50)
+    else:
+        corners = read_ascii_corners(path)
     if len(corners) < 3:
         raise ModelError("the STL file has no triangles")
     finite = np.isfinite(corners).all(axis=1)
@@ -100,19 +105,6 @@ def _read_binary(path: str | os.PathLike[str], count: int) -> np.ndarray:
             out[done * 3 : (done + k) * 3] = records["corners"].reshape(-1, 3)
             done += k
     return out
-
-
-def _read_ascii(path: str | os.PathLike[str]) -> np.ndarray:
-    """Corners (3n, 3) of an ASCII STL, parsed by trimesh."""
-    import trimesh
-
-    try:
-        with open(path, "rb") as fh:
-            loaded = trimesh.exchange.stl.load_stl(fh)
-    except Exception as exc:  # trimesh raises many types for malformed input
-        raise ModelError(f"not a readable ASCII STL file: {exc}") from exc
-    corners = np.asarray(loaded.get("vertices", np.empty((0, 3))), dtype=np.float32)
-    return corners[: len(corners) // 3 * 3]
 
 
 # odd 64-bit multipliers of the corner hash (from splitmix64)
@@ -207,11 +199,18 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, fl
         warnings.append(f"repaired: removed {removed} degenerate, duplicate or dangling faces")
     _refuse_open(stats.open, stats.total)
     if not stats.consistent:
-        faces = _fix_winding(vertices, faces)
-        warnings.append("repaired: fixed inconsistent face winding")
-        stats = _edge_stats(faces, len(vertices))
+        faces, flipped = repair.fix_winding(vertices, faces)
+        if flipped:
+            warnings.append(f"repaired: fixed inconsistent face winding ({flipped} faces turned)")
+            stats = _edge_stats(faces, len(vertices))
+    if stats.overshared:
+        n = stats.overshared
+        warnings.append(
+            f"{n} {'edge is' if n == 1 else 'edges are'} shared by more than two faces "
+            "(bodies touching along an edge): sliced as touching bodies"
+        )
     if stats.open:
-        faces, closed = _fill_small_holes(faces, len(vertices), stats.open_keys)
+        faces, closed = repair.fill_small_holes(faces, len(vertices), stats.open_keys)
         if closed:
             warnings.append(f"repaired: filled small holes ({closed} open edges)")
             stats = _edge_stats(faces, len(vertices))
@@ -261,66 +260,6 @@ def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     return total / 6.0
 
 
-def _fix_winding(vertices: np.ndarray, faces: np.ndarray) -> np.ndarray:
-    """Faces with consistent winding (trimesh's repair; only for meshes that need it)."""
-    import trimesh
-
-    mesh = trimesh.Trimesh(vertices=vertices, faces=faces, process=False, validate=False)
-    trimesh.repair.fix_winding(mesh)
-    return np.array(mesh.faces, dtype=np.int64)
-
-
-def _fill_small_holes(faces: np.ndarray, nv: int, open_keys: np.ndarray) -> tuple[np.ndarray, int]:
-    """Close holes bounded by three or four open edges with one or two new faces.
-
-    ``open_keys`` are the sorted undirected keys of the open edges (from
-    :func:`_edge_stats`); the faces' directed edges on them, looked up in that
-    small array, give each rim edge with its direction. A hole's rim is walked
-    through a successor map over those edges (vectorised), and only rims that
-    close after three or four steps are filled, wound to match their
-    neighbours. Returns the faces (new ones appended) and the number of open
-    edges closed.
-    """
-    n = len(faces)
-    ra_parts, rb_parts = [], []
-    for j in range(3):
-        a = faces[:, j].astype(np.int64)
-        b = faces[:, (j + 1) % 3].astype(np.int64)
-        und = np.minimum(a, b) * nv + np.maximum(a, b)
-        pos = np.minimum(np.searchsorted(open_keys, und), len(open_keys) - 1)
-        on_rim = open_keys[pos] == und
-        ra_parts.append(a[on_rim])
-        rb_parts.append(b[on_rim])
-    ra, rb = np.concatenate(ra_parts), np.concatenate(rb_parts)
-    if len(ra) == 0 or n == 0:
-        return faces, 0
-    # the rim continues from rb at the open edge starting there (unique starts only)
-    order = np.argsort(ra, kind="stable")
-    starts = ra[order]
-    unique = np.ones(len(starts), dtype=bool)
-    unique[1:] = starts[1:] != starts[:-1]
-    unique[:-1] &= starts[1:] != starts[:-1]
-
-    def step(v: np.ndarray) -> np.ndarray:
-        i = np.minimum(np.searchsorted(starts, v), len(starts) - 1)
-        ok = (starts[i] == v) & unique[i]
-        return np.where(ok, rb[order[i]], -1)
-
-    v1 = rb
-    v2 = step(v1)
-    v3 = np.where(v2 >= 0, step(np.maximum(v2, 0)), -1)
-    v4 = np.where(v3 >= 0, step(np.maximum(v3, 0)), -1)
-    tri = (v3 == ra) & (ra < np.minimum(v1, v2))  # one face per triangle, from its lowest vertex
-    quad = (v4 == ra) & (v3 != ra) & (ra < np.minimum(np.minimum(v1, v2), v3))
-    new = [np.stack([ra[tri], v2[tri], v1[tri]], axis=1)]
-    new.append(np.stack([ra[quad], v3[quad], v2[quad]], axis=1))
-    new.append(np.stack([ra[quad], v2[quad], v1[quad]], axis=1))
-    added = np.concatenate(new).astype(np.int64)
-    if len(added) == 0:
-        return faces, 0
-    return np.concatenate([faces, added]), int(3 * tri.sum() + 4 * quad.sum())
-
-
 def _refuse_open(open_edges: int, total_edges: int) -> None:
     """Refuse a mesh with more open edges than small gaps closed per layer can fix."""
     if open_edges > MAX_OPEN_EDGE_FRACTION * total_edges:
@@ -338,7 +277,7 @@ class _EdgeStats:
     open: int
     total: int
     consistent: bool
-    overshared: bool
+    overshared: int  # edges shared by three or more faces
     open_keys: np.ndarray  # sorted undirected keys (lo * v + hi) of the open edges
 
 
@@ -371,7 +310,7 @@ def _edge_stats(faces: np.ndarray, nv: int) -> _EdgeStats:
         int(single.sum()),
         len(counts),
         not repeated,
-        bool((counts >= 3).any()),
+        int((counts >= 3).sum()),
         keys[starts[single]].copy(),
     )
 

@@ -101,6 +101,43 @@ def close_open_chains(
     return loops, gaps, dropped
 
 
+# a loop point this close (mm) to the line through its neighbours carries no shape
+_COLLINEAR = 1e-7
+
+
+def drop_collinear(coords: np.ndarray, offsets: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Loops without their repeated points and points on the straight line between neighbours.
+
+    ``coords`` (n, 2) float64 mm, loop after loop; ``offsets`` (k + 1,) int64.
+    A flat wall modelled as long triangles is cut across their diagonals at
+    heights that change from layer to layer; those points lie on the wall's
+    straight edge, and dropping them gives equal layers equal loops (and the
+    thinning that follows the same choices on every layer). Returns the kept
+    coordinates and offsets (a loop may end with fewer than three points).
+    """
+    sizes = np.diff(offsets)
+    n = len(coords)
+    if n == 0:
+        return coords, offsets
+    ring = np.repeat(np.arange(len(sizes)), sizes)
+    start = offsets[:-1][ring]
+    size = sizes[ring]
+    pos = np.arange(n) - start
+    a = coords[start + (pos - 1) % size]
+    c = coords[start + (pos + 1) % size]
+    ab = coords - a
+    bc = c - coords
+    cross = np.abs(ab[:, 0] * bc[:, 1] - ab[:, 1] * bc[:, 0])
+    span = np.hypot(c[:, 0] - a[:, 0], c[:, 1] - a[:, 1])
+    repeated = (ab[:, 0] == 0) & (ab[:, 1] == 0)
+    between = (cross <= _COLLINEAR * span) & ((ab * bc).sum(axis=1) > 0)
+    keep = ~(repeated | between)
+    if keep.all():
+        return coords, offsets
+    kept = np.bincount(ring[keep], minlength=len(sizes))
+    return coords[keep], np.concatenate(([0], np.cumsum(kept))).astype(np.int64)
+
+
 def _signed_area(ring: np.ndarray) -> float:
     """Shoelace area of a ring (k, 2) closed on itself: positive when counter-clockwise."""
     x, y = ring[:, 0], ring[:, 1]
@@ -124,6 +161,7 @@ def build_layers(
     coords, offsets, layer, face = _close_gaps(chains, tol, report)
     if len(layer) == 0:
         return {}
+    coords, offsets = drop_collinear(coords, offsets)
     sizes = np.diff(offsets)
     keep = sizes >= 3
     ring_idx = np.repeat(np.arange(len(sizes)), sizes)

@@ -45,7 +45,7 @@ def stl_corpus() -> dict[str, tuple[bytes, str]]:
         "nan_vertex": (binary_stl(nan), "non-finite"),
         "inf_vertex": (binary_stl(inf), "non-finite"),
         "ascii_garbage": (b"solid x\n facet normal banana\n vertex 1 2\nendsolid\n",
-                          "no triangles"),
+                          "line 3 does not have three coordinates"),
         "ascii_empty": (b"solid empty\nendsolid empty\n", "no triangles"),
         "random_bytes": (np.random.default_rng(5).bytes(4096), "not an STL|truncated"),
         "html_page": (b"<!DOCTYPE html><html><body>404 Not Found</body></html>\n", "not an STL"),

@@ -9,6 +9,7 @@ import threading
 import time
 from collections import deque
 from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TextIO
 
@@ -320,17 +321,20 @@ def return_freed_memory() -> None:
 
 
 def run(args) -> int:
-    """Slice ``args.model`` to ``args.output`` and print a summary."""
+    """Slice ``args.model`` to ``args.output`` and print a summary (and the stage times
+    with ``--profile``: one process then, so the stages add up to the whole)."""
     return_freed_memory()
     settings, bed = load_settings(args.config, args.set)
-    started = time.monotonic()
-    plan, tailoring = load_tailored(args.model, settings, bed, getattr(args, "load", None))
-    bar = None if args.quiet else ProgressBar(sys.stderr, "slicing")
-    try:
-        summary = write_gcode(plan, args.output, bar)
-    except OSError as exc:
-        raise UsageError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
-    elapsed = time.monotonic() - started
+    profile = getattr(args, "profile", False)
+    with _stage_clock(profile) as clock:
+        started = time.monotonic()
+        plan, tailoring = load_tailored(args.model, settings, bed, getattr(args, "load", None))
+        bar = None if args.quiet else ProgressBar(sys.stderr, "slicing")
+        try:
+            summary = write_gcode(plan, args.output, bar, workers=1 if profile else None)
+        except OSError as exc:
+            raise UsageError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
+        elapsed = time.monotonic() - started
     print(
         f"{args.output}: {summary.layers} layers, "
         f"filament {summary.filament_mm / 1000.0:.2f} m ({summary.filament_g:.1f} g), "
@@ -342,4 +346,20 @@ def run(args) -> int:
         print(line)
     for warning in plan.warnings:
         print(f"warning: {warning}")
+    if clock is not None:
+        from hostd.commands.slice_profile import report
+
+        report(clock, elapsed, sys.stdout)
     return 0
+
+
+@contextmanager
+def _stage_clock(on: bool) -> Iterator[object]:
+    """The stage timers of ``--profile`` while the block runs (None when off)."""
+    if not on:
+        yield None
+        return
+    from hostd.commands.slice_profile import profiled
+
+    with profiled() as clock:
+        yield clock

@@ -1,0 +1,101 @@
+"""The corpus table of the peer comparison: one row per model, each target checked, the worst ratio.
+
+Targets (design.md): time at most the faster peer's where that peer needs 0.3 s or
+more, else within 0.3 s of it; filament within 10 % of PrusaSlicer's, or between
+the two peers' where they differ by more; the outer wall at least as close to
+PrusaSlicer's (mean per-layer IoU) as CuraEngine's is.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+# below this (s) the faster peer's time is dominated by start-up: allow this much slack
+SHORT_S = 0.3
+FILAMENT_TOLERANCE = 0.10
+
+
+@dataclass(frozen=True)
+class Verdict:
+    """The targets of one model: None where a figure is missing."""
+
+    faster_s: float | None
+    time_ratio: float | None
+    time_ok: bool | None
+    filament_ratio: float | None
+    filament_ok: bool | None
+    iou_ok: bool | None
+
+
+def _wall(row, name: str) -> float | None:
+    m = row.results.get(name)
+    return m.wall_s if m is not None and m.ok else None
+
+
+def _filament(row, name: str) -> float | None:
+    m = row.results.get(name)
+    return m.filament_mm if m is not None and m.ok and m.filament_mm else None
+
+
+def verdict(row) -> Verdict:
+    """Check the three targets on one :class:`bench.slice_vs_peers.Row`."""
+    ours = _wall(row, "hostd")
+    peers = [t for t in (_wall(row, "prusaslicer"), _wall(row, "curaengine")) if t is not None]
+    faster = min(peers) if peers else None
+    ratio = time_ok = None
+    if ours is not None and faster:
+        ratio = ours / faster
+        time_ok = ours <= faster if faster >= SHORT_S else ours <= faster + SHORT_S
+    f_ours, f_prusa, f_cura = (_filament(row, n) for n in ("hostd", "prusaslicer", "curaengine"))
+    f_ratio = f_ok = None
+    if f_ours and f_prusa:
+        f_ratio = f_ours / f_prusa
+        f_ok = abs(f_ratio - 1.0) <= FILAMENT_TOLERANCE
+        if not f_ok and f_cura:
+            f_ok = min(f_prusa, f_cura) <= f_ours <= max(f_prusa, f_cura)
+    iou_ok = None
+    if row.iou_vs_prusa is not None and row.iou_cura_vs_prusa is not None:
+        iou_ok = round(row.iou_vs_prusa, 3) >= round(row.iou_cura_vs_prusa, 3)
+    return Verdict(faster, ratio, time_ok, f_ratio, f_ok, iou_ok)
+
+
+def _mark(ok: bool | None) -> str:
+    return "" if ok is None else (" ok" if ok else " **over**")
+
+
+def _f(value: float | None, spec: str) -> str:
+    return "-" if value is None else format(value, spec)
+
+
+def table(rows: list) -> str:
+    """The corpus rows as a Markdown table, then the worst time ratio and the misses."""
+    lines = [
+        "| model | faces | hostd | CuraEngine | PrusaSlicer | ours / faster peer "
+        "| filament ours/P (C/P) | outer-wall IoU ours-P / Cura-P | note |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    worst: tuple[float, str] | None = None
+    misses: list[str] = []
+    for row in rows:
+        v = verdict(row)
+        ours, cura, prusa = (_wall(row, n) for n in ("hostd", "curaengine", "prusaslicer"))
+        f_cura, f_prusa = _filament(row, "curaengine"), _filament(row, "prusaslicer")
+        peer_f = f"{f_cura / f_prusa:.3f}" if f_cura and f_prusa else "-"
+        iou = (f"{_f(row.iou_vs_prusa, '.3f')} / {_f(row.iou_cura_vs_prusa, '.3f')}"
+               f"{_mark(v.iou_ok)}")
+        notes = [f"{name}: {m.reason}" for name, m in row.results.items() if m.reason]
+        lines.append(
+            f"| {row.model} | {row.faces:,} | {_f(ours, '.2f')} s | {_f(cura, '.2f')} s "
+            f"| {_f(prusa, '.2f')} s | {_f(v.time_ratio, '.2f')}{_mark(v.time_ok)} "
+            f"| {_f(v.filament_ratio, '.3f')} ({peer_f}){_mark(v.filament_ok)} | {iou} "
+            f"| {'; '.join(notes)} |")
+        if v.time_ratio is not None and (worst is None or v.time_ratio > worst[0]):
+            worst = (v.time_ratio, row.model)
+        for what, ok in (("time", v.time_ok), ("filament", v.filament_ok), ("wall", v.iou_ok)):
+            if ok is False:
+                misses.append(f"{row.model} ({what})")
+    lines.append("")
+    if worst is not None:
+        lines.append(f"worst time ratio: {worst[0]:.2f} ({worst[1]})")
+    lines.append(f"targets missed: {', '.join(misses) if misses else 'none'}")
+    return "\n".join(lines)
