@@ -74,7 +74,8 @@ def test_kill_9_at_random_instants_then_resume_reproduces_the_print(daemon) -> N
         # nothing else runs while the part is on the bed, until resumed
         result = resume(hostd.config, "1")
         assert result.returncode == 0, result.stdout + result.stderr
-        assert f"at layer {layer + 1 if layer >= 0 else 0}" in result.stdout
+        # the message counts layers from 1: the next layer after index `layer`
+        assert f"at layer {layer + 2}" in result.stdout
         last_layer = layer
     assert kills >= 2
     done = hostd.jobs / "done"
