@@ -115,7 +115,7 @@ class FleetTable(ScrollView, can_focus=True):
         if row is not None:
             y = row - int(self.scroll_offset.y)
             if 0 <= y < self.size.height:
-                self.refresh(Region(0, y, self.size.width, 1))
+                self.refresh(Region(0, y, self.row_width, 1))
 
     def _strip(self, printer: str, width: int) -> Strip:
         strip = self._strips.get(printer)
@@ -133,8 +133,13 @@ class FleetTable(ScrollView, can_focus=True):
             self._strips[printer] = strip
         return strip
 
+    @property
+    def row_width(self) -> int:
+        """Cells across a row (the width left beside the scrollbar)."""
+        return self.scrollable_content_region.width
+
     def render_line(self, y: int) -> Strip:
-        width = self.size.width
+        width = self.row_width
         row = y + int(self.scroll_offset.y)
         base = self.rich_style
         if row >= len(self.order):
