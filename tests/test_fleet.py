@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from brokers import HOST, Broker, start_broker
+from brokers import HOST, Broker, free_port, start_broker
 from textual.widgets import Static
 
 from tui.fleet import FleetApp, FleetScreen
@@ -133,7 +133,9 @@ def test_enter_opens_the_printer_over_mqtt_and_shows_its_refusal(tmp_path: Path)
     daemon = start_daemon(tmp_path / "d", broker, "farm7", "farm", "pw-9")
 
     async def scenario() -> None:
-        app = FleetApp(MqttSource(HOST, broker.port, "farm", "pw-9"), refresh_s=0.05)
+        nobody = (HOST, free_port())  # a dead node first: the view goes on to the next
+        source = MqttSource([nobody, (HOST, broker.port)], "farm", "pw-9")
+        app = FleetApp(source, refresh_s=0.05)
         async with app.run_test(size=(80, 24)) as pilot:
             await until(lambda: rows(app) == [("farm7", "idle")], timeout=40)
             await pilot.press("enter")
