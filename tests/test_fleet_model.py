@@ -111,3 +111,35 @@ def test_wire_client_reports_a_refusal_and_reads_messages(tmp_path: Path) -> Non
         broker.stop()
     assert got == [("hostd/p1/status", b"x" * 300, False),
                    ("hostd/p2/event", b'{"event":"done"}', False)]
+
+
+def test_wire_client_over_tls_checks_the_certificate(tmp_path: Path) -> None:
+    import ssl
+
+    from brokers import make_self_signed
+
+    files = make_self_signed(tmp_path)
+    broker = start_broker(tmp_path / "broker", users={"fleet": "right"}, tls=files)
+    trusting = ssl.create_default_context(cafile=str(files.cert))
+
+    async def scenario() -> bytes:
+        with pytest.raises(WireError, match="cannot connect"):  # the system CAs do not know it
+            async with WireClient(HOST, broker.port, client_id="t0", username="fleet",
+                                  password="right", tls=ssl.create_default_context()):
+                pass
+        async with WireClient(HOST, broker.port, client_id="t1", username="fleet",
+                              password="right", tls=trusting) as reader:
+            reader.subscribe("hostd/+/event", qos=1)
+            await asyncio.sleep(0.3)
+            async with WireClient(HOST, broker.port, client_id="t2", username="fleet",
+                                  password="right", tls=trusting) as sender:
+                await sender.publish("hostd/p1/event", b'{"event":"paused"}')
+                async with asyncio.timeout(10):
+                    async for message in reader.messages():
+                        return message.payload
+        raise AssertionError("unreachable")
+
+    try:
+        assert asyncio.run(scenario()) == b'{"event":"paused"}'
+    finally:
+        broker.stop()
