@@ -251,7 +251,8 @@ def daemons_scenario(tmp: Path, count: int, window: float) -> Figures:
 def main() -> int:
     """Run the chosen scenarios and print a Markdown table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenarios", default="daemons10,daemons25,pub100,pub1000,nats100")
+    parser.add_argument("--scenarios",
+                        default="daemons10,daemons25,pub100,pub1000,nats100,nats1000")
     parser.add_argument("--window", type=float, default=20.0, help="measured seconds")
     args = parser.parse_args()
     rows = []

@@ -10,7 +10,7 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
-from brokers import HOST, Broker, start_broker
+from brokers import HOST, Broker, free_port, start_broker
 from textual.widgets import Static
 
 from tui.fleet import FleetApp, FleetScreen
@@ -40,11 +40,14 @@ def publisher(broker: Broker, *args: str) -> subprocess.Popen[bytes]:
     )
 
 
-async def until(predicate: Callable[[], bool], timeout: float = 15.0) -> None:
+async def until(predicate: Callable[[], bool], timeout: float = 15.0,
+                what: Callable[[], object] | None = None) -> None:
+    """Wait for ``predicate``; on timeout fail, showing ``what()`` when given."""
     deadline = asyncio.get_running_loop().time() + timeout
     while not predicate():
         if asyncio.get_running_loop().time() > deadline:
-            raise AssertionError("condition not met in time")
+            seen = f": {what()!r}" if what is not None else ""
+            raise AssertionError(f"condition not met in time{seen}")
         await asyncio.sleep(0.02)
 
 
@@ -133,9 +136,12 @@ def test_enter_opens_the_printer_over_mqtt_and_shows_its_refusal(tmp_path: Path)
     daemon = start_daemon(tmp_path / "d", broker, "farm7", "farm", "pw-9")
 
     async def scenario() -> None:
-        app = FleetApp(MqttSource(HOST, broker.port, "farm", "pw-9"), refresh_s=0.05)
+        nobody = (HOST, free_port())  # a dead node first: the view goes on to the next
+        source = MqttSource([nobody, (HOST, broker.port)], username="farm", password="pw-9")
+        app = FleetApp(source, refresh_s=0.05)
         async with app.run_test(size=(80, 24)) as pilot:
-            await until(lambda: rows(app) == [("farm7", "idle")], timeout=40)
+            await until(lambda: rows(app) == [("farm7", "idle")], timeout=40,
+                        what=lambda: (rows(app), app.screen.note, source.connected_to))
             await pilot.press("enter")
             await until(lambda: isinstance(app.screen, FleetPrinterScreen))
             screen = app.screen

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import json
 import signal
 import time
 from pathlib import Path
@@ -45,8 +46,7 @@ def test_the_bridge_fails_over_to_the_next_broker_of_mqtt_hosts(tmp_path: Path) 
             hub.update(state="printing")
             async with asyncio.timeout(20):
                 async for message in watcher.messages:
-                    if Snapshot.from_dict(__import__("json").loads(message.payload)).state \
-                            == "printing":
+                    if Snapshot.from_dict(json.loads(message.payload)).state == "printing":
                         break
         assert bridge.broker == (HOST, second.port)
         task.cancel()

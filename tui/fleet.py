@@ -120,9 +120,9 @@ class FleetScreen(Screen[None]):
         """Apply the changes since the last flush to the table and the counts."""
         self._set_text("#note", self.note)
         table = self.table
-        if table.size.width != self._header_width:
-            self._header_width = table.size.width
-            self._set_text("#columns", header_text(table.size.width))
+        if table.row_width != self._header_width:
+            self._header_width = table.row_width
+            self._set_text("#columns", header_text(table.row_width))
         dirty = self.model.take_dirty()
         if not dirty:
             return

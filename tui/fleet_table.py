@@ -52,7 +52,7 @@ class FleetTable(ScrollView, can_focus=True):
 
     COMPONENT_CLASSES: ClassVar[set[str]] = {"fleet-table--cursor"}
     DEFAULT_CSS = """
-    FleetTable { height: 1fr; }
+    FleetTable { height: 1fr; overflow-x: hidden; }
     FleetTable > .fleet-table--cursor { background: $accent 40%; text-style: bold; }
     """
     BINDINGS: ClassVar[list[Binding]] = [
@@ -104,7 +104,7 @@ class FleetTable(ScrollView, can_focus=True):
         self._strips = {p: s for p, s in self._strips.items() if p in self._index}
         self.cursor = self._index.get(current, 0) if current is not None else 0
         self.cursor = min(self.cursor, max(0, len(order) - 1))
-        self.virtual_size = Size(self.size.width, len(order))
+        self.virtual_size = Size(0, len(order))
         self.refresh()
 
     def update_row(self, printer: str, cells: tuple[str, ...]) -> None:
@@ -114,8 +114,8 @@ class FleetTable(ScrollView, can_focus=True):
         row = self._index.get(printer)
         if row is not None:
             y = row - int(self.scroll_offset.y)
-            if 0 <= y < self.size.height:
-                self.refresh(Region(0, y, self.size.width, 1))
+            if 0 <= y < self.scrollable_content_region.height:
+                self.refresh(Region(0, y, self.row_width, 1))
 
     def _strip(self, printer: str, width: int) -> Strip:
         strip = self._strips.get(printer)
@@ -133,8 +133,13 @@ class FleetTable(ScrollView, can_focus=True):
             self._strips[printer] = strip
         return strip
 
+    @property
+    def row_width(self) -> int:
+        """Cells across a row (the width left beside the scrollbar)."""
+        return self.scrollable_content_region.width
+
     def render_line(self, y: int) -> Strip:
-        width = self.size.width
+        width = self.row_width
         row = y + int(self.scroll_offset.y)
         base = self.rich_style
         if row >= len(self.order):
@@ -147,14 +152,15 @@ class FleetTable(ScrollView, can_focus=True):
         return strip
 
     def on_resize(self) -> None:
-        self.virtual_size = Size(self.size.width, len(self.order))
+        self.virtual_size = Size(0, len(self.order))
 
     def _show_cursor(self) -> None:
         top = int(self.scroll_offset.y)
+        height = self.scrollable_content_region.height
         if self.cursor < top:
             self.scroll_to(y=self.cursor, animate=False)
-        elif self.cursor >= top + self.size.height:
-            self.scroll_to(y=self.cursor - self.size.height + 1, animate=False)
+        elif self.cursor >= top + height:
+            self.scroll_to(y=self.cursor - height + 1, animate=False)
         self.refresh()
 
     def action_move(self, step: int) -> None:
@@ -163,7 +169,7 @@ class FleetTable(ScrollView, can_focus=True):
             self._show_cursor()
 
     def action_page(self, pages: int) -> None:
-        self.action_move(pages * max(1, self.size.height - 1))
+        self.action_move(pages * max(1, self.scrollable_content_region.height - 1))
 
     def action_choose(self) -> None:
         printer = self.cursor_printer()
