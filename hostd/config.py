@@ -77,6 +77,9 @@ class RunnerConfig:
 
     lookahead: int = 4
     workers: int = 2
+    # commands a resume goes back when the printer itself reset: what its command
+    # buffer (Marlin BUFSIZE, 4) and planner (BLOCK_BUFFER_SIZE, 16) can hold
+    replay_lines: int = 20
 
 
 @dataclass(frozen=True)
@@ -156,6 +159,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
         runner=RunnerConfig(
             lookahead=runner.integer("lookahead", 4, 1, 64),
             workers=runner.integer("workers", 2, 1, 32),
+            replay_lines=runner.integer("replay_lines", 20, 0, 10_000),
         ),
         slicing=_anchor_files(slicing_settings(data.get("slicing", {}), None, "slicing"), cwd),
     )

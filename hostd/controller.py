@@ -12,6 +12,8 @@ from collections.abc import Callable
 from typing import Any
 
 from hostd.intake import Intake
+from hostd.joblife import JobLife
+from hostd.jobstate import ObjectCancelled
 from hostd.jobstore import JobStore, JobStoreError
 from hostd.printjob import PrintJob
 from hostd.status import CommandError, StatusHub
@@ -35,6 +37,7 @@ class DaemonController:
     ) -> None:
         self.store = store
         self.hub = hub
+        self.life = JobLife(store, hub)
         self.intake = intake
         self.current = current
         self.changed = changed
@@ -84,8 +87,10 @@ class DaemonController:
             raise CommandError(f"job {job.id} ({job.name}) is {job.state}, not interrupted")
         if job.kind == "gcode" and job.layer >= 0:
             raise CommandError(f"job {job.id} is a G-code file; it cannot be resumed mid-file")
-        first = job.layer + 1 if job.layer >= 0 else None
-        self.store.transition(job.id, "queued", note="resume requested", resume_from=first)
+        # a sliced job continues in the layer it was in; one with nothing printed starts anew
+        started = job.layer >= 0 or (job.layer_lines > 0 and job.kind == "stl")
+        first = job.layer + 1 if started else None
+        self.life.request_resume(job.id, first)
         self.changed()
         return {"job": job.id, "name": job.name, "from_layer": first or 0}
 
@@ -106,8 +111,7 @@ class DaemonController:
         first = job.source.next_unsliced
         job.schedule.cancel_body(raw, first)
         self.store.record_cancelled_object(job.job.id, raw, first)
-        self.hub.event("object_cancelled", id=job.job.id, name=job.job.name, object=raw,
-                       from_layer=first)
+        self.life.publish(ObjectCancelled(job.job.id, job.job.name, raw, first))
         return {"job": job.job.id, "object": raw, "from_layer": first}
 
     async def _cmd_set(self, args: dict[str, Any]) -> dict[str, Any]:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 from drivers.simconfig import SimulatorConfig
 from drivers.simulator import SimulatedPrinter
@@ -18,8 +18,13 @@ SIM_LOG = "simulator-executed.log"
 
 
 @contextlib.asynccontextmanager
-async def printer_link(config: Config) -> AsyncIterator[Streamer]:
+async def printer_link(
+    config: Config, on_boot: Callable[[], None] | None = None
+) -> AsyncIterator[Streamer]:
     """Open the configured printer and yield a connected streamer; close everything on exit.
+
+    ``on_boot`` is called when the printer announces a boot (``start``) while
+    connecting: it reset on opening the port, or was just switched on.
 
     ``port = "sim"`` starts the simulated printer in-process on a pseudo-terminal,
     at ``[simulator]`` speed, logging every executed line to
@@ -43,6 +48,8 @@ async def printer_link(config: Config) -> AsyncIterator[Streamer]:
     try:
         transport = await open_transport(port, baud)
         async with Streamer(transport, StreamerConfig()) as streamer:
+            if on_boot is not None:
+                streamer.on_error = lambda text: on_boot() if text.strip() == "start" else None
             await streamer.connect()
             log.info("printer connected on %s: %s", port, streamer.firmware or "unknown firmware")
             yield streamer

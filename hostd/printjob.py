@@ -17,7 +17,10 @@ from hostd.api import JobStatus
 from hostd.config import Config
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
+from hostd.joblife import JobLife
+from hostd.jobstate import JobState, Started
 from hostd.jobstore import Job, JobStore
+from hostd.reentry import resume_line
 from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
@@ -44,8 +47,13 @@ class PrintJob:
         hub: StatusHub,
         intake: Intake,
         executor: concurrent.futures.Executor,
+        replay: int = 0,
     ) -> None:
+        """``replay``: commands a resume goes back within its layer (0: the printer kept
+        power, continue at the first command it did not acknowledge)."""
         self.job = job
+        self.replay = replay
+        self.life = JobLife(store, hub)
         self.config = config
         self.store = store
         self.hub = hub
@@ -66,12 +74,15 @@ class PrintJob:
         CancelledError (the daemon stopping) leaves the job interrupted at its last
         checkpoint. LinkError leaves it interrupted too, and is raised again.
         """
-        job = self.store.transition(self.job.id, "slicing")
-        self.hub.update(state="heating", error=None,
-                        job=JobStatus(id=job.id, name=job.name, layer=max(job.layer, 0)))
-        resume = job.resume_from is not None and job.resume_from > 0
+        job = self.store.get(self.job.id)
+        job = self.life.enter(job.id, JobState.SLICING,
+                              status=JobStatus(id=job.id, name=job.name, layer=max(job.layer, 0)))
+        first = job.resume_from or 0
+        skip = 0
+        if job.resume_from is not None and job.layer == first - 1 and job.kind == "stl":
+            skip = resume_line(job.layer_lines, self.replay)
+        resume = first > 0 or skip > 0
         try:
-            first = job.resume_from if resume else 0
             self.source = await self._source(job, first or 0, resume)
             output = await asyncio.to_thread(
                 open_output, self.partial, job.gcode_bytes if resume else 0
@@ -84,12 +95,13 @@ class PrintJob:
             raise
         try:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
-                                    first or 0, write_preamble=not resume, park=self._park())
+                                    first, write_preamble=not resume, park=self._park(),
+                                    skip=skip)
             link.on_ack = lambda _number, _command: self.runner.on_ack()
-            verb = f"resumed at layer {first}" if resume else "started"
+            verb = f"resumed at layer {first}, command {skip}" if resume else "started"
             log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
-            self.hub.event("started", id=job.id, name=job.name, layers=self.source.layer_count,
-                           resumed_from=first if resume else None)
+            self.life.publish(Started(job.id, job.name, self.source.layer_count,
+                                      first if resume else None))
             try:
                 await self.runner.run()
             except JobCancelled as exc:
@@ -165,14 +177,7 @@ class PrintJob:
 
     def _interrupted(self, note: str) -> None:
         """Leave the job interrupted at its checkpoint, or queued again if nothing printed."""
-        job = self.store.get(self.job.id)
-        if job.state not in ("slicing", "heating", "printing", "paused"):
-            return
-        self.store.transition(job.id, "interrupted", note=note)
-        if job.state in ("slicing", "heating") and job.layer < 0:
-            self.store.transition(job.id, "queued", note="restarted: nothing printed yet")
-            return
-        self.hub.event("interrupted", id=job.id, name=job.name, layer=job.layer)
+        self.life.interrupt(self.job.id, note)
 
     def _write_final(self, job: Job) -> None:
         """NAME.gcode (header from the whole file, then the body) and NAME.summary.txt."""
