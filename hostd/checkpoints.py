@@ -40,7 +40,9 @@ class CheckpointWriter:
     takes it, flushes the job's G-code file, and in the writer's thread fsyncs
     the file (when its length moved on) and commits the checkpoint on its own
     connection to the job store. So neither an fsync nor a commit ever runs in
-    the serial reader that acknowledges the lines.
+    the serial reader that acknowledges the lines. The writer's commits survive
+    the daemon being killed; a power cut may undo the last ones, so that a resume
+    starts a little earlier, never later than the printer got.
     """
 
     def __init__(
@@ -122,7 +124,9 @@ class CheckpointWriter:
         if sync and self.output is not None:
             os.fsync(self.output.fileno())
         if self._connection is None:
-            self._connection = self.store.reopen()
+            # a checkpoint a power cut undoes only makes a resume start earlier: never
+            # later than the printer got, so its commits need not wait for the disk
+            self._connection = self.store.reopen(durable=False)
         self._connection.checkpoint(self.job_id, checkpoint.layer, checkpoint.lines_acked,
                                     checkpoint.gcode_bytes, checkpoint.layer_lines)
 

@@ -196,8 +196,6 @@ class Daemon:
                 self.queue_changed()
 
     def _printer_error(self, text: str) -> None:
-        if text.strip() == "start":
-            self._printer_booted()
         log.warning("printer: %s", text)
         self.life.publish(PrinterError(text))
 

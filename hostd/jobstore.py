@@ -323,9 +323,21 @@ class JobStore:
                 (layer, lines_acked, gcode_bytes, layer_lines, time.time(), int(job_id)),
             )
 
-    def reopen(self) -> JobStore:
-        """Another connection to the same database (for use from another thread)."""
-        return type(self)(self.path)
+    def reopen(self, durable: bool = True) -> JobStore:
+        """Another connection to the same database (for use from another thread).
+
+        Not ``durable``: its commits do not wait for the disk (``synchronous=NORMAL``);
+        they survive the process being killed, and a power cut may undo the last ones.
+        """
+        store = type(self)(self.path)
+        if not durable:
+            store.relax()
+        return store
+
+    def relax(self) -> None:
+        """Commits on this connection no longer wait for the disk (WAL, ``synchronous=NORMAL``)."""
+        with self._lock:
+            self._db.execute("PRAGMA synchronous=NORMAL")
 
     def record_settings(self, job_id: str, from_layer: int, changes: dict[str, Any]) -> None:
         """Record a retune: ``changes`` (flat keys) apply from ``from_layer`` on."""

@@ -9,7 +9,7 @@ from collections.abc import AsyncIterator, Callable
 from drivers.simconfig import SimulatorConfig
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer, StreamerConfig
-from drivers.transport import open_transport
+from drivers.transport import Transport, open_transport
 from hostd.config import Config
 
 log = logging.getLogger("hostd.printer")
@@ -47,12 +47,43 @@ async def printer_link(
                  port, config.simulator.time_scale, config.simulator.baud)
     try:
         transport = await open_transport(port, baud)
+        if on_boot is not None:
+            transport = BootWatch(transport, on_boot)  # type: ignore[assignment]
         async with Streamer(transport, StreamerConfig()) as streamer:
-            if on_boot is not None:
-                streamer.on_error = lambda text: on_boot() if text.strip() == "start" else None
             await streamer.connect()
             log.info("printer connected on %s: %s", port, streamer.firmware or "unknown firmware")
             yield streamer
     finally:
         if simulator is not None:
             simulator.stop()
+
+
+class BootWatch:
+    """A printer transport that calls ``on_boot`` for each boot banner (``start``) read."""
+
+    def __init__(self, inner: Transport, on_boot: Callable[[], None]) -> None:
+        self.inner = inner
+        self.on_boot = on_boot
+
+    @property
+    def name(self) -> str:
+        return self.inner.name
+
+    @property
+    def is_open(self) -> bool:
+        return self.inner.is_open
+
+    async def write(self, data: bytes) -> None:
+        await self.inner.write(data)
+
+    async def readline(self) -> str:
+        line = await self.inner.readline()
+        if line.strip().lower() == "start":
+            self.on_boot()
+        return line
+
+    async def close(self) -> None:
+        await self.inner.close()
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.inner, name)  # anything else (port settings) is the inner one's

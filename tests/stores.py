@@ -33,5 +33,8 @@ class RecordingStore(JobStore):
         self.checkpoints.append((layer, lines_acked, gcode_bytes, layer_lines))
         self.threads.append(threading.current_thread().name)
 
-    def reopen(self) -> RecordingStore:
-        return RecordingStore(self.path, self.commit_delay_s, shared=self)
+    def reopen(self, durable: bool = True) -> RecordingStore:
+        store = RecordingStore(self.path, self.commit_delay_s, shared=self)
+        if not durable:
+            store.relax()
+        return store
