@@ -266,6 +266,13 @@ class JobStore:
             db.execute("UPDATE jobs SET path = ? WHERE seq = ?", (path, int(job_id)))
         return self.get(job_id)
 
+    def set_digest(self, job_id: str, sha256: str) -> Job:
+        """Record the SHA-256 of the job's model (taken again after it changed)."""
+        with self._tx() as db:
+            db.execute("UPDATE jobs SET sha256 = ?, updated = ? WHERE seq = ?",
+                       (sha256, time.time(), int(job_id)))
+        return self.get(job_id)
+
     def transition(self, job_id: str, to_state: str, note: str = "", **fields: Any) -> Job:
         """Move a job to ``to_state`` if allowed, with optional column updates, atomically.
 

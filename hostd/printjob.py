@@ -15,10 +15,11 @@ from pathlib import Path
 from drivers.streamer import LinkError, Streamer
 from hostd.api import JobStatus
 from hostd.config import Config
+from hostd.filecheck import sha256_of, wait_complete
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
 from hostd.joblife import JobLife
-from hostd.jobstate import JobState, Started
+from hostd.jobstate import JobError, JobState, Started
 from hostd.jobstore import Job, JobStore
 from hostd.reentry import resume_line
 from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
@@ -83,6 +84,7 @@ class PrintJob:
             skip = resume_line(job.layer_lines, self.replay)
         resume = first > 0 or skip > 0
         try:
+            job = await self.check_model(job, resume)
             self.source = await self._source(job, first or 0, resume)
             output = await asyncio.to_thread(
                 open_output, self.partial, job.gcode_bytes if resume else 0
@@ -123,6 +125,30 @@ class PrintJob:
             log.error("job %s %s: G-code file or summary not written: %s", job.id, job.name, exc)
         self.intake.finish(self.store.get(job.id))
         return "done"
+
+    async def check_model(self, job: Job, resume: bool) -> Job:
+        """The model is still the file that was taken: its hash again, before slicing.
+
+        A file its writer went on changing after it was taken (a writer the daemon
+        could not see) is waited for until complete, and the job starts over from
+        the complete file. A resumed job's model must not change: ModelError.
+        """
+        path = Path(job.path)
+        digest = await asyncio.to_thread(sha256_of, path)
+        if digest == job.sha256:
+            return job
+        if resume:
+            raise ModelError(f"{job.name} changed after it was taken: the part on the bed "
+                             "was printed from other bytes, so the job cannot resume")
+        log.warning("job %s %s: the file changed after it was taken; waiting for it to be "
+                    "complete, then starting over", job.id, job.name)
+        await wait_complete(path, self.config.jobs.settle_s)
+        digest = await asyncio.to_thread(sha256_of, path)
+        job = self.store.set_digest(job.id, digest)
+        self.life.publish(JobError(job.id, f"{job.name} changed after it was taken; "
+                                           f"started over from the complete file "
+                                           f"(sha256 {digest[:12]})"))
+        return job
 
     async def _source(self, job: Job, first: int, resume: bool) -> LayerSource:
         if job.kind == "gcode":
