@@ -32,6 +32,7 @@ COMMANDS = (
     "set",
     "queue_move",
     "queue_remove",
+    "emergency_stop",
 )
 EVENTS = (
     "queued",

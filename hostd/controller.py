@@ -3,12 +3,13 @@
 Arguments: ``resume_job {"job": ID or NAME}``; ``cancel_object {"object": N}`` (a body
 index from 0, also accepted as ``"body"``); ``set {"settings": {KEY: VALUE, ...}}`` or
 ``set {"key": KEY, "value": VALUE}`` with the flat slicing keys of the configuration;
-``queue_move {"job": ID, "index": N}`` (0 = next); ``queue_remove {"job": ID}``.
+``queue_move {"job": ID, "index": N}`` (0 = next); ``queue_remove {"job": ID}``;
+``emergency_stop`` (``M112``: the printer halts, the job printing fails).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 from hostd.intake import Intake
@@ -34,13 +35,16 @@ class DaemonController:
         intake: Intake,
         current: Callable[[], PrintJob | None],
         changed: Callable[[], None],
+        emergency_stop: Callable[[], Awaitable[bool]] | None = None,
     ) -> None:
+        """``emergency_stop()`` sends ``M112`` to the printer; False when none is connected."""
         self.store = store
         self.hub = hub
         self.life = JobLife(store, hub)
         self.intake = intake
         self.current = current
         self.changed = changed
+        self.emergency_stop = emergency_stop
 
     async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
         """Carry out one command; raises CommandError with the reason when refused."""
@@ -79,6 +83,14 @@ class DaemonController:
         job = self._printing()
         job.runner.cancel()
         return {"job": job.job.id}
+
+    async def _cmd_emergency_stop(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self.current()
+        if job is not None:
+            job.emergency = True  # the job fails: a halted printer's part is not resumed
+        if self.emergency_stop is None or not await self.emergency_stop():
+            raise CommandError("no printer is connected")
+        return {"job": job.job.id if job is not None else None}
 
     async def _cmd_resume_job(self, args: dict[str, Any]) -> dict[str, Any]:
         ref = _text(args, "job")

@@ -12,7 +12,7 @@ import signal
 from pathlib import Path
 
 from drivers.responses import Response
-from drivers.streamer import LinkError, Streamer
+from drivers.streamer import HALTED, LinkError, Streamer
 from hostd.api import PrinterInfo, Snapshot, Temperature, Temps
 from hostd.config import Config
 from hostd.controller import DaemonController
@@ -66,8 +66,10 @@ class Daemon:
         self.printer_reset = False
         self.intake = Intake(config, self.store, self.hub)
         self.current: PrintJob | None = None
+        self.link: Streamer | None = None
         self.controller = DaemonController(
-            self.store, self.hub, self.intake, lambda: self.current, self.queue_changed
+            self.store, self.hub, self.intake, lambda: self.current, self.queue_changed,
+            self.emergency_stop,
         )
         self._wake = asyncio.Event()
         self._stop = asyncio.Event()
@@ -151,7 +153,10 @@ class Daemon:
                 async with printer_link(self.config, self._printer_booted) as link:
                     delay = RECONNECT_FIRST_S
                     self._attach(link)
-                    await self._serve_queue(link, executor)
+                    try:
+                        await self._serve_queue(link, executor)
+                    finally:
+                        self.link = None
             except (LinkError, OSError) as exc:
                 wait, delay = backoff(delay, rng)
                 log.error("printer link: %s; retrying in %.1f s", exc, wait)
@@ -161,7 +166,18 @@ class Daemon:
                 self.queue_changed()
                 await asyncio.sleep(wait)
 
+    async def emergency_stop(self) -> bool:
+        """``M112`` now; the link then fails and is opened again. False without a printer."""
+        link = self.link
+        if link is None:
+            return False
+        log.error("emergency stop requested")
+        await link.emergency_stop()
+        self._wake.set()  # an idle print loop notices the halted link and opens it again
+        return True
+
     def _attach(self, link: Streamer) -> None:
+        self.link = link
         link.on_temperature = self._temperature
         link.on_error = self._printer_error
         self.life.printer_online(
@@ -172,6 +188,8 @@ class Daemon:
 
     async def _serve_queue(self, link: Streamer, executor: concurrent.futures.Executor) -> None:
         while True:
+            if link.state == HALTED:
+                raise LinkError(link.error or "the printer halted")
             job = self._next_job()
             if job is None:
                 self._wake.clear()

@@ -54,6 +54,7 @@ class PrintJob:
         power, continue at the first command it did not acknowledge)."""
         self.job = job
         self.replay = replay
+        self.emergency = False  # an emergency stop was ordered: the job fails
         self.life = JobLife(store, hub)
         self.config = config
         self.store = store
@@ -110,7 +111,10 @@ class PrintJob:
                 await self._cancelled(link, str(exc))
                 return "cancelled"
             except (asyncio.CancelledError, LinkError) as exc:
-                self._interrupted(f"stopped: {type(exc).__name__}")
+                if self.emergency:
+                    self.intake.fail(self.store.get(job.id), "emergency stop (M112)")
+                else:
+                    self._interrupted(f"stopped: {type(exc).__name__}")
                 raise
             finally:
                 link.on_ack = None

@@ -273,3 +273,23 @@ def test_a_job_stopped_while_heating_is_queued_again_and_prints(daemon):
     store.close()
     assert states[:4] == ["queued", "slicing", "heating", "interrupted"]
     assert states[4:] == ["queued", "slicing", "heating", "printing", "done"]
+
+
+def test_emergency_stop_from_the_control_socket_halts_fails_the_job_and_reconnects(
+    daemon, tmp_path
+):
+    hostd = daemon(sim_config(time_scale=0.01))
+    socket = hostd.state / "hostd.sock"
+    hostd.drop(DATA / "dogbone_100x30x5.stl", "part.stl")
+    hostd.wait_for(printing_layer(socket, 0), 60, "printing")
+    assert command(socket, "emergency_stop")["job"] == "1"
+    failed = hostd.jobs / "failed" / "part.error.txt"
+    hostd.wait_for(failed.exists, 20, "the job failed")
+    assert "emergency stop" in failed.read_text()
+    assert "M112" in executed_job_lines(hostd.state / "simulator-executed.log")
+    # the link is opened again (the printer reset), and the next job prints
+    hostd.drop(small_box(tmp_path / "box.stl"), "after.stl")
+    hostd.wait_for(lambda: (hostd.jobs / "done" / "after.summary.txt").exists(), 60, "next job")
+    assert command(socket, "emergency_stop")["job"] is None  # idle: halts, opens again
+    hostd.wait_for(lambda: hostd.run_log().count("printer connected") == 3, 20, "reconnected")
+    assert hostd.stop() == 0

@@ -5,29 +5,15 @@ from __future__ import annotations
 import asyncio
 import tempfile
 from pathlib import Path
-from typing import Any
 
+from doubles import RecordingController
 from textual.widgets import ProgressBar, RichLog, Static
 
 from hostd.api import InterruptedJob, JobStatus, Snapshot, Temperature, Temps
 from hostd.control import serve_control
-from hostd.status import CommandError, StatusHub
+from hostd.status import StatusHub
 from tui.app import Dashboard, describe_job, describe_queue
 from tui.sources import SocketSource
-
-
-class RecordingController:
-    """Records the commands the dashboard sends; refuses cancel while idle."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, dict[str, Any]]] = []
-
-    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
-        self.calls.append((cmd, args))
-        if cmd == "resume":
-            raise CommandError("nothing is paused")
-        return {}
-
 
 PRINTING = Snapshot(
     state="printing",
@@ -53,7 +39,7 @@ async def _until(predicate, timeout: float = 5.0) -> None:
 
 async def _scenario(folder: Path) -> RecordingController:
     hub = StatusHub(Snapshot(state="idle"))
-    controller = RecordingController()
+    controller = RecordingController({"resume": "nothing is paused"})
     path = folder / "hostd.sock"
     server = asyncio.create_task(serve_control(path, hub, controller), name="control")
     await _until(path.exists)
