@@ -85,7 +85,6 @@ class PrintJob:
             skip = resume_line(job.layer_lines, self.replay)
         resume = first > 0 or skip > 0
         try:
-            job = await self.check_model(job, resume)
             self.source = await self._source(job, first or 0, resume)
             output = await asyncio.to_thread(
                 open_output, self.partial, job.gcode_bytes if resume else 0
@@ -130,15 +129,17 @@ class PrintJob:
         self.intake.finish(self.store.get(job.id))
         return "done"
 
-    async def check_model(self, job: Job, resume: bool) -> Job:
+    async def check_model(self, job: Job, resume: bool, digest: str | None = None) -> Job:
         """The model is still the file that was taken: its hash again, before slicing.
 
         A file its writer went on changing after it was taken (a writer the daemon
         could not see) is waited for until complete, and the job starts over from
-        the complete file. A resumed job's model must not change: ModelError.
+        the complete file: the job returned has the new hash. A resumed job's model
+        must not change: ModelError. ``digest``: the file's hash, when taken already.
         """
         path = Path(job.path)
-        digest = await asyncio.to_thread(sha256_of, path)
+        if digest is None:
+            digest = await asyncio.to_thread(sha256_of, path)
         if digest == job.sha256:
             return job
         if resume:
@@ -158,12 +159,30 @@ class PrintJob:
         if job.kind == "gcode":
             if resume:
                 raise ModelError("a G-code job cannot be resumed mid-file")
+            job = await self.check_model(job, resume)
             return await asyncio.to_thread(FileSource, Path(job.path))
         settings = SliceSettings.from_mapping(job.settings)
         started = time.monotonic()
-        plan = await asyncio.to_thread(
-            SlicePlan.from_file, Path(job.path), settings, self.config.printer.bed
-        )
+        # the model is hashed again beside the whole-model pass (hashing leaves the
+        # interpreter free), and checked before any layer is sliced
+        hashing = asyncio.ensure_future(asyncio.to_thread(sha256_of, Path(job.path)))
+        error: ModelError | None = None
+        try:
+            plan = await asyncio.to_thread(
+                SlicePlan.from_file, Path(job.path), settings, self.config.printer.bed
+            )
+        except ModelError as exc:  # a file still being written may not parse yet
+            error = exc
+        finally:
+            digest = await hashing
+        checked = await self.check_model(job, resume, digest)
+        if checked.sha256 != job.sha256:  # started over from the complete file
+            job = checked
+            plan = await asyncio.to_thread(
+                SlicePlan.from_file, Path(job.path), settings, self.config.printer.bed
+            )
+        elif error is not None:
+            raise error
         log.info("job %s %s: whole-model pass %.2f s, %d layers, %d bodies", job.id, job.name,
                  time.monotonic() - started, plan.layer_count, plan.body_count)
         # outlines are cut lazily: repairs found in later layers are logged at the end

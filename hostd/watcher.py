@@ -55,6 +55,9 @@ class Watcher:
         self.rescan_s = rescan_s
         self._pending: dict[Path, _Seen] = {}
         self._held: set[Path] = set()  # settled files a writer still holds open (logged once)
+        # a look for writers begun while a file settles, with the signature it began at:
+        # the look (a walk of /proc) is then off the path from settled to taken
+        self._looks: dict[Path, tuple[tuple[int, int, int, int] | None, asyncio.Future[bool]]] = {}
         self._wake = asyncio.Event()
 
     async def run(self, stop: asyncio.Event | None = None) -> None:
@@ -106,6 +109,7 @@ class Watcher:
                 signature = _signature(path)
                 if signature is None and not path.is_symlink():
                     del self._pending[path]  # gone before it settled
+                    self._looks.pop(path, None)
                     continue
                 if signature != seen.signature:
                     since = _changed_at(signature, now, self.settle_s)
@@ -117,9 +121,11 @@ class Watcher:
                     due.append(path)
                 else:
                     wait = remaining if wait is None else min(wait, remaining)
+                    if remaining <= self.settle_s / 2:
+                        self._look_early(path, self._pending[path].signature)
             due.sort(key=lambda item: (_mtime(self._pending[item]), item.name))  # oldest first
             for path in list(due):
-                if path.is_file() and await asyncio.to_thread(open_for_writing, path):
+                if path.is_file() and await self._written(path, self._pending[path].signature):
                     # still being written, however long it has been still: wait again
                     if path not in self._held:
                         self._held.add(path)
@@ -133,6 +139,7 @@ class Watcher:
                     wait = again if wait is None else min(wait, again)
             for path in due:
                 self._held.discard(path)
+                self._looks.pop(path, None)
                 del self._pending[path]
                 try:
                     await self.on_settled(path)
@@ -142,6 +149,28 @@ class Watcher:
                 continue
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), timeout=_poll_interval(wait))
+
+
+    def _look_early(self, path: Path, signature: tuple[int, int, int, int] | None) -> None:
+        """Begin looking for writers of a file that has held still for half its settle time."""
+        look = self._looks.get(path)
+        if look is not None and look[0] == signature:
+            return
+        if look is not None and not look[1].done():
+            return  # one look at a time; the signature check at the end decides
+        self._looks[path] = (signature, asyncio.ensure_future(
+            asyncio.to_thread(open_for_writing, path)))
+
+    async def _written(self, path: Path, signature: tuple[int, int, int, int] | None) -> bool:
+        """True when a process holds ``path`` open for writing.
+
+        The answer of a look begun while the file settled is used when the file has
+        not changed since; a writer that stalls keeps its descriptor open all along.
+        """
+        look = self._looks.pop(path, None)
+        if look is not None and look[0] == signature:
+            return await look[1]
+        return await asyncio.to_thread(open_for_writing, path)
 
 
 def _poll_interval(wait: float | None) -> float | None:
