@@ -60,6 +60,7 @@ COMMANDS = (
     "restore_object",
     "layer",
     "estimate",
+    "emergency_stop",
 )
 EVENTS = (
     "queued",

@@ -86,6 +86,10 @@ class RunnerConfig:
 
     lookahead: int = 4
     workers: int = 2
+    # commands a resume goes back from the first one not acknowledged when the printer
+    # itself reset: the moves its planner held (Marlin BLOCK_BUFFER_SIZE); the lines of
+    # its command buffer were not acknowledged yet, so they are sent again anyway
+    replay_lines: int = 16
 
 
 @dataclass(frozen=True)
@@ -182,6 +186,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
         runner=RunnerConfig(
             lookahead=runner.integer("lookahead", 4, 1, 64),
             workers=runner.integer("workers", 2, 1, 32),
+            replay_lines=runner.integer("replay_lines", 16, 0, 10_000),
         ),
         notify=NotifyConfig(
             urls=notify.texts("urls", ()),

@@ -5,17 +5,20 @@ index from 0, also accepted as ``"body"``); ``set {"settings": {KEY: VALUE, ...}
 ``set {"key": KEY, "value": VALUE}`` with the flat slicing keys of the configuration;
 ``queue_move {"job": ID, "index": N}`` (0 = next); ``queue_remove {"job": ID}``;
 ``restore_object {"object": N}``; ``layer {"layer": N, "tolerance": MM, "field": [COLS, ROWS]}``
-and ``estimate {"settings": {...}}`` (see :mod:`hostd.layerview`).
+and ``estimate {"settings": {...}}`` (see :mod:`hostd.layerview`);
+``emergency_stop`` (``M112``: the printer halts, the job printing fails).
 """
 
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
+from collections.abc import Awaitable, Callable
 from typing import Any
 
 from hostd import layerview
 from hostd.intake import Intake
+from hostd.joblife import JobLife
+from hostd.jobstate import ObjectCancelled
 from hostd.jobstore import JobStore, JobStoreError
 from hostd.printjob import PrintJob
 from hostd.status import CommandError, StatusHub
@@ -36,12 +39,16 @@ class DaemonController:
         intake: Intake,
         current: Callable[[], PrintJob | None],
         changed: Callable[[], None],
+        emergency_stop: Callable[[], Awaitable[bool]] | None = None,
     ) -> None:
+        """``emergency_stop()`` sends ``M112`` to the printer; False when none is connected."""
         self.store = store
         self.hub = hub
+        self.life = JobLife(store, hub)
         self.intake = intake
         self.current = current
         self.changed = changed
+        self.emergency_stop = emergency_stop
 
     async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
         """Carry out one command; raises CommandError with the reason when refused."""
@@ -81,6 +88,14 @@ class DaemonController:
         job.runner.cancel()
         return {"job": job.job.id}
 
+    async def _cmd_emergency_stop(self, args: dict[str, Any]) -> dict[str, Any]:
+        job = self.current()
+        if job is not None:
+            job.emergency = True  # the job fails: a halted printer's part is not resumed
+        if self.emergency_stop is None or not await self.emergency_stop():
+            raise CommandError("no printer is connected")
+        return {"job": job.job.id if job is not None else None}
+
     async def _cmd_resume_job(self, args: dict[str, Any]) -> dict[str, Any]:
         ref = _text(args, "job")
         job = self.store.find(ref)
@@ -88,8 +103,10 @@ class DaemonController:
             raise CommandError(f"job {job.id} ({job.name}) is {job.state}, not interrupted")
         if job.kind == "gcode" and job.layer >= 0:
             raise CommandError(f"job {job.id} is a G-code file; it cannot be resumed mid-file")
-        first = job.layer + 1 if job.layer >= 0 else None
-        self.store.transition(job.id, "queued", note="resume requested", resume_from=first)
+        # a sliced job continues in the layer it was in; one with nothing printed starts anew
+        started = job.layer >= 0 or (job.layer_lines > 0 and job.kind == "stl")
+        first = job.layer + 1 if started else None
+        self.life.request_resume(job.id, first)
         self.changed()
         return {"job": job.id, "name": job.name, "from_layer": first or 0}
 
@@ -110,8 +127,7 @@ class DaemonController:
         first = job.source.next_unsliced
         job.schedule.cancel_body(raw, first)
         self.store.record_cancelled_object(job.job.id, raw, first)
-        self.hub.event("object_cancelled", id=job.job.id, name=job.job.name, object=raw,
-                       from_layer=first)
+        self.life.publish(ObjectCancelled(job.job.id, job.job.name, raw, first))
         return {"job": job.job.id, "object": raw, "from_layer": first}
 
     async def _cmd_restore_object(self, args: dict[str, Any]) -> dict[str, Any]:

@@ -7,16 +7,19 @@ import concurrent.futures
 import contextlib
 import importlib.util
 import logging
+import random
 import signal
 from pathlib import Path
 
 from drivers.responses import Response
-from drivers.streamer import LinkError, Streamer
+from drivers.streamer import HALTED, LinkError, Streamer
 from hostd.addons import Addons
-from hostd.api import InterruptedJob, PrinterInfo, Snapshot, Temperature, Temps
+from hostd.api import PrinterInfo, Snapshot, Temperature, Temps
 from hostd.config import Config
 from hostd.controller import DaemonController
 from hostd.intake import Intake
+from hostd.joblife import JobLife
+from hostd.jobstate import HubState, Interrupted, PrinterError
 from hostd.jobstore import Job, JobStore
 from hostd.printer import printer_link
 from hostd.printjob import PrintJob
@@ -28,6 +31,19 @@ log = logging.getLogger("hostd.daemon")
 
 STORE_FILE = "jobs.sqlite3"
 SOCKET_FILE = "hostd.sock"
+# reconnecting to the printer: first delay, cap (s), and the random spread of each delay
+RECONNECT_FIRST_S = 1.0
+RECONNECT_MAX_S = 30.0
+RECONNECT_JITTER = 0.25
+
+
+def backoff(delay: float, rng: random.Random) -> tuple[float, float]:
+    """(this wait, next delay): ``delay`` spread by +-25 %, and the delay doubled up to 30 s.
+
+    The spread keeps several hosts that lost one shared link from retrying in step.
+    """
+    wait = delay * rng.uniform(1.0 - RECONNECT_JITTER, 1.0 + RECONNECT_JITTER)
+    return wait, min(delay * 2, RECONNECT_MAX_S)
 
 
 class _Stop(Exception):
@@ -42,14 +58,20 @@ class Daemon:
         config.state.folder.mkdir(parents=True, exist_ok=True)
         config.jobs.folder.mkdir(parents=True, exist_ok=True)
         self.store = JobStore(config.state.folder / STORE_FILE)
-        self.hub = StatusHub(
-            Snapshot(state="offline", printer=PrinterInfo(config.printer.id, config.printer.port))
-        )
+        self.hub = StatusHub(Snapshot(
+            state=HubState.OFFLINE.value,
+            printer=PrinterInfo(config.printer.id, config.printer.port),
+        ))
+        self.life = JobLife(self.store, self.hub)
+        # the printer booted (a `start`) since a job last streamed: its buffers were lost
+        self.printer_reset = False
         self.intake = Intake(config, self.store, self.hub)
         self.addons = Addons(config, self.store, self.hub)
         self.current: PrintJob | None = None
+        self.link: Streamer | None = None
         self.controller = DaemonController(
-            self.store, self.hub, self.intake, lambda: self.current, self.queue_changed
+            self.store, self.hub, self.intake, lambda: self.current, self.queue_changed,
+            self.emergency_stop,
         )
         self._wake = asyncio.Event()
         self._stop = asyncio.Event()
@@ -59,17 +81,12 @@ class Daemon:
         loop = asyncio.get_running_loop()
         for signum in (signal.SIGINT, signal.SIGTERM):
             loop.add_signal_handler(signum, self._stop.set)
-        for job in self.store.recover():
-            if job.state in ("slicing", "heating") and job.layer < 0:
-                # nothing was extruded yet: the bed is clear, start it again from the top
-                self.store.transition(job.id, "queued", note="restarted: nothing printed yet")
-                log.warning("job %s %s was stopped before printing; queued again",
-                            job.id, job.name)
-                continue
-            log.warning("job %s %s was interrupted after layer %d; resume it with "
-                        "`hostd resume %s`", job.id, job.name, job.layer, job.id)
+        for job in self.life.recover():
+            if job.state == "interrupted":
+                log.warning("job %s %s was interrupted after layer %d; resume it with "
+                            "`hostd resume %s`", job.id, job.name, job.layer, job.id)
         for job in self.store.interrupted():
-            self.hub.event("interrupted", id=job.id, name=job.name, layer=job.layer)
+            self.life.publish(Interrupted(job.id, job.name, job.layer))
         self.intake.recover_incoming()
         self.intake.outcomes.settle()
         self.queue_changed()
@@ -112,14 +129,8 @@ class Daemon:
         self.queue_changed()
 
     def queue_changed(self) -> None:
-        """Publish the queue and the interrupted jobs, and wake the print loop."""
-        self.hub.update(
-            queue=tuple(job.name for job in self.store.queued()
-                        if self.current is None or job.id != self.current.job.id),
-            interrupted=tuple(
-                InterruptedJob(job.id, job.name, job.layer) for job in self.store.interrupted()
-            ),
-        )
+        """Publish what waits and the interrupted jobs, and wake the print loop."""
+        self.life.publish_queue(self.current.job.id if self.current is not None else None)
         self._wake.set()
 
     def _next_job(self) -> Job | None:
@@ -138,36 +149,59 @@ class Daemon:
 
     async def _print_loop(self, executor: concurrent.futures.Executor) -> None:
         """Keep the printer connected and print queued jobs one after another."""
-        delay = 1.0
+        delay = RECONNECT_FIRST_S
+        rng = random.Random()
         while True:
             try:
-                async with printer_link(self.config) as link:
-                    delay = 1.0
+                async with printer_link(self.config, self._printer_booted) as link:
+                    delay = RECONNECT_FIRST_S
                     self._attach(link)
-                    await self._serve_queue(link, executor)
+                    try:
+                        await self._serve_queue(link, executor)
+                    finally:
+                        self.link = None
             except (LinkError, OSError) as exc:
-                log.error("printer link: %s; retrying in %.0f s", exc, delay)
-                self.hub.update(state="offline", error=str(exc),
-                                printer=PrinterInfo(self.config.printer.id,
-                                                    self.config.printer.port, False))
+                wait, delay = backoff(delay, rng)
+                log.error("printer link: %s; retrying in %.1f s", exc, wait)
+                self.life.printer_offline(
+                    PrinterInfo(self.config.printer.id, self.config.printer.port, False),
+                    str(exc))
                 self.queue_changed()
-                await asyncio.sleep(delay)
-                delay = min(delay * 2, 30.0)
+                await asyncio.sleep(wait)
+
+    async def emergency_stop(self) -> bool:
+        """``M112`` now; the link then fails and is opened again. False without a printer."""
+        link = self.link
+        if link is None:
+            return False
+        log.error("emergency stop requested")
+        await link.emergency_stop()
+        self._wake.set()  # an idle print loop notices the halted link and opens it again
+        return True
 
     def _attach(self, link: Streamer) -> None:
+        self.link = link
         link.on_temperature = self._temperature
         link.on_error = self._printer_error
-        self.hub.update(state="idle", error=None,
-                        printer=PrinterInfo(self.config.printer.id, self.config.printer.port, True))
+        self.life.printer_online(
+            PrinterInfo(self.config.printer.id, self.config.printer.port, True))
+
+    def _printer_booted(self) -> None:
+        self.printer_reset = True
 
     async def _serve_queue(self, link: Streamer, executor: concurrent.futures.Executor) -> None:
         while True:
+            if link.state == HALTED:
+                raise LinkError(link.error or "the printer halted")
             job = self._next_job()
             if job is None:
                 self._wake.clear()
                 await self._wake.wait()
                 continue
-            self.current = PrintJob(job, self.config, self.store, self.hub, self.intake, executor)
+            replay = self.config.runner.replay_lines if self.printer_reset else 0
+            self.printer_reset = False
+            self.current = PrintJob(job, self.config, self.store, self.hub, self.intake, executor,
+                                    replay=replay)
             self.queue_changed()
             try:
                 await self.current.run(link)
@@ -179,12 +213,12 @@ class Daemon:
                     self.intake.fail(self.store.get(job.id), f"internal error: {exc!r}")
             finally:
                 self.current = None
-                self.hub.update(state="idle", job=None)
+                self.life.idle()
                 self.queue_changed()
 
     def _printer_error(self, text: str) -> None:
         log.warning("printer: %s", text)
-        self.hub.event("error", source="printer", message=text)
+        self.life.publish(PrinterError(text))
 
     def _temperature(self, report: Response) -> None:
         temps = self.hub.current.temps

@@ -14,6 +14,7 @@ from pathlib import Path
 
 from hostd.config import Config, ConfigError, slicing_settings
 from hostd.jobfolder import LOAD_SUFFIX, free_stem, leaves_folder, move, split_name
+from hostd.jobstate import Queued
 from hostd.jobstore import Job, JobStore
 from hostd.outcomes import Outcomes
 from hostd.status import StatusHub
@@ -72,7 +73,7 @@ class Intake:
         home = move(incoming, self.area / job.id)
         job = self.store.set_path(job.id, str(home / path.name))
         log.info("job %s: %s queued (sha256 %s)", job.id, job.name, digest[:12])
-        self.hub.event("queued", id=job.id, name=job.name)
+        self.outcomes.life.publish(Queued(job.id, job.name))
         return job
 
     def _lone_load(self, path: Path) -> None:

@@ -5,38 +5,20 @@ from __future__ import annotations
 import contextlib
 import json
 import sqlite3
+import threading
 import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-STATES = (
-    "queued",
-    "slicing",
-    "heating",
-    "printing",
-    "paused",
-    "done",
-    "failed",
-    "cancelled",
-    "interrupted",
-)
-ACTIVE_STATES = ("slicing", "heating", "printing", "paused")
-FINAL_STATES = ("done", "failed", "cancelled")
+from hostd.jobstate import ACTIVE_STATES, FINAL_STATES, STATES, TRANSITIONS, JobState
 
-# state -> states it may move to
-TRANSITIONS: dict[str, frozenset[str]] = {
-    "queued": frozenset({"slicing", "printing", "failed", "cancelled", "interrupted"}),
-    "slicing": frozenset({"heating", "printing", "failed", "cancelled", "interrupted"}),
-    "heating": frozenset({"printing", "paused", "failed", "cancelled", "interrupted"}),
-    "printing": frozenset({"paused", "done", "failed", "cancelled", "interrupted"}),
-    "paused": frozenset({"printing", "heating", "failed", "cancelled", "interrupted"}),
-    "interrupted": frozenset({"queued", "failed", "cancelled"}),
-    "done": frozenset(),
-    "failed": frozenset(),
-    "cancelled": frozenset(),
-}
+# the state machine lives in hostd.jobstate; these names stay importable from here
+__all__ = [
+    "ACTIVE_STATES", "FINAL_STATES", "STATES", "TRANSITIONS", "HistoryEntry", "Job",
+    "JobNotFound", "JobState", "JobStore", "JobStoreError", "TransitionError",
+]
 
 _SCHEMA = """
 CREATE TABLE IF NOT EXISTS jobs (
@@ -53,7 +35,9 @@ CREATE TABLE IF NOT EXISTS jobs (
     layer INTEGER NOT NULL DEFAULT -1,
     lines_acked INTEGER NOT NULL DEFAULT 0,
     gcode_bytes INTEGER NOT NULL DEFAULT 0,
+    layer_lines INTEGER NOT NULL DEFAULT 0,
     resume_from INTEGER,
+
     error TEXT,
     outcome TEXT,
     created REAL NOT NULL,
@@ -107,7 +91,7 @@ class Job:
     kind: str
     sha256: str
     settings: dict[str, Any]
-    state: str
+    state: JobState
     position: float
     layers: int
     layer: int
@@ -119,6 +103,7 @@ class Job:
     created: float
     started: float | None
     finished: float | None
+    layer_lines: int = 0  # commands of layer ``layer + 1`` acknowledged
 
 
 @dataclass(frozen=True)
@@ -133,11 +118,19 @@ class HistoryEntry:
 
 
 class JobStore:
-    """SQLite-backed record of every job; each change is one short transaction."""
+    """SQLite-backed record of every job; each change is one short transaction.
+
+    One connection, usable from any thread (the checkpoint writer records from
+    its own): a lock keeps each transaction and each read whole.
+    """
 
     def __init__(self, path: Path) -> None:
         path.parent.mkdir(parents=True, exist_ok=True)
-        self._db = sqlite3.connect(str(path), isolation_level=None, timeout=10.0)
+        self.path = path
+        self._lock = threading.RLock()
+        self._db = sqlite3.connect(
+            str(path), isolation_level=None, timeout=10.0, check_same_thread=False
+        )
         self._db.row_factory = sqlite3.Row
         self._db.execute("PRAGMA journal_mode=WAL")
         self._db.execute("PRAGMA synchronous=FULL")
@@ -146,20 +139,35 @@ class JobStore:
             for statement in _SCHEMA.split(";"):
                 if statement.strip():
                     self._db.execute(statement)
+            columns = {row[1] for row in self._db.execute("PRAGMA table_info(jobs)")}
+            if "layer_lines" not in columns:  # a store made before the column
+                self._db.execute(
+                    "ALTER TABLE jobs ADD COLUMN layer_lines INTEGER NOT NULL DEFAULT 0"
+                )
 
     def close(self) -> None:
         """Close the database (every change is already committed)."""
-        self._db.close()
+        with self._lock:
+            self._db.close()
 
     @contextlib.contextmanager
     def _tx(self) -> Iterator[sqlite3.Connection]:
-        self._db.execute("BEGIN IMMEDIATE")
-        try:
-            yield self._db
-        except BaseException:
-            self._db.execute("ROLLBACK")
-            raise
+        with self._lock:
+            self._db.execute("BEGIN IMMEDIATE")
+            try:
+                yield self._db
+            except BaseException:
+                self._db.execute("ROLLBACK")
+                raise
+            self._commit()
+
+    def _commit(self) -> None:
+        """End the transaction under way (one fsync of the write-ahead log)."""
         self._db.execute("COMMIT")
+
+    def _read(self, sql: str, params: tuple[Any, ...] = ()) -> list[sqlite3.Row]:
+        with self._lock:
+            return self._db.execute(sql, params).fetchall()
 
     # -- reading --------------------------------------------------------------
 
@@ -167,7 +175,8 @@ class JobStore:
         """The job with this id; raises JobNotFound."""
         row = None
         if str(job_id).isdigit():
-            row = self._db.execute("SELECT * FROM jobs WHERE seq = ?", (int(job_id),)).fetchone()
+            rows = self._read("SELECT * FROM jobs WHERE seq = ?", (int(job_id),))
+            row = rows[0] if rows else None
         if row is None:
             raise JobNotFound(f"no job {job_id!r}")
         return _job(row)
@@ -176,22 +185,20 @@ class JobStore:
         """A job by id, or else the newest job with that name."""
         with contextlib.suppress(JobNotFound):
             return self.get(ref)
-        row = self._db.execute(
-            "SELECT * FROM jobs WHERE name = ? ORDER BY seq DESC LIMIT 1", (ref,)
-        ).fetchone()
-        if row is None:
+        rows = self._read("SELECT * FROM jobs WHERE name = ? ORDER BY seq DESC LIMIT 1", (ref,))
+        if not rows:
             raise JobNotFound(f"no job {ref!r}")
-        return _job(row)
+        return _job(rows[0])
 
     def jobs(self, *states: str) -> list[Job]:
         """Jobs in the given states (all when none given), queued ones in queue order."""
         if states:
             marks = ",".join("?" * len(states))
-            rows = self._db.execute(
+            rows = self._read(
                 f"SELECT * FROM jobs WHERE state IN ({marks}) ORDER BY position, seq", states
-            ).fetchall()
+            )
         else:
-            rows = self._db.execute("SELECT * FROM jobs ORDER BY seq").fetchall()
+            rows = self._read("SELECT * FROM jobs ORDER BY seq")
         return [_job(row) for row in rows]
 
     def queued(self) -> list[Job]:
@@ -204,27 +211,27 @@ class JobStore:
 
     def history(self, job_id: str) -> list[HistoryEntry]:
         """Every state change of the job, oldest first."""
-        rows = self._db.execute(
+        rows = self._read(
             "SELECT ts, from_state, to_state, layer, note FROM history WHERE seq = ? "
             "ORDER BY rowid",
             (int(self.get(job_id).id),),
-        ).fetchall()
+        )
         return [HistoryEntry(*row) for row in rows]
 
     def settings_changes(self, job_id: str) -> list[tuple[int, dict[str, Any]]]:
         """Retunes of the job: (first layer they apply to, changed flat keys), in order."""
-        rows = self._db.execute(
+        rows = self._read(
             "SELECT from_layer, changes FROM settings_changes WHERE seq = ? ORDER BY rowid",
             (int(job_id),),
-        ).fetchall()
+        )
         return [(row[0], json.loads(row[1])) for row in rows]
 
     def cancelled_objects(self, job_id: str) -> list[tuple[int, int]]:
         """Bodies left out of the job: (body index, first layer without it), in order."""
-        rows = self._db.execute(
+        rows = self._read(
             "SELECT body, from_layer FROM cancelled_objects WHERE seq = ? ORDER BY rowid",
             (int(job_id),),
-        ).fetchall()
+        )
         return [(row[0], row[1]) for row in rows]
 
     # -- writing --------------------------------------------------------------
@@ -259,15 +266,22 @@ class JobStore:
             db.execute("UPDATE jobs SET path = ? WHERE seq = ?", (path, int(job_id)))
         return self.get(job_id)
 
+    def set_digest(self, job_id: str, sha256: str) -> Job:
+        """Record the SHA-256 of the job's model (taken again after it changed)."""
+        with self._tx() as db:
+            db.execute("UPDATE jobs SET sha256 = ?, updated = ? WHERE seq = ?",
+                       (sha256, time.time(), int(job_id)))
+        return self.get(job_id)
+
     def transition(self, job_id: str, to_state: str, note: str = "", **fields: Any) -> Job:
         """Move a job to ``to_state`` if allowed, with optional column updates, atomically.
 
         ``fields`` may set ``layers``, ``error``, ``outcome``, ``resume_from``,
-        ``layer``, ``lines_acked``, ``gcode_bytes``.
+        ``layer``, ``lines_acked``, ``gcode_bytes``, ``layer_lines``.
         Raises TransitionError when the state machine forbids the move.
         """
         allowed = {"layers", "error", "outcome", "resume_from", "layer", "lines_acked",
-                   "gcode_bytes"}
+                   "gcode_bytes", "layer_lines"}
         unknown = set(fields) - allowed
         if unknown:
             raise ValueError(f"cannot set {sorted(unknown)}")
@@ -301,14 +315,36 @@ class JobStore:
             )
         return self.get(job_id)
 
-    def checkpoint(self, job_id: str, layer: int, lines_acked: int, gcode_bytes: int) -> None:
-        """Record that ``layer`` is complete: all its lines acknowledged."""
+    def checkpoint(
+        self, job_id: str, layer: int, lines_acked: int, gcode_bytes: int, layer_lines: int = 0
+    ) -> None:
+        """Record that ``layer`` is complete and ``layer_lines`` commands of the next one.
+
+        ``lines_acked`` counts every job line acknowledged; ``gcode_bytes`` is
+        the length of the job's G-code file through ``layer``.
+        """
         with self._tx() as db:
             db.execute(
-                "UPDATE jobs SET layer = ?, lines_acked = ?, gcode_bytes = ?, updated = ? "
-                "WHERE seq = ?",
-                (layer, lines_acked, gcode_bytes, time.time(), int(job_id)),
+                "UPDATE jobs SET layer = ?, lines_acked = ?, gcode_bytes = ?, layer_lines = ?, "
+                "updated = ? WHERE seq = ?",
+                (layer, lines_acked, gcode_bytes, layer_lines, time.time(), int(job_id)),
             )
+
+    def reopen(self, durable: bool = True) -> JobStore:
+        """Another connection to the same database (for use from another thread).
+
+        Not ``durable``: its commits do not wait for the disk (``synchronous=NORMAL``);
+        they survive the process being killed, and a power cut may undo the last ones.
+        """
+        store = type(self)(self.path)
+        if not durable:
+            store.relax()
+        return store
+
+    def relax(self) -> None:
+        """Commits on this connection no longer wait for the disk (WAL, ``synchronous=NORMAL``)."""
+        with self._lock:
+            self._db.execute("PRAGMA synchronous=NORMAL")
 
     def record_settings(self, job_id: str, from_layer: int, changes: dict[str, Any]) -> None:
         """Record a retune: ``changes`` (flat keys) apply from ``from_layer`` on."""
@@ -367,13 +403,14 @@ def _job(row: sqlite3.Row) -> Job:
         kind=row["kind"],
         sha256=row["sha256"],
         settings=json.loads(row["settings"]),
-        state=row["state"],
+        state=JobState(row["state"]),
         position=row["position"],
         layers=row["layers"],
         layer=row["layer"],
         lines_acked=row["lines_acked"],
         gcode_bytes=row["gcode_bytes"],
         resume_from=row["resume_from"],
+        layer_lines=row["layer_lines"],
         error=row["error"],
         outcome=row["outcome"],
         created=row["created"],

@@ -22,7 +22,9 @@ from hostd.status import CommandError, Controller, StatusHub
 log = logging.getLogger(__name__)
 
 # The commands MQTT may carry (design.md); nothing else, and never raw G-code.
-MQTT_COMMANDS = ("pause", "resume", "cancel", "resume_job", "cancel_object", "set")
+MQTT_COMMANDS = (
+    "pause", "resume", "cancel", "resume_job", "cancel_object", "set", "emergency_stop",
+)
 MAX_COMMAND_BYTES = 64 * 1024
 EVENT_BUFFER = 1000  # events kept while the broker is unreachable (oldest dropped)
 

@@ -7,7 +7,9 @@ import shutil
 from pathlib import Path
 
 from hostd.jobfolder import free_stem, move, split_name, write_text
-from hostd.jobstore import FINAL_STATES, Job, JobStore
+from hostd.joblife import JobLife
+from hostd.jobstate import FINAL_STATES, Done, JobState, ended
+from hostd.jobstore import Job, JobStore
 from hostd.status import StatusHub
 
 log = logging.getLogger("hostd.outcomes")
@@ -27,6 +29,7 @@ class Outcomes:
         self.area = area
         self.store = store
         self.hub = hub
+        self.life = JobLife(store, hub)
 
     def fail(
         self, job: Job, reason: str, extra: list[Path] | None = None, state: str = "failed"
@@ -36,7 +39,7 @@ class Outcomes:
         target = self._move_out(job, stem, extra or [])
         error = write_text(target.with_name(f"{target.name}.error.txt"), reason.rstrip() + "\n")
         log.error("job %s %s: %s: %s", job.id, job.name, state, reason)
-        self.hub.event(state, id=job.id, name=job.name, reason=reason)
+        self.life.publish(ended(JobState(state), job.id, job.name, reason))
         return error
 
     def finish(self, job: Job) -> Path:
@@ -45,7 +48,7 @@ class Outcomes:
         target = self._move_out(job, stem, [])
         gcode = target.with_name(f"{target.name}.gcode")
         log.info("job %s %s: done, G-code in %s", job.id, job.name, gcode)
-        self.hub.event("done", id=job.id, name=job.name, gcode=str(gcode))
+        self.life.publish(Done(job.id, job.name, str(gcode)))
         return gcode
 
     def settle(self) -> None:
@@ -67,7 +70,7 @@ class Outcomes:
         current = self.store.get(job.id)
         if current.state in FINAL_STATES:
             return Path(current.outcome) if current.outcome else target
-        self.store.transition(job.id, state, note=reason or "", error=reason, outcome=str(target))
+        self.life.end(job.id, JobState(state), reason, str(target))
         return target
 
     def _move_out(self, job: Job, target: Path, extra: list[Path]) -> Path:

@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import contextlib
 import logging
-from collections.abc import AsyncIterator
+from collections.abc import AsyncIterator, Callable
 
 from drivers.simconfig import SimulatorConfig
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer
-from drivers.transport import open_transport
+from drivers.transport import Transport, open_transport
 from hostd.config import Config
 
 log = logging.getLogger("hostd.printer")
@@ -18,8 +18,13 @@ SIM_LOG = "simulator-executed.log"
 
 
 @contextlib.asynccontextmanager
-async def printer_link(config: Config) -> AsyncIterator[Streamer]:
+async def printer_link(
+    config: Config, on_boot: Callable[[], None] | None = None
+) -> AsyncIterator[Streamer]:
     """Open the configured printer and yield a connected streamer; close everything on exit.
+
+    ``on_boot`` is called when the printer announces a boot (``start``) while
+    connecting: it reset on opening the port, or was just switched on.
 
     ``port = "sim"`` starts the simulated printer in-process on a pseudo-terminal,
     at ``[simulator]`` speed, logging every executed line to
@@ -42,6 +47,8 @@ async def printer_link(config: Config) -> AsyncIterator[Streamer]:
                  port, config.simulator.time_scale, config.simulator.baud)
     try:
         transport = await open_transport(port, baud)
+        if on_boot is not None:
+            transport = BootWatch(transport, on_boot)  # type: ignore[assignment]
         async with Streamer(transport, config.printer.link) as streamer:
             await streamer.connect()
             log.info("printer connected on %s: %s", port, streamer.firmware or "unknown firmware")
@@ -49,3 +56,34 @@ async def printer_link(config: Config) -> AsyncIterator[Streamer]:
     finally:
         if simulator is not None:
             simulator.stop()
+
+
+class BootWatch:
+    """A printer transport that calls ``on_boot`` for each boot banner (``start``) read."""
+
+    def __init__(self, inner: Transport, on_boot: Callable[[], None]) -> None:
+        self.inner = inner
+        self.on_boot = on_boot
+
+    @property
+    def name(self) -> str:
+        return self.inner.name
+
+    @property
+    def is_open(self) -> bool:
+        return self.inner.is_open
+
+    async def write(self, data: bytes) -> None:
+        await self.inner.write(data)
+
+    async def readline(self) -> str:
+        line = await self.inner.readline()
+        if line.strip().lower() == "start":
+            self.on_boot()
+        return line
+
+    async def close(self) -> None:
+        await self.inner.close()
+
+    def __getattr__(self, name: str) -> object:
+        return getattr(self.inner, name)  # anything else (port settings) is the inner one's

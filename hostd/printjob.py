@@ -15,9 +15,13 @@ from drivers.streamer import LinkError, Streamer
 from hostd.api import JobStatus
 from hostd.config import Config
 from hostd.eta import slicer_totals
+from hostd.filecheck import sha256_of, wait_complete
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
+from hostd.joblife import JobLife
+from hostd.jobstate import JobError, JobState, Started
 from hostd.jobstore import Job, JobStore
+from hostd.reentry import resume_line
 from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
@@ -46,8 +50,14 @@ class PrintJob:
         hub: StatusHub,
         intake: Intake,
         executor: concurrent.futures.Executor,
+        replay: int = 0,
     ) -> None:
+        """``replay``: commands a resume goes back within its layer (0: the printer kept
+        power, continue at the first command it did not acknowledge)."""
         self.job = job
+        self.replay = replay
+        self.emergency = False  # an emergency stop was ordered: the job fails
+        self.life = JobLife(store, hub)
         self.config = config
         self.store = store
         self.hub = hub
@@ -69,10 +79,14 @@ class PrintJob:
         CancelledError (the daemon stopping) leaves the job interrupted at its last
         checkpoint. LinkError leaves it interrupted too, and is raised again.
         """
-        job = self.store.transition(self.job.id, "slicing")
-        self.hub.update(state="heating", error=None,
-                        job=JobStatus(id=job.id, name=job.name, layer=max(job.layer, 0)))
-        resume = job.resume_from is not None and job.resume_from > 0
+        job = self.store.get(self.job.id)
+        job = self.life.enter(job.id, JobState.SLICING,
+                              status=JobStatus(id=job.id, name=job.name, layer=max(job.layer, 0)))
+        first = job.resume_from or 0
+        skip = 0
+        if job.resume_from is not None and job.layer == first - 1 and job.kind == "stl":
+            skip = resume_line(job.layer_lines, self.replay)
+        resume = first > 0 or skip > 0
         try:
             first = job.resume_from if resume else 0
             self.source = await self._source(job, first or 0, resume, link)
@@ -87,19 +101,23 @@ class PrintJob:
             raise
         try:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
-                                    first or 0, write_preamble=not resume, park=self._park())
+                                    first, write_preamble=not resume, park=self._park(),
+                                    skip=skip)
             link.on_ack = lambda _number, _command: self.runner.on_ack()
-            verb = f"resumed at layer {first}" if resume else "started"
+            verb = f"resumed at layer {first}, command {skip}" if resume else "started"
             log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
-            self.hub.event("started", id=job.id, name=job.name, layers=self.source.layer_count,
-                           resumed_from=first if resume else None)
+            self.life.publish(Started(job.id, job.name, self.source.layer_count,
+                                      first if resume else None))
             try:
                 await self.runner.run()
             except JobCancelled as exc:
                 await self._cancelled(link, str(exc))
                 return "cancelled"
             except (asyncio.CancelledError, LinkError) as exc:
-                self._interrupted(f"stopped: {type(exc).__name__}")
+                if self.emergency:
+                    self.intake.fail(self.store.get(job.id), "emergency stop (M112)")
+                else:
+                    self._interrupted(f"stopped: {type(exc).__name__}")
                 raise
             finally:
                 link.on_ack = None
@@ -115,10 +133,37 @@ class PrintJob:
         self.intake.finish(self.store.get(job.id))
         return "done"
 
+    async def check_model(self, job: Job, resume: bool, digest: str | None = None) -> Job:
+        """The model is still the file that was taken: its hash again, before slicing.
+
+        A file its writer went on changing after it was taken (a writer the daemon
+        could not see) is waited for until complete, and the job starts over from
+        the complete file: the job returned has the new hash. A resumed job's model
+        must not change: ModelError. ``digest``: the file's hash, when taken already.
+        """
+        path = Path(job.path)
+        if digest is None:
+            digest = await asyncio.to_thread(sha256_of, path)
+        if digest == job.sha256:
+            return job
+        if resume:
+            raise ModelError(f"{job.name} changed after it was taken: the part on the bed "
+                             "was printed from other bytes, so the job cannot resume")
+        log.warning("job %s %s: the file changed after it was taken; waiting for it to be "
+                    "complete, then starting over", job.id, job.name)
+        await wait_complete(path, self.config.jobs.settle_s)
+        digest = await asyncio.to_thread(sha256_of, path)
+        job = self.store.set_digest(job.id, digest)
+        self.life.publish(JobError(job.id, f"{job.name} changed after it was taken; "
+                                           f"started over from the complete file "
+                                           f"(sha256 {digest[:12]})"))
+        return job
+
     async def _source(self, job: Job, first: int, resume: bool, link: Streamer) -> LayerSource:
         if job.kind == "gcode":
             if resume:
                 raise ModelError("a G-code job cannot be resumed mid-file")
+            job = await self.check_model(job, resume)
             return await asyncio.to_thread(FileSource, Path(job.path))
         # the printer is known before slicing: arcs if its M115 reported Cap:ARCS:1
         # (gcode.arcs = "auto"), and the line budget of its wire (gcode.baud = 0)
@@ -126,10 +171,28 @@ class PrintJob:
         baud = self.config.simulator.baud if printer.port == "sim" else printer.baud
         settings = for_printer(SliceSettings.from_mapping(job.settings), link.capable, baud)
         started = time.monotonic()
-        plan, tailoring = await asyncio.to_thread(
-            tailored_plan, Path(job.path), settings, self.config.printer.bed,
-            self.config.state.folder / "fea",
-        )
+        # the model is hashed again beside the whole-model pass (hashing leaves the
+        # interpreter free), and checked before any layer is sliced
+        hashing = asyncio.ensure_future(asyncio.to_thread(sha256_of, Path(job.path)))
+        error: ModelError | None = None
+        try:
+            plan, tailoring = await asyncio.to_thread(
+                tailored_plan, Path(job.path), settings, self.config.printer.bed,
+                self.config.state.folder / "fea",
+            )
+        except ModelError as exc:  # a file still being written may not parse yet
+            error = exc
+        finally:
+            digest = await hashing
+        checked = await self.check_model(job, resume, digest)
+        if checked.sha256 != job.sha256:  # started over from the complete file
+            job = checked
+            plan, tailoring = await asyncio.to_thread(
+                tailored_plan, Path(job.path), settings, self.config.printer.bed,
+                self.config.state.folder / "fea",
+            )
+        elif error is not None:
+            raise error
         self.tailoring = tailoring.lines()
         for line in self.tailoring:
             log.info("job %s %s: %s", job.id, job.name, line)
@@ -179,14 +242,7 @@ class PrintJob:
 
     def _interrupted(self, note: str) -> None:
         """Leave the job interrupted at its checkpoint, or queued again if nothing printed."""
-        job = self.store.get(self.job.id)
-        if job.state not in ("slicing", "heating", "printing", "paused"):
-            return
-        self.store.transition(job.id, "interrupted", note=note)
-        if job.state in ("slicing", "heating") and job.layer < 0:
-            self.store.transition(job.id, "queued", note="restarted: nothing printed yet")
-            return
-        self.hub.event("interrupted", id=job.id, name=job.name, layer=job.layer)
+        self.life.interrupt(self.job.id, note)
 
     def _write_final(self, job: Job) -> None:
         """NAME.gcode (header from the whole file, then the body) and NAME.summary.txt."""

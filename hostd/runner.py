@@ -5,8 +5,6 @@ from __future__ import annotations
 import asyncio
 import collections
 import logging
-import os
-import sqlite3
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -15,8 +13,12 @@ from typing import IO, Any, Protocol
 
 from drivers.protocol import strip_comment
 from hostd.api import JobStatus
+from hostd.checkpoints import Checkpoint, CheckpointWriter
 from hostd.eta import EtaModel
+from hostd.joblife import JobLife
+from hostd.jobstate import JobError, JobState, LayerDone, Paused, Resumed
 from hostd.jobstore import Job, JobStore
+from hostd.reentry import reentry_moves
 from hostd.sources import LayerSource
 from hostd.status import StatusHub
 
@@ -71,13 +73,17 @@ class _Mark:
 
 
 class JobRunner:
-    """Prints one job: preamble, layers ``first..n-1`` and ending, checkpointing each layer.
+    """Prints one job: preamble, layers ``first..n-1`` and ending, checkpointing as acknowledged.
 
     Lines go to the printer through ``link`` and, with their comments, to
     ``output`` (the job's G-code file being written). Acknowledgements come back
-    through :meth:`on_ack`; when every line of a layer is acknowledged the layer
-    is complete and the job store records it (last layer, acknowledged lines,
-    bytes of ``output``), in one transaction.
+    through :meth:`on_ack`, called by the serial reader: it only counts, and hands
+    the newest checkpoint (last complete layer, lines acknowledged, commands of
+    the next layer acknowledged, bytes of ``output``) to a
+    :class:`~hostd.checkpoints.CheckpointWriter`, which makes it durable in its
+    own thread. ``skip`` commands of layer ``first`` are written to ``output``
+    but not sent (a resume within that layer): in their place go the moves that
+    bring the nozzle back to where they left it, not counted as job lines.
     """
 
     def __init__(
@@ -91,24 +97,32 @@ class JobRunner:
         first: int,
         write_preamble: bool,
         park: Park | None = None,
+        skip: int = 0,
     ) -> None:
         self.job = job
         self.source = source
         self.link = link
         self.store = store
         self.hub = hub
+        self.life = JobLife(store, hub)
         self.output = output
         self.first = first
         self.write_preamble = write_preamble
+        self.skip = skip
         self.layers = source.layer_count
         self.completed = first - 1
-        self.lines_acked = job.lines_acked if first > 0 else 0
-        self.state = "slicing"
+        resumed = first > 0 or skip > 0
+        # lines of layer `first` acknowledged before and sent again now are counted once
+        self.lines_acked = job.lines_acked - max(0, job.layer_lines - skip) if resumed else 0
+        self.state = JobState.SLICING
+        self.writer: CheckpointWriter | None = None
         self._marks: collections.deque[_Mark] = collections.deque()
         self._sent = 0  # lines sent by this run (job lines and park moves)
         self._extra: collections.deque[int] = collections.deque()  # park moves, by count
         self.park = park or Park()
-        self._acked = 0  # job lines acknowledged in this run
+        self._acked = 0  # lines acknowledged in this run (job lines and park moves)
+        self._layer_base = 0  # lines_acked when the layer in progress began, less `skip`
+        self._offset = job.gcode_bytes if resumed else 0  # file length through `completed`
         self._running = asyncio.Event()
         self._running.set()
         self._cancelled = False
@@ -125,19 +139,20 @@ class JobRunner:
 
     def pause(self) -> None:
         """Stop sending after the current line; the printer empties its buffer."""
-        if self.state == "paused":
+        if self.state == JobState.PAUSED:
             return
         self._running.clear()
-        self._set_state("paused")
-        self.hub.event("paused", id=self.job.id, name=self.job.name, layer=self.completed)
+        self._set_state(JobState.PAUSED)
+        self.life.publish(Paused(self.job.id, self.job.name, self.completed))
 
     def resume(self) -> None:
         """Continue sending after a pause."""
-        if self.state != "paused":
+        if self.state != JobState.PAUSED:
             return
-        self._set_state("printing" if self._print_started is not None else "heating")
+        self._set_state(JobState.PRINTING if self._print_started is not None
+                        else JobState.HEATING)
         self._running.set()
-        self.hub.event("resumed", id=self.job.id, name=self.job.name, layer=self.completed)
+        self.life.publish(Resumed(self.job.id, self.job.name, self.completed))
 
     def cancel(self) -> None:
         """Stop the job: no further line of it is sent."""
@@ -146,7 +161,7 @@ class JobRunner:
 
     @property
     def paused(self) -> bool:
-        return self.state == "paused"
+        return self.state == JobState.PAUSED
 
     # -- streaming ------------------------------------------------------------
 
@@ -156,23 +171,34 @@ class JobRunner:
         Raises JobCancelled after :meth:`cancel`; CancelledError propagates (the
         daemon stopping), leaving the last checkpoint in the store.
         """
-        self._set_state("heating")
-        await self._stream(self.source.preamble(), PREAMBLE, write=self.write_preamble)
-        for index in range(self.first, self.layers):
-            self.streaming_layer = index
-            lines = await self.source.layer(index)
-            await self._stream(lines, index, write=True)
-        await self._stream(self.source.ending(), ENDING, write=True)
-        await self.link.drain()
-        self._check_marks()
+        self.writer = CheckpointWriter(self.store, self.job.id, self.output, self._writer_error)
+        try:
+            self._set_state(JobState.HEATING)
+            await self._stream(self.source.preamble(), PREAMBLE, write=self.write_preamble)
+            for index in range(self.first, self.layers):
+                self.streaming_layer = index
+                lines = await self.source.layer(index)
+                await self._stream(lines, index, write=True,
+                                   skip=self.skip if index == self.first else 0)
+            await self._stream(self.source.ending(), ENDING, write=True)
+            await self.link.drain()
+            self._check_marks()
+        finally:
+            await self.writer.close()
         self._save(self.output.flush)
 
-    async def _stream(self, lines: list[str], layer: int, write: bool) -> None:
+    async def _stream(self, lines: list[str], layer: int, write: bool, skip: int = 0) -> None:
         if write and lines:
             self._save(self.output.write, "\n".join(lines) + "\n")
+        done: list[str] = []
         for line in lines:
             command = strip_comment(line)
             if not command:
+                continue
+            if len(done) < skip:
+                done.append(command)  # carried out before the interruption
+                if len(done) == skip:
+                    await self._send_extra(reentry_moves(done))
                 continue
             if not self._running.is_set():
                 await self._hold()
@@ -196,19 +222,27 @@ class JobRunner:
             await self._send_extra(self.park.unpark)
 
     async def _send_extra(self, commands: tuple[str, ...]) -> None:
+        """Send moves that are not lines of the job (pause, re-entry): acknowledged apart."""
         for command in commands:
             await self.link.send(command)
             self._sent += 1
             self._extra.append(self._sent)
 
     def on_ack(self) -> None:
-        """The printer acknowledged the oldest line of this run not yet acknowledged."""
+        """The printer acknowledged the oldest line of this run not yet acknowledged.
+
+        Called by the serial reader: counts, moves the marks on and hands the
+        newest checkpoint to the writer; never waits on a disk or the store.
+        """
         self._acked += 1
         if self._extra and self._extra[0] == self._acked:
             self._extra.popleft()  # a park move, not a line of the job
         else:
             self.lines_acked += 1
         self._check_marks()
+        if self._print_started is not None and self.writer is not None:
+            self.writer.submit(Checkpoint(self.completed, self.lines_acked, self._offset,
+                                          self.lines_acked - self._layer_base))
         now = time.monotonic()
         if now - self._last_publish > 0.25:
             self._publish()
@@ -220,33 +254,51 @@ class JobRunner:
             if mark.layer == PREAMBLE:
                 self._print_started = time.monotonic()
                 self.eta.start(self._print_started)
-                if self.state == "heating":
-                    self._set_state("printing")
+                if mark.offset > 0:
+                    self._offset = mark.offset  # a resume in layer 0 keeps the start block
+                self._layer_base = self.lines_acked - self.skip
+                if self.state == JobState.HEATING:
+                    # the state is recorded by the loop, not inside the reader's callback
+                    asyncio.get_running_loop().call_soon(self._now_printing)
             elif mark.layer >= 0:
                 self._layer_complete(mark)
 
+    def _now_printing(self) -> None:
+        if self.state == JobState.HEATING:
+            self._set_state(JobState.PRINTING)
+
     def _layer_complete(self, mark: _Mark) -> None:
-        self._save(self.output.flush)
-        self._save(lambda: os.fsync(self.output.fileno()))
         self.completed = mark.layer
+        self._layer_base = self.lines_acked
+        if mark.offset >= 0:
+            self._offset = mark.offset
         self._layers_timed += 1
         self._last_layer_at = time.monotonic()
         self.eta.layer_done(mark.layer, self._last_layer_at)
-        if self.output_error is None:
-            try:
-                self.store.checkpoint(self.job.id, mark.layer, self.lines_acked, mark.offset)
-            except (sqlite3.Error, OSError) as exc:  # printing goes on without it
-                log.error("job %s: checkpoint of layer %d not recorded: %s",
-                          self.job.id, mark.layer, exc)
-                self.hub.event("error", id=self.job.id, message=f"checkpoint not recorded: {exc}")
         status = self._publish()
         eta = "--" if status.eta_s is None else _clock(status.eta_s)
         log.info(
             "job %s %s: layer %d/%d, %.1f %%, ETA %s",
             self.job.id, self.job.name, mark.layer + 1, self.layers, status.progress * 100, eta,
         )
-        self.hub.event("layer", id=self.job.id, name=self.job.name, layer=mark.layer,
-                       layers=self.layers)
+        self.life.publish(LayerDone(self.job.id, self.job.name, mark.layer, self.layers))
+
+    def _writer_error(self, what: str, message: str) -> None:
+        """The checkpoint writer could not write the G-code file, or the store."""
+        if what == "file":
+            self._file_failed(message)
+            return
+        log.error("job %s: %s", self.job.id, message)
+        self.life.publish(JobError(self.job.id, message))
+
+    def _file_failed(self, message: str) -> None:
+        if self.output_error is not None:
+            return
+        self.output_error = message
+        if self.writer is not None:
+            self.writer.file_failed()
+        log.error("job %s %s: %s; printing goes on", self.job.id, self.job.name, message)
+        self.life.publish(JobError(self.job.id, message))
 
     def _save(self, action: Callable[..., Any], *args: Any) -> Any:
         """Run one operation on the G-code file; a failure (disk full) stops the file only.
@@ -259,10 +311,7 @@ class JobRunner:
         try:
             return action(*args)
         except OSError as exc:
-            self.output_error = f"the G-code file could not be written: {exc.strerror or exc}"
-            log.error("job %s %s: %s; printing goes on", self.job.id, self.job.name,
-                      self.output_error)
-            self.hub.event("error", id=self.job.id, message=self.output_error)
+            self._file_failed(f"the G-code file could not be written: {exc.strerror or exc}")
             return None
 
     # -- status ---------------------------------------------------------------
@@ -291,11 +340,12 @@ class JobRunner:
         self.hub.update(job=status)
         return status
 
-    def _set_state(self, state: str) -> None:
+    def _set_state(self, state: JobState) -> None:
         if state != self.state or self.store.get(self.job.id).state != state:
-            self.store.transition(self.job.id, state, layers=self.layers)
+            self.life.enter(self.job.id, state, status=self.status(), layers=self.layers)
+        else:
+            self.hub.update(job=self.status())
         self.state = state
-        self.hub.update(state=state, job=self.status())
 
 
 def _clock(seconds: float) -> str:

@@ -2,10 +2,7 @@
 
 from __future__ import annotations
 
-import asyncio
-import collections
 import concurrent.futures
-import contextlib
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Protocol
@@ -15,6 +12,7 @@ import numpy as np
 from drivers.protocol import strip_comment
 from hostd.schedule import LayerSchedule
 from slicer.errors import ModelError
+from slicer.pipeline import LayerWindow
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -74,8 +72,11 @@ class LayerSource(Protocol):
 class SlicedSource:
     """Layers sliced in a thread pool, at most ``depth`` ahead of the one streaming.
 
-    The bound is the backpressure: a layer is submitted only when one is taken,
-    so memory holds at most ``depth`` layers however many the model has.
+    The window is :class:`slicer.pipeline.LayerWindow`, the one `hostd print` and
+    `hostd slice` use too: a layer is submitted only when one is taken, so memory
+    holds at most ``depth`` layers however many the model has. Until a layer with
+    something to print is made, layers are sliced one at a time: no other layer
+    competes with the one the printer waits for.
     """
 
     def __init__(
@@ -89,42 +90,12 @@ class SlicedSource:
         self.schedule = schedule
         self.layer_count = schedule.layer_count
         self.first = first
-        self.depth = depth
-        self.executor = executor
         self.resume = resume
-        self._futures: collections.deque[tuple[int, concurrent.futures.Future[list[str]]]] = (
-            collections.deque()
+        self._window: LayerWindow[list[str]] = LayerWindow(
+            lambda index: executor.submit(schedule.layer_gcode, index),
+            self.layer_count, depth, first=first, alone=True,
+            worth=lambda lines: len(lines) > 1,  # more than its ;LAYER line
         )
-        self._next = first
-        self._closed = False
-        # until a layer with something to print is made, layers are sliced one at a
-        # time: no other layer competes with the one the printer waits for
-        self._alone = True
-        self._loop = asyncio.get_running_loop()
-        self._fill()
-
-    def _fill(self) -> None:
-        while not self._closed and len(self._futures) < self.depth and (
-            self._next < self.layer_count
-        ):
-            if self._alone and any(not future.done() for _index, future in self._futures):
-                return
-            index = self._next
-            future = self.executor.submit(self.schedule.layer_gcode, index)
-            self._futures.append((index, future))
-            self._next += 1
-            if self._alone:
-                future.add_done_callback(self._made_alone)
-
-    def _made_alone(self, future: concurrent.futures.Future[list[str]]) -> None:
-        """(Worker thread) a layer sliced alone is made: go on in the event loop."""
-        with contextlib.suppress(RuntimeError):  # the loop has closed
-            self._loop.call_soon_threadsafe(self._after_alone, future)
-
-    def _after_alone(self, future: concurrent.futures.Future[list[str]]) -> None:
-        if future.cancelled() or future.exception() is not None or len(future.result()) > 1:
-            self._alone = False  # more than its ;LAYER line: from now on, the full lookahead
-        self._fill()
 
     def preamble(self) -> list[str]:
         if self.first >= self.layer_count:
@@ -133,32 +104,21 @@ class SlicedSource:
         return list(plan.resume_gcode(self.first) if self.resume else plan.start_gcode())
 
     async def layer(self, index: int) -> list[str]:
-        if not self._futures:
-            self._fill()
-        queued, future = self._futures[0]
-        if queued != index:
-            raise RuntimeError(f"layer {index} asked for, layer {queued} is next")
-        lines = await asyncio.wrap_future(future)
-        self._futures.popleft()
-        self._fill()
-        return lines
+        return await self._window.take_async(index)
 
     def ending(self) -> list[str]:
         return list(self.schedule.plan_at(self.layer_count - 1).end_gcode())
 
     @property
     def ready_ahead(self) -> int:
-        return sum(1 for _index, future in self._futures if future.done())
+        return self._window.ready_ahead
 
     @property
     def next_unsliced(self) -> int:
-        return self._next
+        return self._window.next_unsliced
 
     def close(self) -> None:
-        self._closed = True
-        for _index, future in self._futures:
-            future.cancel()
-        self._futures.clear()
+        self._window.close()
 
 
 class FileSource:

@@ -13,6 +13,7 @@ from pathlib import Path
 
 from watchfiles import awatch
 
+from hostd.filecheck import open_for_writing
 from hostd.jobfolder import is_job_name
 
 log = logging.getLogger("hostd.watcher")
@@ -22,6 +23,8 @@ OnSettled = Callable[[Path], Awaitable[None]]
 # how far a file's change time may lag the moment of the change: file times are taken
 # from the kernel's coarse clock, which moves in ticks of up to 10 ms
 _STAMP_GRAIN_S = 0.01
+# how often a settled file that a writer still holds open is looked at again (s)
+_HELD_RECHECK_S = 0.25
 
 
 @dataclass(frozen=True)
@@ -37,9 +40,10 @@ class Watcher:
 
     Only the top level of ``folder`` is watched (``done/`` and ``failed/`` live
     inside it). A file is settled when its size and modification time were the
-    same for ``settle_s`` seconds. Directories and links with job names are passed
-    on too, so that the intake can refuse them with a reason. The folder is scanned
-    again every ``rescan_s`` seconds in case an event was missed.
+    same for ``settle_s`` seconds and no process holds it open for writing (a copy
+    that stalls longer than ``settle_s`` is waited for). Directories and links with
+    job names are passed on too, so that the intake can refuse them with a reason.
+    The folder is scanned again every ``rescan_s`` seconds in case an event was missed.
     """
 
     def __init__(
@@ -50,6 +54,10 @@ class Watcher:
         self.on_settled = on_settled
         self.rescan_s = rescan_s
         self._pending: dict[Path, _Seen] = {}
+        self._held: set[Path] = set()  # settled files a writer still holds open (logged once)
+        # a look for writers begun while a file settles, with the signature it began at:
+        # the look (a walk of /proc) is then off the path from settled to taken
+        self._looks: dict[Path, tuple[tuple[int, int, int, int] | None, asyncio.Future[bool]]] = {}
         self._wake = asyncio.Event()
 
     async def run(self, stop: asyncio.Event | None = None) -> None:
@@ -101,6 +109,7 @@ class Watcher:
                 signature = _signature(path)
                 if signature is None and not path.is_symlink():
                     del self._pending[path]  # gone before it settled
+                    self._looks.pop(path, None)
                     continue
                 if signature != seen.signature:
                     since = _changed_at(signature, now, self.settle_s)
@@ -112,8 +121,25 @@ class Watcher:
                     due.append(path)
                 else:
                     wait = remaining if wait is None else min(wait, remaining)
+                    if remaining <= self.settle_s / 2:
+                        self._look_early(path, self._pending[path].signature)
             due.sort(key=lambda item: (_mtime(self._pending[item]), item.name))  # oldest first
+            for path in list(due):
+                if path.is_file() and await self._written(path, self._pending[path].signature):
+                    # still being written, however long it has been still: wait again
+                    if path not in self._held:
+                        self._held.add(path)
+                        log.info("%s is still open for writing; waiting for its writer",
+                                 path.name)
+                    # looked at again shortly: settled already, it is taken once closed
+                    again = min(self.settle_s, _HELD_RECHECK_S)
+                    self._pending[path] = _Seen(self._pending[path].signature,
+                                                time.monotonic() - self.settle_s + again)
+                    due.remove(path)
+                    wait = again if wait is None else min(wait, again)
             for path in due:
+                self._held.discard(path)
+                self._looks.pop(path, None)
                 del self._pending[path]
                 try:
                     await self.on_settled(path)
@@ -123,6 +149,28 @@ class Watcher:
                 continue
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(self._wake.wait(), timeout=_poll_interval(wait))
+
+
+    def _look_early(self, path: Path, signature: tuple[int, int, int, int] | None) -> None:
+        """Begin looking for writers of a file that has held still for half its settle time."""
+        look = self._looks.get(path)
+        if look is not None and look[0] == signature:
+            return
+        if look is not None and not look[1].done():
+            return  # one look at a time; the signature check at the end decides
+        self._looks[path] = (signature, asyncio.ensure_future(
+            asyncio.to_thread(open_for_writing, path)))
+
+    async def _written(self, path: Path, signature: tuple[int, int, int, int] | None) -> bool:
+        """True when a process holds ``path`` open for writing.
+
+        The answer of a look begun while the file settled is used when the file has
+        not changed since; a writer that stalls keeps its descriptor open all along.
+        """
+        look = self._looks.pop(path, None)
+        if look is not None and look[0] == signature:
+            return await look[1]
+        return await asyncio.to_thread(open_for_writing, path)
 
 
 def _poll_interval(wait: float | None) -> float | None:

@@ -15,29 +15,15 @@ from pathlib import Path
 from typing import Any
 
 import pytest
+from doubles import RecordingController
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
 from hostd.api import ControlClient, ControlError, JobStatus, Snapshot
 from hostd.control import ControlSocketError, serve_control
-from hostd.status import CommandError, StatusHub
+from hostd.status import StatusHub
 
 REPO = Path(__file__).resolve().parents[1]
-
-
-class RecordingController:
-    """A real controller for the tests: records commands, refuses `cancel` without a job."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, dict[str, Any]]] = []
-
-    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
-        self.calls.append((cmd, args))
-        if cmd == "cancel":
-            raise CommandError("no job is printing")
-        if cmd == "set" and "boom" in args:
-            raise ZeroDivisionError("controller bug")
-        return {"done": cmd}
 
 
 Scenario = Callable[[Path, StatusHub, RecordingController], Awaitable[None]]

@@ -147,12 +147,13 @@ def test_pause_resume_cancel_and_queue_commands(daemon, tmp_path):
     hostd.wait_for(lambda: status(socket).state == "paused", 5, "paused")
     with pytest.raises(ControlError, match="already paused"):
         command(socket, "pause")
-    time.sleep(0.5)  # the printer empties the lines already sent, then lifts the nozzle
-    acked = status(socket).job.lines_acked
-    time.sleep(0.5)
-    assert status(socket).job.lines_acked == acked  # nothing of the job sent while paused
+    # the printer empties the lines already sent, then lifts the nozzle; that nothing of
+    # the job is sent while paused shows in the log below: the lift, then the return
     park = ["G91", "G1 Z5.00 F600", "G90", "M83"]
-    assert executed_job_lines(hostd.state / "simulator-executed.log")[-4:] == park
+    hostd.wait_for(
+        lambda: executed_job_lines(hostd.state / "simulator-executed.log")[-4:] == park,
+        10, "the nozzle lifted")
+    acked = status(socket).job.lines_acked
     command(socket, "resume")
     hostd.wait_for(lambda: status(socket).job.lines_acked > acked, 10, "printing again")
     command(socket, "cancel")
@@ -205,7 +206,6 @@ def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
     # the queue is held while the interrupted part is on the bed
     hostd.drop(DATA / "cube20_xyz.stl", "next.stl")
     hostd.wait_for(lambda: status(socket).queue == ("next.stl",), 10, "queued")
-    time.sleep(0.5)
     assert status(socket).state == "idle"
     result = subprocess.run(
         [*HOSTD, "resume", "nope", "--config", str(hostd.config)],
@@ -213,6 +213,9 @@ def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
     )
     assert result.returncode == 2 and "no job 'nope'" in result.stderr
     assert hostd.stop() == 0
+    store = JobStore(hostd.state / "jobs.sqlite3")
+    assert [entry.to_state for entry in store.history("2")] == ["queued"]  # never started
+    store.close()
     result = subprocess.run(
         [*HOSTD, "resume", "1", "--config", str(hostd.config)],
         capture_output=True, text=True, cwd=hostd.folder, env={"PYTHONPATH": str(ROOT)},
@@ -247,6 +250,18 @@ def test_an_absent_printer_leaves_the_daemon_serving_offline(tmp_path):
         proc.wait()
 
 
+def test_the_queue_lists_what_waits_not_the_job_printing(daemon, tmp_path):
+    hostd = daemon(sim_config(time_scale=0.01))
+    socket = hostd.state / "hostd.sock"
+    hostd.drop(small_box(tmp_path / "box.stl"), "only.stl")
+    snap = hostd.wait_for(printing_layer(socket, 0), 60, "printing")
+    assert snap.job.name == "only.stl" and snap.queue == ()
+    hostd.drop(small_box(tmp_path / "box.stl"), "next.stl")
+    snap = hostd.wait_for(lambda: (s := status(socket)).queue and s, 10, "queued")
+    assert snap.queue == ("next.stl",) and snap.job.name == "only.stl"
+    assert hostd.stop() == 0
+
+
 def test_a_job_stopped_while_heating_is_queued_again_and_prints(daemon):
     hostd = daemon(sim_config(time_scale=0.05))
     hostd.drop(DATA / "cube20_xyz.stl", "warm.stl")
@@ -262,3 +277,23 @@ def test_a_job_stopped_while_heating_is_queued_again_and_prints(daemon):
     store.close()
     assert states[:4] == ["queued", "slicing", "heating", "interrupted"]
     assert states[4:] == ["queued", "slicing", "heating", "printing", "done"]
+
+
+def test_emergency_stop_from_the_control_socket_halts_fails_the_job_and_reconnects(
+    daemon, tmp_path
+):
+    hostd = daemon(sim_config(time_scale=0.01))
+    socket = hostd.state / "hostd.sock"
+    hostd.drop(DATA / "dogbone_100x30x5.stl", "part.stl")
+    hostd.wait_for(printing_layer(socket, 0), 60, "printing")
+    assert command(socket, "emergency_stop")["job"] == "1"
+    failed = hostd.jobs / "failed" / "part.error.txt"
+    hostd.wait_for(failed.exists, 20, "the job failed")
+    assert "emergency stop" in failed.read_text()
+    assert "M112" in executed_job_lines(hostd.state / "simulator-executed.log")
+    # the link is opened again (the printer reset), and the next job prints
+    hostd.drop(small_box(tmp_path / "box.stl"), "after.stl")
+    hostd.wait_for(lambda: (hostd.jobs / "done" / "after.summary.txt").exists(), 60, "next job")
+    assert command(socket, "emergency_stop")["job"] is None  # idle: halts, opens again
+    hostd.wait_for(lambda: hostd.run_log().count("printer connected") == 3, 20, "reconnected")
+    assert hostd.stop() == 0

@@ -126,6 +126,18 @@ while True:
 """
 
 
+def recorded_jobs(db: Path) -> int:
+    """Jobs committed so far to the store at ``db`` (0 while it cannot be read)."""
+    try:
+        raw = sqlite3.connect(db, timeout=1.0)
+        try:
+            return raw.execute("SELECT COUNT(*) FROM jobs").fetchone()[0]
+        finally:
+            raw.close()
+    except sqlite3.Error:
+        return 0
+
+
 @pytest.mark.parametrize("seed", [1, 2, 3])
 def test_kill_9_at_any_instant_leaves_a_consistent_store(tmp_path: Path, seed: int) -> None:
     db = tmp_path / "jobs.sqlite3"
@@ -134,7 +146,10 @@ def test_kill_9_at_any_instant_leaves_a_consistent_store(tmp_path: Path, seed: i
         stdout=subprocess.PIPE, cwd=Path(__file__).parent.parent,
     )
     assert proc.stdout is not None and proc.stdout.readline().strip() == b"ready"
-    time.sleep(0.2 + 0.1 * seed)
+    # killed once the writer has recorded a few jobs: at a different instant per seed
+    deadline = time.monotonic() + 30
+    while recorded_jobs(db) < 2 * seed and time.monotonic() < deadline:
+        time.sleep(0.01)
     os.kill(proc.pid, signal.SIGKILL)
     proc.wait()
     raw = sqlite3.connect(db)

@@ -14,11 +14,12 @@ from typing import Any
 import aiomqtt
 import pytest
 from brokers import HOST, Broker, make_self_signed, start_broker
+from doubles import RecordingController
 
 from hostd.api import JobStatus, Snapshot
 from hostd.config import MqttConfig
 from hostd.mqtt import Backoff, MqttBridge, MqttSetupError
-from hostd.status import CommandError, StatusHub
+from hostd.status import StatusHub
 
 PRINTER = "p1"
 USER, SECRET = "farm", "s3cret"
@@ -37,19 +38,6 @@ def secured_broker(tmp_path: Path) -> Any:
     running = start_broker(tmp_path / "broker", users={USER: SECRET})
     yield running
     running.stop()
-
-
-class RecordingController:
-    """A real controller for the tests: records commands, refuses `cancel` without a job."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, dict[str, Any]]] = []
-
-    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
-        self.calls.append((cmd, args))
-        if cmd == "cancel":
-            raise CommandError("no job is printing")
-        return {}
 
 
 @dataclass

@@ -10,13 +10,13 @@ import threading
 from pathlib import Path
 
 from conftest import DATA
+from stores import RecordingStore
 
 from drivers.protocol import strip_comment
 from drivers.simconfig import SimulatorConfig
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer, StreamerConfig
 from drivers.transport import open_transport
-from hostd.jobstore import JobStore
 from hostd.runner import JobRunner, open_output
 from hostd.schedule import LayerSchedule
 from hostd.sources import SlicedSource
@@ -43,17 +43,18 @@ class CountingSchedule(LayerSchedule):
 
 
 async def print_job(
-    tmp_path: Path, depth: int, renumber_at: int = 100_000, output_path: Path | None = None
+    tmp_path: Path, depth: int, renumber_at: int = 100_000, output_path: Path | None = None,
+    commit_delay_s: float = 0.0, time_scale: float = 0.0,
 ) -> dict:
     settings = SliceSettings()
     plan = SlicePlan.from_file(MODEL, settings)
     schedule = CountingSchedule(plan, settings)
-    store = JobStore(tmp_path / "jobs.sqlite3")
+    store = RecordingStore(tmp_path / "jobs.sqlite3", commit_delay_s)
     job = store.add("dogbone.stl", str(MODEL), str(MODEL), "stl", "00", settings.to_mapping())
     store.transition(job.id, "slicing")
     hub = StatusHub()
-    seen: dict = {"ahead": [], "sliced_at_first_send": None, "checkpoints": []}
-    printer = SimulatedPrinter(SimulatorConfig(time_scale=0.0, baud=0))
+    seen: dict = {"ahead": [], "sliced_at_first_send": None}
+    printer = SimulatedPrinter(SimulatorConfig(time_scale=time_scale, baud=0))
     path = printer.start()
     executor = concurrent.futures.ThreadPoolExecutor(2)
     try:
@@ -72,13 +73,6 @@ async def print_job(
                 return await original_send(command)
 
             link.send = send  # type: ignore[method-assign]
-            original_checkpoint = store.checkpoint
-
-            def checkpoint(job_id: str, layer: int, lines: int, offset: int) -> None:
-                seen["checkpoints"].append((layer, lines, offset))
-                original_checkpoint(job_id, layer, lines, offset)
-
-            store.checkpoint = checkpoint  # type: ignore[method-assign]
             link.on_ack = lambda _number, _command: runner.on_ack()
             await runner.run()
             with contextlib.suppress(OSError):
@@ -86,6 +80,10 @@ async def print_job(
     finally:
         executor.shutdown()
         printer.stop()
+    seen["stats"] = link.stats
+    seen["loop_thread"] = threading.current_thread().name
+    seen["checkpoints"] = store.checkpoints
+    seen["threads"] = store.threads
     seen["job"] = store.get(job.id)
     seen["executed"] = list(printer.executed)
     seen["plan"] = plan
@@ -102,10 +100,14 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
     # never the whole file first: streaming began with at most the lookahead sliced
     assert seen["sliced_at_first_send"] is not None and seen["sliced_at_first_send"] <= 3
     assert max(seen["ahead"]) <= 3  # bounded: backpressure
-    # one checkpoint per layer, in order, with growing line counts and file offsets
+    # checkpoints in order: layers, line counts and file offsets never go back; a newer
+    # one replaces one not yet written, and the last records the last layer
     checkpoints = seen["checkpoints"]
-    assert [c[0] for c in checkpoints] == list(range(layers))
-    assert all(a[1] < b[1] and a[2] < b[2] for a, b in itertools.pairwise(checkpoints))
+    assert all(a[0] <= b[0] and a[1] < b[1] and a[2] <= b[2]
+               for a, b in itertools.pairwise(checkpoints))
+    assert checkpoints[-1][0] == layers - 1
+    # within a layer, the commands of the next layer acknowledged so far
+    assert any(c[3] > 0 and c[0] < layers - 1 for c in checkpoints)
     expected = [c for c in map(strip_comment, plan.start_gcode()) if c]
     for index in range(layers):
         expected += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
@@ -116,8 +118,9 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
     assert executed == expected
     job = seen["job"]
     assert (job.state, job.layer, job.layers) == ("printing", layers - 1, layers)
-    # the last checkpoint: every line up to the last layer acknowledged
-    assert job.lines_acked == len(expected) - len(ending) == checkpoints[-1][1]
+    # the last checkpoint: every line acknowledged, the ending's after the last layer
+    assert job.lines_acked == len(expected) == checkpoints[-1][1]
+    assert job.layer_lines == len(ending)
     text = (tmp_path / "out.gcode.part").read_text()
     assert [c for c in map(strip_comment, text.splitlines()) if c] == expected
     assert job.gcode_bytes <= len(text.encode())
@@ -127,7 +130,28 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
 def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> None:
     seen = asyncio.run(print_job(tmp_path, depth=2, renumber_at=1000))
     assert sum(c.startswith("M110") for c in seen["executed"]) > 10  # renumbered often
-    assert [c[0] for c in seen["checkpoints"]] == list(range(seen["plan"].layer_count))
+    layers = [c[0] for c in seen["checkpoints"]]
+    assert layers == sorted(layers) and layers[-1] == seen["plan"].layer_count - 1
+
+
+def test_a_store_whose_commits_take_200_ms_does_not_hold_up_the_printer(tmp_path: Path) -> None:
+    seen = asyncio.run(print_job(tmp_path, depth=3, commit_delay_s=0.2, time_scale=0.002))
+    plan = seen["plan"]
+    expected = [c for c in map(strip_comment, plan.start_gcode()) if c]
+    for index in range(plan.layer_count):
+        expected += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
+    expected += [c for c in map(strip_comment, plan.end_gcode()) if c]
+    housekeeping = ("M110", "M115", "M155", "M105")
+    # every line carried out exactly once, in order
+    assert [c for c in seen["executed"] if c.split()[0] not in housekeeping] == expected
+    stats = seen["stats"]
+    assert (stats.resends, stats.lines_resent, stats.probes, stats.errors) == (0, 0, 0, 0)
+    # the commits ran in the writer's thread, never in the loop that reads the printer
+    assert seen["threads"] and seen["loop_thread"] not in seen["threads"]
+    assert set(seen["threads"]) == {"hostd-checkpoint_0"}
+    # the store still ends at the last layer, with every line acknowledged
+    assert seen["checkpoints"][-1][0] == plan.layer_count - 1
+    assert seen["job"].lines_acked == seen["checkpoints"][-1][1]
 
 
 def test_a_full_disk_stops_the_gcode_file_but_not_the_print(tmp_path: Path) -> None:
@@ -141,3 +165,66 @@ def test_a_full_disk_stops_the_gcode_file_but_not_the_print(tmp_path: Path) -> N
     assert [c for c in seen["executed"] if c.split()[0] not in housekeeping] == expected
     assert "No space left on device" in seen["output_error"]
     assert seen["hub"].job.progress == 1.0
+
+
+def test_a_resume_within_a_layer_sends_the_rest_of_it_after_lifted_moves_back(
+    tmp_path: Path,
+) -> None:
+    settings = SliceSettings()
+    plan = SlicePlan.from_file(MODEL, settings)
+    schedule = LayerSchedule(plan, settings)
+    layer, done = 2, 150  # layer 2 complete; 150 commands of layer 3 carried out
+    text = [line for line in plan.start_gcode()]
+    for index in range(layer + 1):
+        text += plan.layer_gcode(index)
+    partial = tmp_path / "out.gcode.part"
+    partial.write_text("\n".join(text) + "\n")
+    store = RecordingStore(tmp_path / "jobs.sqlite3")
+    job = store.add("dogbone.stl", str(MODEL), str(MODEL), "stl", "00", settings.to_mapping())
+    store.transition(job.id, "slicing")
+    store.checkpoint(job.id, layer, 4000, partial.stat().st_size, done)
+    job = store.get(job.id)
+
+    async def main() -> list[str]:
+        printer = SimulatedPrinter(SimulatorConfig(time_scale=0.0, baud=0))
+        path = printer.start()
+        executor = concurrent.futures.ThreadPoolExecutor(2)
+        try:
+            async with Streamer(await open_transport(path, 250000), StreamerConfig()) as link:
+                await link.connect()
+                source = SlicedSource(schedule, layer + 1, 2, executor, resume=True)
+                output = open_output(partial, job.gcode_bytes)
+                runner = JobRunner(job, source, link, store, StatusHub(), output, layer + 1,
+                                   write_preamble=False, skip=done)
+                link.on_ack = lambda _number, _command: runner.on_ack()
+                await runner.run()
+                output.close()
+        finally:
+            executor.shutdown()
+            printer.stop()
+        return list(printer.executed)
+
+    executed = [c for c in asyncio.run(main()) if c.split()[0] not in ("M110", "M115", "M155",
+                                                                         "M105")]
+    commands = [c for c in map(strip_comment, plan.resume_gcode(layer + 1)) if c]
+    assert executed[:len(commands)] == commands
+    rest = [c for c in map(strip_comment, plan.layer_gcode(layer + 1)) if c]
+    carried_out, rest = rest[:done], rest[done:]
+    for index in range(layer + 2, plan.layer_count):
+        rest += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
+    rest += [c for c in map(strip_comment, plan.end_gcode()) if c]
+    assert executed[-len(rest):] == rest
+    back = executed[len(commands):-len(rest)]
+    # the moves back: the retraction in force, a travel at the lifted height, down to the
+    # layer's Z, the feed rate; no plastic laid
+    last_xy = next(c for c in reversed(carried_out) if " X" in c and " Y" in c)
+    x, y = (w for w in last_xy.split() if w[0] in "XY")
+    assert back[-3:-1] == [f"G0 F9000 {x} {y}", f"G0 F600 Z{plan.layer_z(layer + 1):.3f}"]
+    assert back[-1].startswith("G1 F") and len(back) <= 4
+    assert not any("E" in c and c.startswith("G1 X") for c in back)
+    # the G-code file is the uninterrupted print's
+    reference = [c for c in map(strip_comment, plan.start_gcode()) if c]
+    for index in range(plan.layer_count):
+        reference += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
+    reference += [c for c in map(strip_comment, plan.end_gcode()) if c]
+    assert [c for c in map(strip_comment, partial.read_text().splitlines()) if c] == reference

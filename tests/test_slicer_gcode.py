@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 import trimesh
 
-from hostd.commands.slice import write_gcode
 from slicer.gcode import summarize
+from slicer.gcodefile import write_gcode
 from slicer.layer import WALL_INNER, WALL_OUTER
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings

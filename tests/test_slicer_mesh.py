@@ -43,7 +43,9 @@ def test_loops_close_when_planes_hit_vertices(tmp_path) -> None:
         k = np.flatnonzero(chains.layer == layer)
         assert len(k) == 1
         ring = chains.coords[chains.offsets[k[0]] : chains.offsets[k[0] + 1]]
-        assert shapely.Polygon(ring).area == pytest.approx(mesh.area_faces[0] * 0 + 77.65, rel=0.01)
+        # the section is the cylinder's regular 24-gon of circumradius 5: n/2 r^2 sin(2 pi/n)
+        polygon_area = 24 / 2 * 5.0**2 * np.sin(2 * np.pi / 24)
+        assert shapely.Polygon(ring).area == pytest.approx(polygon_area, rel=1e-6)
 
 
 @pytest.mark.parametrize("step", [0.5, 12.7, 46.7])

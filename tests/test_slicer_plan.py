@@ -7,7 +7,7 @@ import pytest
 import shapely
 import trimesh
 
-from hostd.commands.slice import write_gcode
+from slicer.gcodefile import write_gcode
 from slicer.layer import WALL_OUTER
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings

@@ -10,6 +10,7 @@ from typing import Any
 
 import numpy as np
 from conftest import DATA
+from doubles import RecordingController
 from textual.widgets._footer import FooterKey
 
 from hostd.api import (
@@ -24,7 +25,7 @@ from hostd.api import (
 from hostd.control import serve_control
 from hostd.layerview import layer_view
 from hostd.schedule import LayerSchedule
-from hostd.status import CommandError, StatusHub
+from hostd.status import StatusHub
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tui.app import Dashboard
@@ -255,23 +256,10 @@ def test_a_source_without_replies_shows_status_and_says_why_there_is_no_picture(
     asyncio.run(scenario())
 
 
-class RecordingController:
-    """Records the commands the dashboard sends over a real control socket."""
-
-    def __init__(self) -> None:
-        self.calls: list[tuple[str, dict[str, Any]]] = []
-
-    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
-        self.calls.append((cmd, args))
-        if cmd == "layer":
-            raise CommandError("no job is printing")
-        return {}
-
-
 def test_socket_source_status_and_commands_over_a_real_control_socket() -> None:
     async def scenario(folder: Path) -> RecordingController:
         hub = StatusHub(Snapshot(state="idle"))
-        controller = RecordingController()
+        controller = RecordingController({"layer": "no job is printing"})
         path = folder / "hostd.sock"
         server = asyncio.create_task(serve_control(path, hub, controller))
         await until(path.exists)

@@ -4,12 +4,14 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import hashlib
 import os
 import shutil
 import time
 from pathlib import Path
 
 from hostd.config import load_config
+from hostd.filecheck import open_for_writing
 from hostd.intake import Intake
 from hostd.jobstore import JobStore
 from hostd.status import StatusHub
@@ -25,8 +27,17 @@ def make_config(tmp_path: Path, extra: str = "", settle: float = 0.2):
     return load_config(path, cwd=tmp_path)
 
 
-async def watch_for(config, seconds: float, action) -> tuple[list[str], JobStore]:
-    """Run a watcher + intake for ``seconds`` while ``action(jobs_folder)`` runs."""
+SENTINEL = "zz-sentinel.gcode"
+
+
+async def watch_for(config, jobs: int, action, sentinel: bool = False,
+                    timeout: float = 20.0) -> tuple[list[str], JobStore]:
+    """Run a watcher + intake while ``action(jobs_folder)`` runs, until ``jobs`` are recorded.
+
+    With ``sentinel``, a last G-code file is dropped after the action and waited for too
+    (and left out of the result): files the watcher was to leave alone had every chance
+    to be taken by then.
+    """
     store = JobStore(config.state.folder / "jobs.sqlite3")
     intake = Intake(config, store, StatusHub())
     taken: list[str] = []
@@ -38,14 +49,27 @@ async def watch_for(config, seconds: float, action) -> tuple[list[str], JobStore
     stop = asyncio.Event()
     watcher = Watcher(config.jobs.folder, config.jobs.settle_s, on_settled)
     task = asyncio.create_task(watcher.run(stop))
-    await asyncio.sleep(0.3)
+    await wait_until(lambda: config.jobs.folder.is_dir(), timeout)
     await action(config.jobs.folder)
-    await asyncio.sleep(seconds)
+    if sentinel:
+        (config.jobs.folder / SENTINEL).write_text("G28\n")
+        jobs += 1
+    await wait_until(lambda: len(store.jobs()) >= jobs, timeout)
     stop.set()
     task.cancel()
     with contextlib.suppress(asyncio.CancelledError):
         await task
+    if sentinel:
+        taken.remove(SENTINEL)
     return taken, store
+
+
+async def wait_until(check, timeout: float) -> None:
+    """Poll ``check`` until it is true; fail after ``timeout`` seconds."""
+    deadline = time.monotonic() + timeout
+    while not check():
+        assert time.monotonic() < deadline, "timed out"
+        await asyncio.sleep(0.02)
 
 
 def test_a_growing_file_is_taken_only_once_it_settled(tmp_path: Path) -> None:
@@ -64,7 +88,7 @@ def test_a_growing_file_is_taken_only_once_it_settled(tmp_path: Path) -> None:
         # every chunk came 0.2 s apart, well under the settle time: still in the folder
         assert all(seen_early)
 
-    taken, store = asyncio.run(watch_for(config, 2.0, grow))
+    taken, store = asyncio.run(watch_for(config, 1, grow))
     assert taken == ["slow.stl"]
     (job,) = store.jobs()
     assert job.state == "queued"
@@ -81,9 +105,9 @@ def test_hidden_and_temporary_files_are_ignored(tmp_path: Path) -> None:
         for name in names:
             shutil.copyfile(CUBE, folder / name)
 
-    taken, store = asyncio.run(watch_for(config, 0.8, drop))
-    assert taken == [] and store.jobs() == []
-    assert sorted(p.name for p in config.jobs.folder.iterdir()) == sorted(names)
+    taken, store = asyncio.run(watch_for(config, 0, drop, sentinel=True))
+    assert taken == [] and [job.name for job in store.jobs()] == [SENTINEL]
+    assert sorted(p.name for p in config.jobs.folder.iterdir() if p.is_file()) == sorted(names)
 
 
 def test_files_present_at_start_are_taken_by_the_initial_scan(tmp_path: Path) -> None:
@@ -95,7 +119,7 @@ def test_files_present_at_start_are_taken_by_the_initial_scan(tmp_path: Path) ->
     async def nothing(folder: Path) -> None:
         return None
 
-    taken, store = asyncio.run(watch_for(config, 0.8, nothing))
+    taken, store = asyncio.run(watch_for(config, 2, nothing))
     assert sorted(taken) == ["early.gcode", "early.stl"]
     assert sorted(job.kind for job in store.jobs()) == ["gcode", "stl"]
 
@@ -105,13 +129,10 @@ def test_same_name_twice_becomes_two_jobs(tmp_path: Path) -> None:
 
     async def drop_twice(folder: Path) -> None:
         shutil.copyfile(CUBE, folder / "part.stl")
-        for _ in range(50):
-            await asyncio.sleep(0.1)
-            if not (folder / "part.stl").exists():
-                break
+        await wait_until(lambda: not (folder / "part.stl").exists(), 10)
         shutil.copyfile(CUBE, folder / "part.stl")
 
-    taken, store = asyncio.run(watch_for(config, 1.0, drop_twice))
+    taken, store = asyncio.run(watch_for(config, 2, drop_twice))
     assert taken == ["part.stl", "part.stl"]
     jobs = store.jobs()
     assert [job.name for job in jobs] == ["part.stl", "part.stl"]
@@ -136,7 +157,7 @@ def test_refusals_end_in_failed_with_a_reason(tmp_path: Path) -> None:
         (folder / "garbled.toml").write_text("infill = [\n")
         (folder / "garbled.stl").write_bytes(b"solid x\nendsolid x\n")
 
-    _taken, store = asyncio.run(watch_for(config, 1.0, drop))
+    _taken, store = asyncio.run(watch_for(config, 7, drop))
     failed = config.jobs.folder / "failed"
     reasons = {p.name: p.read_text() for p in failed.glob("*.error.txt")}
     assert "outside the job folder" in reasons["escape.error.txt"]
@@ -160,10 +181,9 @@ def test_a_good_override_is_applied_and_kept_with_the_job(tmp_path: Path) -> Non
         (folder / "dense.toml").write_text(
             "nozzle_temp = 200\n[infill]\ndensity = 0.6\nfield = 'wave'\n"
         )
-        time.sleep(0.05)
         shutil.copyfile(CUBE, folder / "dense.stl")
 
-    _taken, store = asyncio.run(watch_for(config, 0.8, drop))
+    _taken, store = asyncio.run(watch_for(config, 1, drop))
     (job,) = store.jobs()
     assert job.settings["infill.density"] == 0.6 and job.settings["infill.field"] == "wave"
     assert (Path(job.path).parent / "dense.toml").exists()
@@ -179,9 +199,47 @@ def test_a_link_inside_the_folder_is_taken_as_a_copy(tmp_path: Path) -> None:
         shutil.copyfile(CUBE, library / "cube.stl")
         os.symlink(library / "cube.stl", folder / "linked.stl")
 
-    _taken, store = asyncio.run(watch_for(config, 0.8, drop))
+    _taken, store = asyncio.run(watch_for(config, 1, drop))
     (job,) = store.jobs()
     assert job.state == "queued" and not Path(job.path).is_symlink()
     assert Path(job.path).read_bytes() == CUBE.read_bytes()
     assert (config.jobs.folder / "library" / "cube.stl").exists()
     assert not (config.jobs.folder / "linked.stl").is_symlink()
+
+
+def test_a_copy_that_stalls_longer_than_the_settle_time_is_waited_for(tmp_path: Path) -> None:
+    config = make_config(tmp_path, settle=0.3)
+    data = CUBE.read_bytes()
+    half = len(data) // 2
+    still_there: list[bool] = []
+
+    async def stalled_copy(folder: Path) -> None:
+        target = folder / "stalled.stl"
+        with open(target, "wb") as handle:
+            handle.write(data[:half])
+            handle.flush()
+            # the writer stalls with the file open, five settle times long
+            await asyncio.sleep(5 * config.jobs.settle_s)
+            still_there.append(target.exists())
+            handle.write(data[half:])
+
+    taken, store = asyncio.run(watch_for(config, 1, stalled_copy))
+    assert still_there == [True]  # settled, but not taken while its writer held it open
+    assert taken == ["stalled.stl"]
+    (job,) = store.jobs()
+    assert Path(job.path).read_bytes() == data
+    assert job.sha256 == hashlib.sha256(data).hexdigest()
+
+
+def test_writers_are_found_under_proc_and_readers_are_not(tmp_path: Path) -> None:
+    path = tmp_path / "model.stl"
+    path.write_bytes(b"solid x\n")
+    assert not open_for_writing(path)
+    with open(path, "rb"):
+        assert not open_for_writing(path)
+    with open(path, "ab") as handle:
+        assert open_for_writing(path)
+        moved = path.rename(tmp_path / "moved.stl")  # the same file under another name
+        assert open_for_writing(moved)
+        handle.write(b"endsolid x\n")
+    assert not open_for_writing(moved)

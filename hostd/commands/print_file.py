@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import concurrent.futures
 import contextlib
 import os
 import shutil
@@ -20,6 +21,7 @@ from drivers.simulator import SimulatedPrinter, SimulatorConfig
 from drivers.streamer import LinkError, StreamCancelled, Streamer, StreamerConfig
 from drivers.transport import TransportError, open_transport
 from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
+from slicer.pipeline import LayerWindow
 
 GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
 LAYERS_AHEAD = 3
@@ -107,23 +109,29 @@ def gcode_commands(path: Path) -> tuple[int, Callable[[Progress], AsyncIterator[
 
 
 def stl_commands(plan) -> Callable[[Progress], AsyncIterator[str]]:
-    """Start G-code, every layer sliced a few layers ahead on worker threads, end G-code."""
+    """Start G-code, every layer sliced a few layers ahead on worker threads, end G-code.
+
+    The window ahead is :class:`slicer.pipeline.LayerWindow`, as in the daemon.
+    """
 
     async def commands(progress: Progress) -> AsyncIterator[str]:
-        loop = asyncio.get_running_loop()
         for line in plan.start_gcode():
             if strip_comment(line):
                 yield strip_comment(line)
-        ahead: dict[int, asyncio.Future[list[str]]] = {}
-        for i in range(plan.layer_count):
-            for j in range(i, min(plan.layer_count, i + LAYERS_AHEAD + 1)):
-                if j not in ahead:
-                    ahead[j] = loop.run_in_executor(None, plan.layer_gcode, j)
-            for line in await ahead.pop(i):
-                command = strip_comment(line)
-                if command:
-                    yield command
-            progress.done = i + 1
+        with concurrent.futures.ThreadPoolExecutor(thread_name_prefix="print-slice") as pool:
+            window: LayerWindow[list[str]] = LayerWindow(
+                lambda index: pool.submit(plan.layer_gcode, index), plan.layer_count,
+                LAYERS_AHEAD + 1,
+            )
+            try:
+                for i in range(plan.layer_count):
+                    for line in await window.take_async(i):
+                        command = strip_comment(line)
+                        if command:
+                            yield command
+                    progress.done = i + 1
+            finally:
+                window.close()
         for line in plan.end_gcode():
             if strip_comment(line):
                 yield strip_comment(line)
