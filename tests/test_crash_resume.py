@@ -73,7 +73,7 @@ def test_kill_9_at_random_instants_then_resume_reproduces_the_print(daemon) -> N
         # nothing else runs while the part is on the bed, until resumed
         result = resume(hostd.config, "1")
         assert result.returncode == 0, result.stdout + result.stderr
-        assert f"at layer {layer + 1 if layer >= 0 else 0}" in result.stdout
+        assert f"at layer {layer + 2 if layer >= 0 else 1}" in result.stdout  # counted from 1
         last_layer = layer
     assert kills >= 2
     done = hostd.jobs / "done"
