@@ -270,7 +270,7 @@ def test_socket_source_status_and_commands_over_a_real_control_socket() -> None:
             hub.update(state="printing", job=printing(T0).job)
             await until(lambda: screen.query_one(LayerView).message == "no job is printing")
             hub.event("layer", id="7", layer=3, layers=25)
-            await until(lambda: any(e[2] == "layer 4 of 25 done" for e in screen.events), 3)
+            await until(lambda: any(e[2] == "layer 4 of 25 done" for e in screen.events))
             await pilot.press("p")
             await until(lambda: ("pause", {}) in controller.calls)
         server.cancel()

@@ -64,3 +64,21 @@ def test_demo_opens_the_dashboard_and_q_stops_everything(tmp_path: Path) -> None
     assert _daemon_pids(tmp_path) == []
     executed = (tmp_path / "var" / "simulator-executed.log").read_text().splitlines()
     assert any(line.startswith("G1") and " E" in line for line in executed)
+
+
+def test_hostd_print_progress_line_fits_the_terminal(monkeypatch) -> None:
+    import io
+
+    from hostd.commands.print_file import Progress, ProgressBar, fit_bar
+
+    for columns in (20, 32, 50, 80, 200):
+        out = io.StringIO()
+        monkeypatch.setenv("COLUMNS", str(columns))  # not a terminal: $COLUMNS says the width
+        bar = ProgressBar(out)
+        progress = Progress("layers", 309, done=100, acked=123456, hotend=(209.7, 210.0))
+        bar.draw(progress, final=True)
+        line = out.getvalue().strip("\r\n")
+        assert 0 < len(line) < max(columns, 20), (columns, line)
+        if columns >= 80:
+            assert "layer 100 of 309" in line and line.startswith("[")
+    assert fit_bar(0.5, "tail", 12) == "tail"  # no room for a bar: the text alone

@@ -8,6 +8,7 @@ already reads the broker). The layer picture and the estimates use
 
 from __future__ import annotations
 
+import time
 from functools import partial
 from typing import Any, ClassVar
 
@@ -34,6 +35,7 @@ from tui.widgets.panels import JobPanel, QueuePanel, StateBar, TempPanel
 
 NO_LAYER_VIEW = "the layer picture needs the daemon's control socket (hostd tui --socket)"
 LOG_LINES = 500
+RETRY_S = 5.0
 
 
 class PrinterScreen(Screen[None]):
@@ -78,6 +80,8 @@ class PrinterScreen(Screen[None]):
         self.log_filter = ""
         self._layer_key: tuple[str, int, bool] | None = None
         self._estimated_at: tuple[str, int] | None = None
+        self._retry_at = 0.0  # when a layer that could not be fetched is asked for again
+        self._layer_failed = False
 
     def compose(self) -> ComposeResult:
         yield StateBar(id="state")
@@ -128,12 +132,15 @@ class PrinterScreen(Screen[None]):
     def add_event(self, event: dict[str, Any]) -> None:
         """Append one job event to the log (kept for the filter)."""
         colour, text = describe_event(event)
-        self.events.append((float(event.get("ts", 0.0)), colour, text))
+        self._append(float(event.get("ts", 0.0)), colour, text)
+        if event.get("event") in ("object_cancelled", "object_restored"):
+            self._layer_key = None  # the picture's list of cancelled bodies changed
+
+    def _append(self, ts: float, colour: str, text: str) -> None:
+        self.events.append((ts, colour, text))
         del self.events[:-LOG_LINES]
         if self.log_filter.lower() in text.lower():
             self._write_log(self.events[-1])
-        if event.get("event") in ("object_cancelled", "object_restored"):
-            self._layer_key = None  # the picture's list of cancelled bodies changed
 
     def _write_log(self, entry: tuple[float, str, str]) -> None:
         ts, colour, text = entry
@@ -142,13 +149,7 @@ class PrinterScreen(Screen[None]):
 
     def note(self, text: str, colour: str = "white") -> None:
         """A line of the dashboard's own in the log (command sent, refused...)."""
-        self.add_event({"event": "note", "ts": self.snapshot.ts or 0.0})
-        self.events[-1] = (self.events[-1][0], colour, text)
-        log = self.query_one("#log", RichLog)
-        log.clear()
-        for entry in self.events:
-            if self.log_filter.lower() in entry[2].lower():
-                self._write_log(entry)
+        self._append(self.snapshot.ts or 0.0, colour, text)
 
     # -- the layer picture ----------------------------------------------------
 
@@ -161,8 +162,10 @@ class PrinterScreen(Screen[None]):
             view.border_title = "layer"
             return
         key = (job.id, job.layer, view.show_field)
-        if key != self._layer_key:
+        retry = self._layer_failed and time.monotonic() > self._retry_at
+        if key != self._layer_key or retry:
             self._layer_key = key
+            self._retry_at = time.monotonic() + RETRY_S
             self.run_worker(partial(self._load_layer, job.layer), group="layer", exclusive=True)
         self._show_progress()
 
@@ -190,8 +193,10 @@ class PrinterScreen(Screen[None]):
         try:
             data = await self._query("layer", **args)
         except ControlError as exc:
+            self.layer_data, self._layer_failed = None, True
             view.show(None, str(exc))
             return
+        self._layer_failed = False
         self.layer_data = data
         view.show(data)
         view.border_title = LayerView.title(data)
