@@ -146,6 +146,45 @@ def write_field(path: Path, solution: Solution) -> None:
         raise
 
 
+def field_path(
+    model: str | os.PathLike[str],
+    load: str | os.PathLike[str],
+    cache_dir: str | os.PathLike[str],
+    size: float = 0.0,
+    youngs: float = ABS_YOUNGS_MPA,
+    poisson: float = ABS_POISSON,
+) -> tuple[Path, LoadCase, np.ndarray, np.ndarray, float]:
+    """Where the analysis of ``model`` under ``load`` is cached (see :func:`field_key`),
+    with the case, the model's vertices and faces and the mesh size it uses."""
+    from slicer.mesh import read_stl
+
+    model, load = Path(model), Path(load)
+    if not model.is_file():
+        raise LoadCaseError(f"{load.name}: its model {model.name} is missing")
+    case = read_load_case(load, youngs, poisson)
+    vertices, faces = read_stl(model)
+    size = size or default_cell(mesh_volume(vertices, faces))
+    path = Path(cache_dir) / f"stress-{field_key(model.read_bytes(), case, size)}.npz"
+    return path, case, vertices, faces, size
+
+
+def read_field_file(path: Path) -> FieldFile:
+    """The facts of a field file already written (``cached`` True)."""
+    with np.load(path) as data:
+        return FieldFile(path, True, float(data["peak"]), tuple(data["cell"]),
+                         int(data["elements"]), 0.0)
+
+
+def solve_field(path: Path, case: LoadCase, vertices: np.ndarray, faces: np.ndarray,
+                size: float) -> FieldFile:
+    """Analyse and write the field file ``path``."""
+    solution = analyse_arrays(vertices, faces, case, size)
+    write_field(path, solution)
+    return FieldFile(path, False, float(solution.von_mises.max()),
+                     tuple(float(c) for c in solution.mesh.grid.cell),
+                     len(solution.mesh.cells), solution.seconds)
+
+
 def stress_field_file(
     model: str | os.PathLike[str],
     load: str | os.PathLike[str],
@@ -159,21 +198,7 @@ def stress_field_file(
     such file exists yet. ``youngs`` (MPa) and ``poisson`` are the material unless
     the case names its own. Raises LoadCaseError (bad case, model missing) or
     slicer.errors.ModelError (unreadable STL)."""
-    from slicer.mesh import read_stl
-
-    model, load = Path(model), Path(load)
-    if not model.is_file():
-        raise LoadCaseError(f"{load.name}: its model {model.name} is missing")
-    case = read_load_case(load, youngs, poisson)
-    vertices, faces = read_stl(model)
-    size = size or default_cell(mesh_volume(vertices, faces))
-    path = Path(cache_dir) / f"stress-{field_key(model.read_bytes(), case, size)}.npz"
+    path, case, vertices, faces, size = field_path(model, load, cache_dir, size, youngs, poisson)
     if path.is_file():
-        with np.load(path) as data:
-            return FieldFile(path, True, float(data["peak"]), tuple(data["cell"]),
-                             int(data["elements"]), 0.0)
-    solution = analyse_arrays(vertices, faces, case, size)
-    write_field(path, solution)
-    return FieldFile(path, False, float(solution.von_mises.max()),
-                     tuple(float(c) for c in solution.mesh.grid.cell),
-                     len(solution.mesh.cells), solution.seconds)
+        return read_field_file(path)
+    return solve_field(path, case, vertices, faces, size)
