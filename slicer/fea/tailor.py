@@ -45,10 +45,16 @@ class Tailoring:
             f = field
             how = "cached" if f.cached else f"analysed in {f.seconds:.1f} s"
             cell = " x ".join(f"{c:.2f}" for c in f.cell)
-            out.append(
-                f"stress analysis: {f.elements} elements of {cell} mm, peak von Mises "
-                f"{f.peak_mpa:.2f} MPa ({how})"
-            )
+            if f.path.name.startswith("optimal"):
+                from slicer.fea.optimal import ITERATIONS
+
+                out.append(f"optimised density: {f.elements} elements of {cell} mm, "
+                           f"{1 + ITERATIONS} analyses ({how})")
+            else:
+                out.append(
+                    f"stress analysis: {f.elements} elements of {cell} mm, peak von Mises "
+                    f"{f.peak_mpa:.2f} MPa ({how})"
+                )
         if self.mass is not None:
             out.append(self.mass.describe())
         return out
@@ -79,7 +85,7 @@ def with_analysis(
 
     field = stress_field_file(
         model, load, cache_dir, settings.fea_mesh_size,
-        settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio,
+        settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio, optimal_volume(settings),
     )
     changed = dataclasses.replace(
         settings, infill_field="stress", infill_file=str(field.path), infill_load=str(load)
@@ -111,14 +117,16 @@ def tailored_plan(
         from slicer.fea.field import field_path, read_field_file, solve_field
         from slicer.fields.stress_data import announce
 
+        optimal = optimal_volume(settings)
         path, loadcase, vertices, faces, size = field_path(
             model, case, cache_dir, settings.fea_mesh_size,
-            settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio)
+            settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio, optimal)
         settings = dataclasses.replace(
             settings, infill_field="stress", infill_file=str(path), infill_load=str(case))
         if path.is_file():
             return SlicePlan.from_file(model, settings, bed), Tailoring(read_field_file(path), None)
-        running = _BACKGROUND.submit(solve_field, path, loadcase, vertices, faces, size)
+        running = _BACKGROUND.submit(solve_field, path, loadcase, vertices, faces, size,
+                                     optimal)
         announce(path, running)
         return SlicePlan.from_file(model, settings, bed), Tailoring(None, None, running)
     if case is not None:
@@ -126,6 +134,14 @@ def tailored_plan(
     plan = SlicePlan.from_file(model, settings, bed)
     plan, mass = match_mass(plan, measure)
     return plan, Tailoring(field, mass)
+
+
+def optimal_volume(settings: SliceSettings) -> float:
+    """The mean density an ``infill.stress = "optimal"`` field is optimised at (the
+    job's infill density, at least 0.1), or 0 for the stress itself."""
+    if settings.infill_stress != "optimal":
+        return 0.0
+    return max(settings.infill_density, 0.1)
 
 
 def _wants_mass(settings: SliceSettings) -> bool:
