@@ -115,7 +115,7 @@ def tailored_plan(
     case = find_load_case(model, settings, load)
     if case is not None and background and not _wants_mass(settings):
         from slicer.fea.field import field_path, read_field_file, solve_field
-        from slicer.fields.stress_data import announce
+        from slicer.fields.stress_pending import announce
 
         optimal = optimal_volume(settings)
         path, loadcase, vertices, faces, size = field_path(

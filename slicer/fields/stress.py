@@ -5,15 +5,20 @@ from __future__ import annotations
 import logging
 import math
 import threading
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.interpolate import RegularGridInterpolator
 
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre
 from slicer.fields.grid import GridField
-from slicer.fields.stress_data import KEY, StressData, load_stress, pending
+from slicer.fields.stress_pending import pending
 from slicer.settings import SettingsError, SliceSettings
+
+if TYPE_CHECKING:
+    from slicer.fields.stress_data import StressData
+
+KEY = "infill.file"
 
 log = logging.getLogger("slicer.stress")
 
@@ -52,6 +57,8 @@ class StressField(GridField):
             self._load()
 
     def _load(self) -> None:
+        from slicer.fields.stress_data import load_stress  # scipy.interpolate: when sampled
+
         data = load_stress(self.settings.infill_file)
         self.peak = float(np.max(np.abs(data.values))) or 1.0
         self.profile = axis_profile(data) if self.settings.infill_stress == "B" else None
@@ -97,6 +104,8 @@ class StressField(GridField):
         slab = self.data.at(
             gx.ravel() - xmin + corner[0], gy.ravel() - ymin + corner[1], mid_z + corner[2]
         ).reshape(gx.shape)
+        from scipy.interpolate import RegularGridInterpolator
+
         read = RegularGridInterpolator((ys, xs), slab)
         points = np.column_stack(
             (np.clip(y.ravel(), ys[0], ys[-1]), np.clip(x.ravel(), xs[0], xs[-1]))
