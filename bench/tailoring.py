@@ -57,12 +57,25 @@ def child_analysis(model: str, load: str, size: float) -> dict:
     return {
         "seconds": time.perf_counter() - started,
         "solve_s": solution.seconds,
-        "peak_rss_mb": resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0,
+        "peak_rss_mb": peak_rss_mb(),
         "elements": len(solution.mesh.cells),
         "cell_mm": [round(float(c), 3) for c in solution.mesh.grid.cell],
         "iterations": solution.iterations,
         "peak_mpa": float(solution.von_mises.max()),
     }
+
+
+def peak_rss_mb() -> float:
+    """This process's peak resident memory, MB: VmHWM, which exec resets (ru_maxrss keeps
+    the parent's peak when the child was forked from a big parent)."""
+    try:
+        with open("/proc/self/status", encoding="ascii") as status:
+            for line in status:
+                if line.startswith("VmHWM:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 
 def run_child(*args: str) -> dict:
@@ -117,16 +130,19 @@ def tailor_example() -> dict:
             "report": done.stdout if done.returncode == 0 else done.stderr}
 
 
-def stress_drop(timeout: float = 300.0) -> dict:
-    """Drop dogbone.load.toml then dogbone.stl into a fresh daemon; settled -> extrusion."""
+def stress_drop(with_load: bool = True, timeout: float = 300.0) -> dict:
+    """Drop dogbone.load.toml (unless not ``with_load``) then dogbone.stl into a fresh
+    daemon; settled -> first extrusion."""
     from bench.daemonproc import Daemon, DaemonSetup
     from bench.drop_to_extrusion import first_extrusion
 
     setup = DaemonSetup()
     with Daemon(setup) as daemon:
         daemon.wait_ready()
-        shutil.copyfile(DOGBONE / "dogbone.load.toml", daemon.jobs / ".dogbone.load.toml.part")
-        os.replace(daemon.jobs / ".dogbone.load.toml.part", daemon.jobs / "dogbone.load.toml")
+        if with_load:
+            hidden = daemon.jobs / ".dogbone.load.toml.part"
+            shutil.copyfile(DOGBONE / "dogbone.load.toml", hidden)
+            os.replace(hidden, daemon.jobs / "dogbone.load.toml")
         written = daemon.drop(DOGBONE / "dogbone.stl")
         seen, note = first_extrusion(daemon, "dogbone.stl", timeout)
     if seen is None:
@@ -138,12 +154,43 @@ def main(argv: list[str] | None = None) -> int:
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--child", nargs=3, metavar=("MODEL", "LOAD", "SIZE"), help=argparse.SUPPRESS)
     p.add_argument("--skip-daemon", action="store_true", help="no drop-to-extrusion run")
+    p.add_argument("--only", choices=("convergence", "analysis", "tailor", "drop"),
+                   help="run one part only")
     p.add_argument("--json", type=Path, metavar="OUT", help="also write the figures as JSON")
     args = p.parse_args(argv)
     if args.child:
         print(json.dumps(child_analysis(args.child[0], args.child[1], float(args.child[2]))))
         return 0
     figures: dict = {"loadavg_before": os.getloadavg()}
+
+    def wanted(part: str) -> bool:
+        return args.only in (None, part)
+
+    if wanted("convergence"):
+        _convergence(figures)
+    if wanted("analysis"):
+        _analyses(figures)
+    if wanted("tailor"):
+        figures["tailor"] = tailor_example()
+        print(f"hostd tailor examples/dogbone: {figures['tailor']['seconds']:.1f} s "
+              f"({'ok' if figures['tailor']['ok'] else 'FAILED'})")
+        print("  " + figures["tailor"]["report"].strip().replace("\n", "\n  "))
+    if wanted("drop") and not args.skip_daemon:
+        for name, with_load in (("linear_drop", False), ("stress_drop", True)):
+            figures[name] = stress_drop(with_load)
+            latency = figures[name]["settled_to_extrusion_s"]
+            label = "stress job" if with_load else "the same model without its load case"
+            print(f"{label}, settled -> first extrusion: "
+                  + (f"{latency:.2f} s" if latency is not None else figures[name]["note"]))
+    figures["loadavg_after"] = os.getloadavg()
+    print(f"load average before/after: {figures['loadavg_before'][0]:.1f} / "
+          f"{figures['loadavg_after'][0]:.1f} on {os.cpu_count()} cores")
+    if args.json:
+        args.json.write_text(json.dumps(figures, indent=2))
+    return 0
+
+
+def _convergence(figures: dict) -> None:
     print("cantilever 100 x 10 x 10 mm, tip deflection / Timoshenko beam theory")
     print("  mesh mm  elements  ratio   iterations  solve s")
     figures["convergence"] = convergence()
@@ -151,6 +198,9 @@ def main(argv: list[str] | None = None) -> int:
         mark = " (default)" if row["default"] else ""
         print(f"  {row['size_mm']:7.3f}  {row['elements']:8d}  {row['ratio']:.4f}  "
               f"{row['iterations']:10d}  {row['seconds']:7.2f}{mark}")
+
+
+def _analyses(figures: dict) -> None:
     with tempfile.TemporaryDirectory(prefix="bench-fea-") as tmp:
         bunny_load = Path(tmp) / "bunny.load.toml"
         bunny_load.write_text(BUNNY_CASE)
@@ -163,21 +213,6 @@ def main(argv: list[str] | None = None) -> int:
             print(f"analysis {name}: {row['seconds']:.2f} s (solve {row['solve_s']:.2f} s, "
                   f"{row['iterations']} iterations), {row['elements']} elements of "
                   f"{row['cell_mm']} mm, peak RSS {row['peak_rss_mb']:.0f} MB")
-    figures["tailor"] = tailor_example()
-    print(f"hostd tailor examples/dogbone: {figures['tailor']['seconds']:.1f} s "
-          f"({'ok' if figures['tailor']['ok'] else 'FAILED'})")
-    print("  " + figures["tailor"]["report"].strip().replace("\n", "\n  "))
-    if not args.skip_daemon:
-        figures["stress_drop"] = stress_drop()
-        latency = figures["stress_drop"]["settled_to_extrusion_s"]
-        print("stress job, settled -> first extrusion: "
-              + (f"{latency:.2f} s" if latency is not None else figures["stress_drop"]["note"]))
-    figures["loadavg_after"] = os.getloadavg()
-    print(f"load average before/after: {figures['loadavg_before'][0]:.1f} / "
-          f"{figures['loadavg_after'][0]:.1f} on {os.cpu_count()} cores")
-    if args.json:
-        args.json.write_text(json.dumps(figures, indent=2))
-    return 0
 
 
 if __name__ == "__main__":

@@ -50,6 +50,8 @@ def build_parser() -> argparse.ArgumentParser:
                        "folder's model and load case, pictures, predicted moduli")
     p.add_argument("folder", metavar="DIR", help="holds NAME.stl, NAME.load.toml (NAME.toml)")
     p.add_argument("-o", "--output", metavar="OUTDIR", help="where to write (default DIR/out)")
+    p.add_argument("--optimal", action="store_true",
+                   help="also infill.stress = optimal (optimised density at equal mass)")
     p.add_argument("--config", metavar="FILE", help="take [slicing] and [printer] from FILE")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
 

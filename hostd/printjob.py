@@ -29,7 +29,7 @@ from hostd.status import StatusHub
 from slicer.annotate import annotate_file
 from slicer.arcs import for_printer
 from slicer.errors import ModelError
-from slicer.fea.tailor import tailored_plan
+from slicer.fea.tailor import Tailoring, tailored_plan
 from slicer.gcode import header_lines, summarize
 from slicer.settings import SettingsError, SliceSettings
 
@@ -67,7 +67,7 @@ class PrintJob:
         self.schedule: LayerSchedule | None = None
         self.source: LayerSource | None = None
         self.warned: list[str] = []  # the model's warnings logged so far
-        self.tailoring: list[str] = []  # the analysis and equal-mass lines for the summary
+        self.tailoring: Tailoring | None = None  # the analysis and equal mass, for the summary
         stem, _suffix = split_name(job.name)
         self.home = Path(job.path).parent
         self.partial = self.home / f"{stem}.gcode.part"
@@ -178,7 +178,7 @@ class PrintJob:
         try:
             plan, tailoring = await asyncio.to_thread(
                 tailored_plan, Path(job.path), settings, self.config.printer.bed,
-                self.config.state.folder / "fea",
+                self.config.state.folder / "fea", None, background=True,
             )
         except ModelError as exc:  # a file still being written may not parse yet
             error = exc
@@ -189,12 +189,12 @@ class PrintJob:
             job = checked
             plan, tailoring = await asyncio.to_thread(
                 tailored_plan, Path(job.path), settings, self.config.printer.bed,
-                self.config.state.folder / "fea",
+                self.config.state.folder / "fea", None, background=True,
             )
         elif error is not None:
             raise error
-        self.tailoring = tailoring.lines()
-        for line in self.tailoring:
+        self.tailoring = tailoring
+        for line in tailoring.lines():
             log.info("job %s %s: %s", job.id, job.name, line)
         settings = plan.settings
         log.info("job %s %s: whole-model pass %.2f s, %d layers, %d bodies", job.id, job.name,
@@ -266,7 +266,8 @@ class PrintJob:
                 f"filament {summary.filament_mm:.0f} mm ({summary.filament_g:.1f} g)\n"
                 f"estimated print time {summary.time_s:.0f} s\n"
             )
-        summary_text += "".join(f"{line}\n" for line in self.tailoring)
+        if self.tailoring is not None:
+            summary_text += "".join(f"{line}\n" for line in self.tailoring.lines())
         summary_text += f"sha256 {job.sha256}\nlines acknowledged {self.runner.lines_acked}\n"
         changes = self.schedule.changes if self.schedule else []
         cancelled = self.schedule.cancelled if self.schedule else []

@@ -19,7 +19,8 @@ INFILL_FIELDS = (
     "expression",
 )
 WALL_ORDERS = ("outer_first", "inner_first")
-STRESS_VARIANTS = ("A", "B")  # Eq. 14 with sigma(x, y, z), or sigma along the long axis
+# Eq. 14 with sigma(x, y, z), sigma along the long axis, or an optimised density in its place
+STRESS_VARIANTS = ("A", "B", "optimal")
 MASS_MATCHES = ("", "linear")
 ARC_MODES = ("auto", "on", "off")
 

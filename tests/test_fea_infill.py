@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from pathlib import Path
 
 import numpy as np
@@ -110,3 +111,22 @@ def test_an_unreachable_target_mass_is_refused(tmp_path: Path) -> None:
     with pytest.raises(SettingsError, match="walls and skins alone"):
         tailored_plan(stl, SliceSettings.from_mapping({"infill.target_mass_g": 0.01}), BED,
                       tmp_path / "cache")
+
+
+def test_optimal_density_keeps_the_mass_and_stiffens_the_part() -> None:
+    from slicer.fea.field import mesh_arrays
+    from slicer.fea.loadcase import read_load_case
+    from slicer.fea.optimal import FLOOR, optimal_density
+    from slicer.mesh import read_stl
+
+    vertices, faces = read_stl(DOGBONE)
+    case = read_load_case(DOGBONE.with_name("dogbone.load.toml"))
+    mesh = mesh_arrays(vertices, faces, case, size=2.0)
+    density, compliance = optimal_density(mesh, case, 0.3, iterations=3)
+    assert density.mean() == pytest.approx(0.3, rel=1e-3)
+    assert density.min() >= FLOOR - 1e-12 and density.max() <= 1.0
+    assert compliance[-1] < 0.8 * compliance[0]  # stiffer than uniform at the same mass
+    assert all(b <= a * 1.001 for a, b in itertools.pairwise(compliance))
+    x = mesh.centres[:, 0]
+    gage = density[(x > 40) & (x < 60)].mean()
+    assert gage > 2 * density[x < 12].mean()

@@ -9,6 +9,7 @@ grid and analysed).
 from __future__ import annotations
 
 import dataclasses
+import math
 import os
 import time
 import tomllib
@@ -25,6 +26,7 @@ from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings, parse_assignment
 
 VARIANTS = ("A", "B")
+NAMES = {"A": "Stress A", "B": "Stress B", "optimal": "Optimal"}
 
 
 def find_inputs(folder: Path) -> tuple[Path, Path, Path | None]:
@@ -105,19 +107,20 @@ def run(args) -> int:
         lines.append(f"linear.gcode: {target:.3f} g at infill.density {settings.infill_density:g}")
         plans = {"Linear": linear}
         field = None
-        for variant in VARIANTS:
+        variants = (*VARIANTS, "optimal") if args.optimal else VARIANTS
+        for variant in variants:
             wanted = dataclasses.replace(settings, infill_stress=variant,
                                          infill_target_mass_g=target)
             writer = _Writer(out, f"stress-{variant.lower()}")
             plan, tailoring = tailored_plan(model, wanted, bed, default_cache_dir(), load, writer)
             writer.keep(plan, out / f"stress-{variant.lower()}.gcode")
-            plans[f"Stress {variant}"] = plan
-            field = tailoring.field
+            plans[NAMES[variant]] = plan
+            field = tailoring.field if variant != "optimal" else field
             lines += [f"stress-{variant.lower()}.gcode: {line}" for line in tailoring.lines()]
         assert field is not None
         write_pictures(out, plans, field.path)
-        gcodes = {"Linear": out / "linear.gcode", "Stress A": out / "stress-a.gcode",
-                  "Stress B": out / "stress-b.gcode"}
+        gcodes = {"Linear": out / "linear.gcode"}
+        gcodes.update({NAMES[v]: out / f"stress-{v.lower()}.gcode" for v in variants})
         predictions = predict_moduli(model, load, settings, linear.bounds, gcodes)
     except ModelError as exc:
         raise UsageError(str(exc)) from exc
@@ -128,19 +131,24 @@ def run(args) -> int:
     (out / "tailor.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
     for line in lines:
         print(line)
-    print(f"written to {out}/: linear.gcode, stress-a.gcode, stress-b.gcode, fig16.png, "
-          "fig17.png, tailor.txt")
+    print(f"written to {out}/: " + ", ".join(p.name for p in sorted(out.iterdir())
+                                              if not p.name.startswith(".")))
     return 0
 
 
 def _table(predictions: list[Prediction]) -> list[str]:
     """The predicted apparent moduli as text lines, each against Linear."""
-    base = next(p for p in predictions if p.name == "Linear").modulus_mpa
-    rows = ["predicted apparent modulus (tension test rebuilt from each G-code):"]
+    base = next(p for p in predictions if p.name == "Linear")
+    rows = ["predicted from each G-code rebuilt and loaded (apparent modulus in the tension "
+            "test; stiffness = 1 / compliance under the load case):"]
     for p in predictions:
-        gain = 100.0 * (p.modulus_mpa / base - 1.0)
-        ratio = "" if p.name == "Solid" else f"  {gain:+.0f} % vs Linear"
         mass = "solid model" if p.name == "Solid" else f"mass {p.mass_g:.2f} g"
-        rows.append(f"  {p.name:9s} {p.modulus_mpa / 1000:.3f} GPa  {mass}{ratio}")
+        modulus = "" if math.isnan(p.modulus_mpa) else f"{p.modulus_mpa / 1000:.3f} GPa  "
+        gain = ""
+        if p.name != "Solid":
+            if modulus:
+                gain += f"  modulus {100.0 * (p.modulus_mpa / base.modulus_mpa - 1.0):+.0f} %"
+            gain += f"  stiffness {100.0 * (base.compliance / p.compliance - 1.0):+.0f} % vs Linear"
+        rows.append(f"  {p.name:9s} {modulus}{mass}{gain}")
     return rows
 

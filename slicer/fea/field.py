@@ -5,13 +5,14 @@ from __future__ import annotations
 import hashlib
 import os
 import tempfile
+import time
 from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 from scipy import ndimage
 
-from slicer.fea.hexmesh import CORNERS, boundary_faces, hex_mesh
+from slicer.fea.hexmesh import CORNERS, HexMesh, boundary_faces, hex_mesh
 from slicer.fea.loadcase import (
     ABS_POISSON,
     ABS_YOUNGS_MPA,
@@ -19,6 +20,7 @@ from slicer.fea.loadcase import (
     LoadCaseError,
     read_load_case,
 )
+from slicer.fea.optimal import ITERATIONS, optimal_density
 from slicer.fea.solve import Solution, analyse, fixed_nodes, nodal_loads
 from slicer.fea.voxel import default_cell, mesh_volume, voxelize
 
@@ -71,10 +73,10 @@ def lattice_points(solution: Solution) -> np.ndarray:
     return np.column_stack([m.ravel() for m in mesh])
 
 
-def analyse_arrays(
+def mesh_arrays(
     vertices: np.ndarray, faces: np.ndarray, case: LoadCase, size: float = 0.0
-) -> Solution:
-    """Voxelise the mesh (``size`` mm boxes, 0 for the default) and solve the case."""
+) -> HexMesh:
+    """The hexahedra of the mesh's voxels (``size`` mm boxes, 0 for the default)."""
     size = size or default_cell(mesh_volume(vertices, faces))
     try:
         grid = voxelize(vertices, faces, size)
@@ -82,7 +84,14 @@ def analyse_arrays(
         raise LoadCaseError(f"{case.source}: {exc}") from exc
     if not grid.solid.any():
         raise LoadCaseError(f"{case.source}: the model has no inside at a {size:g} mm mesh")
-    return analyse(hex_mesh(grid), case)
+    return hex_mesh(grid)
+
+
+def analyse_arrays(
+    vertices: np.ndarray, faces: np.ndarray, case: LoadCase, size: float = 0.0
+) -> Solution:
+    """Voxelise the mesh (``size`` mm boxes, 0 for the default) and solve the case."""
+    return analyse(mesh_arrays(vertices, faces, case, size), case)
 
 
 def check_case(
@@ -115,9 +124,12 @@ def check_case(
     return case
 
 
-def field_key(model_bytes: bytes, case: LoadCase, size: float) -> str:
-    """The cache key of an analysis: the model's bytes, the load case, material and size."""
+def field_key(model_bytes: bytes, case: LoadCase, size: float, optimal: float = 0.0) -> str:
+    """The cache key of an analysis: the model's bytes, the load case, material and size
+    (and, for an optimised density, its mean)."""
     digest = hashlib.sha256()
+    if optimal:
+        digest.update(f"optimal {optimal!r} {ITERATIONS}".encode())
     digest.update(FIELD_VERSION.encode())
     digest.update(hashlib.sha256(model_bytes).digest())
     digest.update(case.key().encode())
@@ -125,8 +137,10 @@ def field_key(model_bytes: bytes, case: LoadCase, size: float) -> str:
     return digest.hexdigest()[:32]
 
 
-def write_field(path: Path, solution: Solution) -> None:
-    """Write the nodal von Mises lattice as an NPZ the stress field reads (atomically)."""
+def write_field(path: Path, solution: Solution, values: np.ndarray | None = None) -> None:
+    """Write the nodal von Mises lattice (or other element ``values`` (e,)) as an NPZ the
+    stress field reads (atomically)."""
+    values = solution.von_mises if values is None else values
     path.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=".fea-", suffix=".npz", dir=path.parent)
     try:
@@ -134,8 +148,8 @@ def write_field(path: Path, solution: Solution) -> None:
             np.savez(
                 handle,
                 points=lattice_points(solution),
-                values=nodal_lattice(solution).ravel(),
-                peak=np.float64(solution.von_mises.max()),
+                values=nodal_lattice(solution, values).ravel(),
+                peak=np.float64(values.max()),
                 cell=solution.mesh.grid.cell,
                 elements=np.int64(len(solution.mesh.cells)),
             )
@@ -146,19 +160,18 @@ def write_field(path: Path, solution: Solution) -> None:
         raise
 
 
-def stress_field_file(
+def field_path(
     model: str | os.PathLike[str],
     load: str | os.PathLike[str],
     cache_dir: str | os.PathLike[str],
     size: float = 0.0,
     youngs: float = ABS_YOUNGS_MPA,
     poisson: float = ABS_POISSON,
-) -> FieldFile:
-    """The von Mises field of ``model`` (STL) under the load case file ``load``, as a
-    field file in ``cache_dir`` named by :func:`field_key`; analysed only when no
-    such file exists yet. ``youngs`` (MPa) and ``poisson`` are the material unless
-    the case names its own. Raises LoadCaseError (bad case, model missing) or
-    slicer.errors.ModelError (unreadable STL)."""
+    optimal: float = 0.0,
+) -> tuple[Path, LoadCase, np.ndarray, np.ndarray, float]:
+    """Where the analysis of ``model`` under ``load`` is cached (see :func:`field_key`),
+    with the case, the model's vertices and faces and the mesh size it uses.
+    ``optimal`` > 0: the optimised density of that mean instead of the stress."""
     from slicer.mesh import read_stl
 
     model, load = Path(model), Path(load)
@@ -167,13 +180,50 @@ def stress_field_file(
     case = read_load_case(load, youngs, poisson)
     vertices, faces = read_stl(model)
     size = size or default_cell(mesh_volume(vertices, faces))
-    path = Path(cache_dir) / f"stress-{field_key(model.read_bytes(), case, size)}.npz"
+    kind = "optimal" if optimal else "stress"
+    path = Path(cache_dir) / f"{kind}-{field_key(model.read_bytes(), case, size, optimal)}.npz"
+    return path, case, vertices, faces, size
+
+
+def read_field_file(path: Path) -> FieldFile:
+    """The facts of a field file already written (``cached`` True)."""
+    with np.load(path) as data:
+        return FieldFile(path, True, float(data["peak"]), tuple(data["cell"]),
+                         int(data["elements"]), 0.0)
+
+
+def solve_field(path: Path, case: LoadCase, vertices: np.ndarray, faces: np.ndarray,
+                size: float, optimal: float = 0.0) -> FieldFile:
+    """Analyse and write the field file ``path``: the von Mises stress, or with
+    ``optimal`` > 0 the density of that mean that :func:`optimal_density` finds."""
+    started = time.perf_counter()
+    mesh = mesh_arrays(vertices, faces, case, size)
+    solution = analyse(mesh, case)
+    values = solution.von_mises
+    if optimal:
+        values, _ = optimal_density(mesh, case, optimal)
+    write_field(path, solution, values)
+    return FieldFile(path, False, float(values.max()), tuple(float(c) for c in mesh.grid.cell),
+                     len(mesh.cells), time.perf_counter() - started)
+
+
+def stress_field_file(
+    model: str | os.PathLike[str],
+    load: str | os.PathLike[str],
+    cache_dir: str | os.PathLike[str],
+    size: float = 0.0,
+    youngs: float = ABS_YOUNGS_MPA,
+    poisson: float = ABS_POISSON,
+    optimal: float = 0.0,
+) -> FieldFile:
+    """The von Mises field (or with ``optimal`` > 0 the optimised density of that mean,
+    see :mod:`slicer.fea.optimal`) of ``model`` (STL) under the load case file ``load``, as a
+    field file in ``cache_dir`` named by :func:`field_key`; analysed only when no
+    such file exists yet. ``youngs`` (MPa) and ``poisson`` are the material unless
+    the case names its own. Raises LoadCaseError (bad case, model missing) or
+    slicer.errors.ModelError (unreadable STL)."""
+    path, case, vertices, faces, size = field_path(model, load, cache_dir, size, youngs, poisson,
+                                                   optimal)
     if path.is_file():
-        with np.load(path) as data:
-            return FieldFile(path, True, float(data["peak"]), tuple(data["cell"]),
-                             int(data["elements"]), 0.0)
-    solution = analyse_arrays(vertices, faces, case, size)
-    write_field(path, solution)
-    return FieldFile(path, False, float(solution.von_mises.max()),
-                     tuple(float(c) for c in solution.mesh.grid.cell),
-                     len(solution.mesh.cells), solution.seconds)
+        return read_field_file(path)
+    return solve_field(path, case, vertices, faces, size, optimal)

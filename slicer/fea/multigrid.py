@@ -10,7 +10,7 @@ from scipy.sparse.linalg import splu
 
 from slicer.fea.hexmesh import HexMesh
 
-CHUNK = 8192  # elements assembled at a time (bounds the assembly's memory)
+CHUNK = 2048  # elements assembled at a time (bounds the assembly's memory)
 COARSEST = 6000  # unknowns at or under which a level is factorised directly
 MAX_LEVELS = 8
 SMOOTHING = 2

@@ -10,6 +10,7 @@ import numpy as np
 
 from slicer.fea.field import analyse_arrays
 from slicer.fea.loadcase import LoadCase, read_load_case
+from slicer.fea.optimal import strain_energy
 from slicer.fea.printed import apparent_modulus, fill_fractions, modulus_scale, read_roads
 from slicer.fea.solve import Solution, analyse
 from slicer.settings import SliceSettings
@@ -21,13 +22,15 @@ GAGE_BAND = (1.0 / 3.0, 2.0 / 3.0)  # the band across the width it reads, as fra
 @dataclass(frozen=True)
 class Prediction:
     """One specimen's predicted ``modulus_mpa`` (apparent, nominal stress over gage
-    strain), its extruded ``mass_g`` (0 for the solid model) and mean ``fill``
-    fraction of the model's boxes."""
+    strain; NaN when the case pulls nothing along x), ``compliance`` (f . u, N mm:
+    lower is stiffer, for any load case), its extruded ``mass_g`` (0 for the solid
+    model) and mean ``fill`` fraction of the model's boxes."""
 
     name: str
     modulus_mpa: float
     mass_g: float
     fill: float
+    compliance: float = float("nan")
 
 
 @dataclass(frozen=True)
@@ -56,12 +59,14 @@ def tension_test(vertices: np.ndarray, faces: np.ndarray, case: LoadCase) -> Ten
     newtons = sum(float(load.vector[0]) for load in case.loads if load.vector is not None)
     section = trimesh.Trimesh(vertices, faces, process=False).section(
         plane_origin=middle, plane_normal=[1.0, 0.0, 0.0])
-    area = float(section.to_2D()[0].area) if section is not None else float("nan")
+    area = float(section.to_2D()[0].area) if section is not None else 0.0
     return TensionTest((middle[0] - span, middle[0] + span), band, newtons, abs(area))
 
 
 def measured(solution: Solution, test: TensionTest) -> float:
-    """The apparent modulus of a solved test, MPa."""
+    """The apparent modulus of a solved test, MPa (NaN without a pull along x)."""
+    if not test.newtons or not test.area_mm2:
+        return float("nan")
     return apparent_modulus(solution.mesh.points, solution.displacement, test.gage, test.band,
                             test.newtons, test.area_mm2)
 
@@ -87,19 +92,23 @@ def predict_moduli(
     solid = analyse_arrays(vertices, faces, case, settings.fea_mesh_size)
     test = tension_test(vertices, faces, case)
     mesh = solid.mesh
-    out = [Prediction("Solid", measured(solid, test), 0.0, 1.0)]
+    ones = np.ones(len(mesh.cells))
+    out = [Prediction("Solid", measured(solid, test), 0.0, 1.0,
+                      2.0 * float(strain_energy(solid, case, ones).sum()))]
     shift = np.array([vertices[:, 0].min() - bounds[0], vertices[:, 1].min() - bounds[1],
                       vertices[:, 2].min()])
     for name, path in gcodes.items():
         lines = Path(path).read_text(encoding="ascii").splitlines()
         roads = read_roads(lines, settings.filament_diameter)
         fractions = fill_fractions(roads, mesh.grid, shift)
-        solution = analyse(mesh, case, modulus_scale(fractions, mesh.cells))
+        scale = modulus_scale(fractions, mesh.cells)
+        solution = analyse(mesh, case, scale)
         volume = float(np.sum(np.hypot(*(roads.ends[:, 1] - roads.ends[:, 0]).T)
                               * roads.width * roads.height))
         grams = filament_grams(volume / settings.filament_area, settings)
         out.append(Prediction(name, measured(solution, test), grams,
-                               float(fractions[mesh.grid.solid].mean())))
+                               float(fractions[mesh.grid.solid].mean()),
+                               2.0 * float(strain_energy(solution, case, scale).sum())))
     return out
 
 

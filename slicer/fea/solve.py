@@ -18,7 +18,6 @@ from slicer.fea.hexmesh import (
     strain_matrix,
 )
 from slicer.fea.loadcase import NORMAL_CONE_DEG, LoadCase, LoadCaseError, Region
-from slicer.fea.multigrid import Multigrid, assemble
 
 RTOL = 1e-8  # relative residual at which the conjugate gradients stop
 MAX_ITERATIONS = 20_000
@@ -142,6 +141,8 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
     mesh, with no factorisation of the whole matrix.
     Raises LoadCaseError for a case the mesh cannot carry.
     """
+    from slicer.fea.multigrid import Multigrid, assemble  # scipy.sparse.linalg: when solving
+
     started = time.perf_counter()
     faces = boundary_faces(mesh)
     held = fixed_nodes(mesh, faces, case)

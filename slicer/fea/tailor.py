@@ -5,6 +5,7 @@ from __future__ import annotations
 import dataclasses
 import os
 from collections.abc import Callable
+from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -18,25 +19,42 @@ if TYPE_CHECKING:
     from slicer.fea.field import FieldFile
 
 
+# analyses run beside the first layers of a print (one at a time)
+_BACKGROUND = ThreadPoolExecutor(max_workers=1, thread_name_prefix="fea")
+
+
 @dataclass(frozen=True)
 class Tailoring:
-    """What was done to a plan: the analysis (``field``, None without a load case) and
-    the equal-mass search (``mass``, None unless asked for)."""
+    """What was done to a plan: the analysis (``field``, None without a load case, or
+    ``running`` while it runs beside the first layers) and the equal-mass search
+    (``mass``, None unless asked for)."""
 
     field: FieldFile | None
     mass: MassMatch | None
+    running: Future | None = None
 
     def lines(self) -> list[str]:
-        """Summary lines, one fact each."""
+        """Summary lines, one fact each (an analysis still running is reported so)."""
         out: list[str] = []
-        if self.field is not None:
-            f = self.field
+        field = self.field
+        if field is None and self.running is not None:
+            if not self.running.done():
+                return ["stress analysis: running beside the first layers"]
+            field = self.running.result() if self.running.exception() is None else None
+        if field is not None:
+            f = field
             how = "cached" if f.cached else f"analysed in {f.seconds:.1f} s"
             cell = " x ".join(f"{c:.2f}" for c in f.cell)
-            out.append(
-                f"stress analysis: {f.elements} elements of {cell} mm, peak von Mises "
-                f"{f.peak_mpa:.2f} MPa ({how})"
-            )
+            if f.path.name.startswith("optimal"):
+                from slicer.fea.optimal import ITERATIONS
+
+                out.append(f"optimised density: {f.elements} elements of {cell} mm, "
+                           f"{1 + ITERATIONS} analyses ({how})")
+            else:
+                out.append(
+                    f"stress analysis: {f.elements} elements of {cell} mm, peak von Mises "
+                    f"{f.peak_mpa:.2f} MPa ({how})"
+                )
         if self.mass is not None:
             out.append(self.mass.describe())
         return out
@@ -67,7 +85,7 @@ def with_analysis(
 
     field = stress_field_file(
         model, load, cache_dir, settings.fea_mesh_size,
-        settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio,
+        settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio, optimal_volume(settings),
     )
     changed = dataclasses.replace(
         settings, infill_field="stress", infill_file=str(field.path), infill_load=str(load)
@@ -82,17 +100,52 @@ def tailored_plan(
     cache_dir: str | os.PathLike[str],
     load: str | os.PathLike[str] | None = None,
     measure: Callable[[SlicePlan], float] = extruded_grams,
+    background: bool = False,
 ) -> tuple[SlicePlan, Tailoring]:
     """The model's plan with the analysis applied (when it has a load case, see
     :func:`find_load_case`) and its mass matched (when the settings ask; ``measure``
-    as in :func:`slicer.fields.stress_mass.match_mass`)."""
+    as in :func:`slicer.fields.stress_mass.match_mass`).
+
+    With ``background`` (and no equal mass asked, which needs the field to slice
+    every layer), an analysis not cached yet runs on a worker thread and the plan
+    is returned at once: layers without sparse infill (the bottom skins) slice
+    without it, and the first layer that needs the field waits for it.
+    """
     field = None
     case = find_load_case(model, settings, load)
+    if case is not None and background and not _wants_mass(settings):
+        from slicer.fea.field import field_path, read_field_file, solve_field
+        from slicer.fields.stress_pending import announce
+
+        optimal = optimal_volume(settings)
+        path, loadcase, vertices, faces, size = field_path(
+            model, case, cache_dir, settings.fea_mesh_size,
+            settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio, optimal)
+        settings = dataclasses.replace(
+            settings, infill_field="stress", infill_file=str(path), infill_load=str(case))
+        if path.is_file():
+            return SlicePlan.from_file(model, settings, bed), Tailoring(read_field_file(path), None)
+        running = _BACKGROUND.submit(solve_field, path, loadcase, vertices, faces, size,
+                                     optimal)
+        announce(path, running)
+        return SlicePlan.from_file(model, settings, bed), Tailoring(None, None, running)
     if case is not None:
         settings, field = with_analysis(model, settings, case, cache_dir)
     plan = SlicePlan.from_file(model, settings, bed)
     plan, mass = match_mass(plan, measure)
     return plan, Tailoring(field, mass)
+
+
+def optimal_volume(settings: SliceSettings) -> float:
+    """The mean density an ``infill.stress = "optimal"`` field is optimised at (the
+    job's infill density, at least 0.1), or 0 for the stress itself."""
+    if settings.infill_stress != "optimal":
+        return 0.0
+    return max(settings.infill_density, 0.1)
+
+
+def _wants_mass(settings: SliceSettings) -> bool:
+    return bool(settings.infill_match_mass_of) or settings.infill_target_mass_g > 0
 
 
 def default_cache_dir() -> Path:

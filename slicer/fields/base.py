@@ -51,6 +51,9 @@ class InfillField(Protocol):
 
 
 FIELDS: dict[str, Callable[[SliceSettings], InfillField]] = {}
+# fields whose module registers them alone, without the whole library's imports (a
+# stress job's first layers should not wait for scipy.spatial and scipy.interpolate)
+_OWN_MODULE = {"stress": "slicer.fields.stress"}
 
 
 def register(name: str) -> Callable[[Callable[[SliceSettings], InfillField]], Callable]:
@@ -70,6 +73,10 @@ def get_field(settings: SliceSettings) -> InfillField:
     need) is imported only when the field asked for is not registered yet, so
     the default linear field starts fast.
     """
+    if settings.infill_field in _OWN_MODULE and settings.infill_field not in FIELDS:
+        import importlib
+
+        importlib.import_module(_OWN_MODULE[settings.infill_field])
     if settings.infill_field not in FIELDS:
         import slicer.fields.library  # noqa: F401  (registers the built-in fields)
 

@@ -2,16 +2,25 @@
 
 from __future__ import annotations
 
+import logging
 import math
+import threading
+from typing import TYPE_CHECKING
 
 import numpy as np
-from scipy.interpolate import RegularGridInterpolator
 
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre
 from slicer.fields.grid import GridField
-from slicer.fields.stress_data import KEY, StressData, load_stress
+from slicer.fields.stress_pending import pending
 from slicer.settings import SettingsError, SliceSettings
+
+if TYPE_CHECKING:
+    from slicer.fields.stress_data import StressData
+
+KEY = "infill.file"
+
+log = logging.getLogger("slicer.stress")
 
 SLAB_CELL = 2.0  # line widths between the nodes the samples are first interpolated to
 SLAB_NODES = 40_000  # at most this many such nodes per layer
@@ -39,9 +48,34 @@ class StressField(GridField):
         super().__init__(settings)
         if not settings.infill_file:
             raise SettingsError(KEY, "the stress field needs a file of x,y,z,value samples")
-        self.data = load_stress(settings.infill_file)
-        self.peak = float(np.max(np.abs(self.data.values))) or 1.0
-        self.profile = axis_profile(self.data) if settings.infill_stress == "B" else None
+        self._pending = pending(settings.infill_file)
+        self._loaded = threading.Lock()
+        self._data: StressData | None = None
+        self.peak = 1.0
+        self.profile: tuple[int, np.ndarray, np.ndarray] | None = None
+        if self._pending is None:
+            self._load()
+
+    def _load(self) -> None:
+        from slicer.fields.stress_data import load_stress  # scipy.interpolate: when sampled
+
+        data = load_stress(self.settings.infill_file)
+        self.peak = float(np.max(np.abs(data.values))) or 1.0
+        self.profile = axis_profile(data) if self.settings.infill_stress == "B" else None
+        self._data = data
+
+    @property
+    def data(self) -> StressData:
+        """The field's samples; waits for an analysis still running (see :func:`pending`)."""
+        if self._data is None and self._pending is not None and not self._pending.done():
+            log.info("a layer waits for the stress analysis of %s", self.settings.infill_file)
+            with self._loaded:
+                if self._data is None:
+                    assert self._pending is not None
+                    self._pending.result()  # raises the analysis' own error
+                    self._load()
+        assert self._data is not None
+        return self._data
 
     def stress(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Interpolated field from the file at points (n,) mm on this layer -> (n,) float64.
@@ -53,7 +87,7 @@ class StressField(GridField):
         """
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
-        corner = self.data.lower_corner
+        corner = self.data.lower_corner  # (waits for a pending analysis first)
         if self.profile is not None:
             xmin, ymin = ctx.bounds[:2]
             mid = max(ctx.z - 0.5 * self.settings.layer_height, 0.0) + corner[2]
@@ -70,6 +104,8 @@ class StressField(GridField):
         slab = self.data.at(
             gx.ravel() - xmin + corner[0], gy.ravel() - ymin + corner[1], mid_z + corner[2]
         ).reshape(gx.shape)
+        from scipy.interpolate import RegularGridInterpolator
+
         read = RegularGridInterpolator((ys, xs), slab)
         points = np.column_stack(
             (np.clip(y.ravel(), ys[0], ys[-1]), np.clip(x.ravel(), xs[0], xs[-1]))
@@ -80,7 +116,8 @@ class StressField(GridField):
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64."""
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
-        sigma = np.maximum(np.abs(self.stress(x, y, ctx)) / self.peak, FLOOR)
+        stress = self.stress(x, y, ctx)  # loads the field first: peak is known after it
+        sigma = np.maximum(np.abs(stress) / self.peak, FLOOR)
         cx, cy = centre(ctx.bounds)
         t = math.radians(self.settings.infill_angle)
         mirror = -1.0 if ctx.index % 2 else 1.0

@@ -14,6 +14,7 @@ from scipy.interpolate import (
 from slicer.settings import SettingsError
 
 KEY = "infill.file"
+
 SCALAR_NAMES = ("von_mises", "vonmises", "von mises", "sigma_vm", "stress", "value")
 
 
