@@ -23,7 +23,8 @@ class Resync:
         self._unconfirmed = (-1, 0)
         self._implausible = ("", 0)
 
-    def on_resend(self, response: Response, error_before: Response | None) -> None:
+    def on_resend(self, response: Response, error_before: Response | None,
+                  implied: bool = False) -> None:
         """``Resend: N``: replay from N, when the request is sane.
 
         The number is checked against the lines that can be asked for (unacknowledged or
@@ -59,7 +60,10 @@ class Resync:
         model = self.model
         if error_line is not None:
             model.holds(error_line)
-        if error_line is not None and error_line + 1 == number and model.explains(error_line):
+        # two lines agreeing (the Error's Last Line and the Resend's number, as received)
+        confirmed = (not implied and error_line is not None and error_line + 1 == number
+                     and response.digits == str(number))
+        if confirmed and model.explains(error_line):
             # the printer took lines at or after the replay's start before their copies
             # arrived (the refusal that started it was spurious, or lines still on the wire
             # got through): those copies are refused, each once, and need no answer
@@ -68,7 +72,7 @@ class Resync:
         if number == model.refused and model.echoes > 0:
             model.echoes -= 1
             self.stats.duplicate_resends += 1
-            if error_line is not None:
+            if confirmed:
                 self.window.drop_copy(error_line)
             return
         if number >= self.next_number:
