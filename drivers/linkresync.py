@@ -49,13 +49,15 @@ class Resync:
         if error_before is None and not self._confirm_unannounced(number):
             return
         if number <= self.last_acked_number:
-            if self.last_acked_number - number > self.window.max_lines + 4 \
-                    or number not in self.history:
-                # far behind what it acknowledged: the printer lost its line number
+            far = self.last_acked_number - number > self.window.max_lines + 4
+            if number not in self.history or (far and number == 1):
+                # the printer lost its line number (a reset whose banner was lost)
                 self.on_reset()
                 return
-            # an ok counted for a line the printer refused (a mangled line it answered
-            # as an unknown command): take the acknowledgement back and replay
+            # oks counted for lines the printer refused (a mangled line it answered as an
+            # unknown command, noise on the oks): it holds every line before `number` and
+            # none from it, so take the acknowledgements back and replay; a renumbering
+            # to the last line acknowledged would skip the lines it never took
             self.last_acked_number = number - 1
         model = self.model
         if error_line is not None:
