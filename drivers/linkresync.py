@@ -91,7 +91,11 @@ class Resync:
         lines it holds are refused, one refusal each (echoes, answered by nothing); a copy
         of ``number`` written after them will be taken. The replay skips what is held."""
         model = self.model
-        model.advanced(number)
+        # the copies still to be refused are those of held lines in the window (a copy
+        # whose ok was counted for another line is refused too: one more at most)
+        out = sum(1 for e in self.window if e.copy and e.number is not None
+                  and model.refused <= e.number < number)
+        model.advanced(number, max(0, out - 1) + 1)
         self.window.drop_copy(number - 1)
         self.stats.duplicate_resends += 1
         if self.replay_next is not None and self.replay_next < number:
