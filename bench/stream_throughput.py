@@ -3,7 +3,7 @@
 Run from the repository root::
 
     .venv/bin/python -m bench.stream_throughput [--lines 5000] [--bauds 115200 250000]
-        [--latencies-ms 0 1 4]
+        [--latencies-ms 0 1 4] [--noisy-lines 20000] [--fault-lines 100000] [--skip-wire]
 
 The simulated printer runs in its own process (``hostd simulate``) with its wire limited
 to the baud rate and a one-way link latency (USB frames and the firmware's loop: 0 is an
@@ -12,6 +12,14 @@ the host's CPU time measured here is the host's alone. For each speed and latenc
 table gives lines per second of the windowed streamer and of a send-one, wait-for-ok host
 on the same simulator, the wire's line rate (baud / 10 bytes per second over the mean
 framed line length), the ratios, and the host CPU use while streaming.
+
+A second table streams to the virtual-clock Marlin (``drivers.simvirtual``, the same rules
+on simulated time: the figures do not depend on the machine's load) at 250000 baud with 1 ms
+of latency, with 2, 5 and 10 % of lines spuriously refused in both forms (Marlin's
+``Error``/``Resend`` refusal of a line it took, and a bare ``Resend`` for a line already
+sent) and both ``ok`` dialects, against a send-and-wait host on the same firmware. A last
+line gives the wall-clock rate at which the protocol core gets through the fault suite
+(every fault kind at 1 %).
 """
 
 from __future__ import annotations
@@ -24,7 +32,10 @@ import sys
 import time
 from dataclasses import dataclass
 
+from drivers.linkconfig import StreamerConfig as LinkConfig
 from drivers.protocol import frame, parse_response
+from drivers.simconfig import SimulatorConfig
+from drivers.simlinkrun import run_core, run_send_and_wait
 from drivers.streamer import Streamer, StreamerConfig
 from drivers.transport import Transport, open_transport
 
@@ -153,6 +164,49 @@ def measure(
     return results[0], results[1]
 
 
+def noisy_table(lines: list[str]) -> list[str]:
+    """Rows of core vs send-and-wait rates on the virtual clock, clean and noisy."""
+    base = {"baud": 250000, "latency_s": 0.001, "seed": 3}
+    rows = [f"{'noise':>14} {'ok after':>8} {'core l/s':>9} {'% clean':>8} "
+            f"{'send-wait l/s':>13} {'core/s&w':>8} {'resent':>7} {'exact':>6}"]
+    clean = None
+    cases = [("clean", "", 0.0, True)]
+    for p in (0.02, 0.05, 0.10):
+        for form in ("refuse", "resend"):
+            for ok in (True, False):
+                cases.append((f"{form} {100 * p:g} %", form, p, ok))
+    for name, form, p, ok in cases:
+        sim = SimulatorConfig(**base, ok_after_resend=ok, **({f"p_{form}": p} if form else {}))
+        link = LinkConfig(temperature_interval_s=0, probe_after_s=0.05, probe_retries=1000,
+                          ok_after_resend=ok)
+        core = run_core(lines, sim, link)
+        wait = run_send_and_wait(lines, sim)
+        clean = clean or core.rate
+        exact = core.executed == lines and core.acked == lines and wait.executed == lines
+        rows.append(f"{name:>14} {'yes' if ok else 'no':>8} {core.rate:>9.1f} "
+                    f"{100 * core.rate / clean:>7.1f}% {wait.rate:>13.1f} "
+                    f"{core.rate / wait.rate:>7.2f}x {core.stats.lines_resent:>7} "
+                    f"{'yes' if exact else 'NO':>6}")
+        print(f"measured {name}, ok after resend {ok}", file=sys.stderr)
+    return rows
+
+
+def fault_suite_rate(count: int) -> str:
+    """Wall-clock lines/s of the core through every fault kind at 1 % (virtual clock)."""
+    kinds = ("corrupt_rx", "corrupt_tx", "drop_ok", "resend", "refuse", "busy")
+    sim = SimulatorConfig(baud=250000, latency_s=0.001, keepalive_s=0.05, seed=5,
+                          **{f"p_{k}": 0.01 for k in kinds})
+    link = LinkConfig(temperature_interval_s=0, probe_after_s=0.05, probe_retries=1000,
+                      resync_quiet_s=0.01)
+    lines = curved_perimeter(count)
+    t0 = time.perf_counter()
+    run = run_core(lines, sim, link)
+    wall = time.perf_counter() - t0
+    exact = run.executed == lines and run.acked == lines
+    return (f"fault suite on the core: {count} lines, every fault kind at 1 %, "
+            f"{wall:.1f} s wall, {count / wall:,.0f} lines/s, exactly once: {exact}")
+
+
 def main(argv: list[str] | None = None) -> int:
     """Measure and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -162,7 +216,21 @@ def main(argv: list[str] | None = None) -> int:
                         help="one-way link latencies to measure at (milliseconds)")
     parser.add_argument("--time-scale", type=float, default=0.0,
                         help="simulated printer speed (0: moves take no time, the wire limits)")
+    parser.add_argument("--noisy-lines", type=int, default=20000,
+                        help="lines per noisy row on the virtual clock (0: no noisy table)")
+    parser.add_argument("--fault-lines", type=int, default=100000,
+                        help="lines through the fault suite on the core (0: skip)")
+    parser.add_argument("--skip-wire", action="store_true",
+                        help="skip the table on the pty simulator")
     args = parser.parse_args(argv)
+    if args.noisy_lines:
+        rows = noisy_table(curved_perimeter(args.noisy_lines))
+        print(f"{args.noisy_lines} short G1 moves, virtual-clock Marlin, 250000 baud, 1 ms")
+        print("\n".join(rows))
+    if args.fault_lines:
+        print(fault_suite_rate(args.fault_lines))
+    if args.skip_wire:
+        return 0
     lines = curved_perimeter(args.lines)
     header = (f"{'baud':>7} {'latency':>7} {'wire l/s':>9} {'window l/s':>10} {'% wire':>7} "
               f"{'1-at-a-time l/s':>15} {'% wire':>7} {'speedup':>7} {'host CPU':>9} "

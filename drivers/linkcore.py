@@ -84,6 +84,16 @@ class LinkCore(Resync, Writing, Watching):
         return (not len(self.window) and not self.control
                 and self.replay_next is None and self.renumber is None)
 
+    def settled(self) -> bool:
+        """Idle, and a probe written after every other line has been answered: every line
+        written is known taken (an ok count alone can be off after noise), so a job may
+        end or the numbering restart. If not, a probe is queued to find out."""
+        if not self.idle():
+            return False
+        if not self.fenced and not any(c.probe for c in self.control):
+            self.queue_control("M105", internal=True, probe=True)
+        return self.fenced
+
     def alive(self) -> bool:
         """False once the link failed or the printer halted."""
         return self.state not in (LinkState.ERROR, LinkState.HALTED)
@@ -195,6 +205,8 @@ class LinkCore(Resync, Writing, Watching):
         # oks are counted in order; an advanced ok's N is not trusted to name the line it
         # acknowledges (firmwares print the last line received or the one executed)
         done = self.window.ack_probe() if response.has_temperatures else self.window.ack_one()
+        if any(e.probe and e.number == self.next_number - 1 for e in done):
+            self.fenced = True  # (a firmware that answers M105 without temperatures too)
         if done and self.replay_next is None:
             self.window.grow()
         for entry in done:
@@ -294,7 +306,7 @@ class LinkCore(Resync, Writing, Watching):
         digits = str(error.line + 1) if error.line is not None else ""
         implied = Response("resend", f"Resend: {digits}",
                            line=error.line + 1 if digits else None, digits=digits)
-        self.on_resend(implied, error)
+        self.on_resend(implied, error, implied=True)
         self._expect_resend_ok = False  # its ok is the one being read
 
     def on_reset(self) -> None:

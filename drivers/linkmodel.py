@@ -49,11 +49,11 @@ class PrinterModel:
         return (self.refused is not None and self.copied >= self.first
                 and self.refused <= last_line <= max(self.top, self.copied))
 
-    def advanced(self, number: int) -> None:
+    def advanced(self, number: int, echoes: int) -> None:
         """The printer holds up to ``number - 1`` past the replay's start: the copies of
-        held lines are refused, one refusal each, and ``number`` is needed next."""
-        assert self.refused is not None
-        self.echoes = max(0, min(number - 1, self.copied) - self.refused)
+        held lines still out are refused, one refusal each (``echoes``), and ``number``
+        is needed next."""
+        self.echoes = max(0, echoes)
         self.refused = number
 
     def copy(self, number: int) -> None:

@@ -23,7 +23,8 @@ class Resync:
         self._unconfirmed = (-1, 0)
         self._implausible = ("", 0)
 
-    def on_resend(self, response: Response, error_before: Response | None) -> None:
+    def on_resend(self, response: Response, error_before: Response | None,
+                  implied: bool = False) -> None:
         """``Resend: N``: replay from N, when the request is sane.
 
         The number is checked against the lines that can be asked for (unacknowledged or
@@ -48,18 +49,23 @@ class Resync:
         if error_before is None and not self._confirm_unannounced(number):
             return
         if number <= self.last_acked_number:
-            if self.last_acked_number - number > self.window.max_lines + 4 \
-                    or number not in self.history:
-                # far behind what it acknowledged: the printer lost its line number
+            far = self.last_acked_number - number > self.window.max_lines + 4
+            if number not in self.history or (far and number == 1):
+                # the printer lost its line number (a reset whose banner was lost)
                 self.on_reset()
                 return
-            # an ok counted for a line the printer refused (a mangled line it answered
-            # as an unknown command): take the acknowledgement back and replay
+            # oks counted for lines the printer refused (a mangled line it answered as an
+            # unknown command, noise on the oks): it holds every line before `number` and
+            # none from it, so take the acknowledgements back and replay; a renumbering
+            # to the last line acknowledged would skip the lines it never took
             self.last_acked_number = number - 1
         model = self.model
         if error_line is not None:
             model.holds(error_line)
-        if error_line is not None and error_line + 1 == number and model.explains(error_line):
+        # two lines agreeing (the Error's Last Line and the Resend's number, as received)
+        confirmed = (not implied and error_line is not None and error_line + 1 == number
+                     and response.digits == str(number))
+        if confirmed and model.explains(error_line):
             # the printer took lines at or after the replay's start before their copies
             # arrived (the refusal that started it was spurious, or lines still on the wire
             # got through): those copies are refused, each once, and need no answer
@@ -68,7 +74,7 @@ class Resync:
         if number == model.refused and model.echoes > 0:
             model.echoes -= 1
             self.stats.duplicate_resends += 1
-            if error_line is not None:
+            if confirmed:
                 self.window.drop_copy(error_line)
             return
         if number >= self.next_number:
@@ -85,7 +91,11 @@ class Resync:
         lines it holds are refused, one refusal each (echoes, answered by nothing); a copy
         of ``number`` written after them will be taken. The replay skips what is held."""
         model = self.model
-        model.advanced(number)
+        # the copies still to be refused are those of held lines in the window (a copy
+        # whose ok was counted for another line is refused too: one more at most)
+        out = sum(1 for e in self.window if e.copy and e.number is not None
+                  and model.refused <= e.number < number)
+        model.advanced(number, max(0, out - 1) + 1)
         self.window.drop_copy(number - 1)
         self.stats.duplicate_resends += 1
         if self.replay_next is not None and self.replay_next < number:

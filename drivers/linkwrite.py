@@ -46,6 +46,7 @@ class Writing:
     """Mixin of :class:`~drivers.linkcore.LinkCore`: the writer's decisions."""
 
     force_replay = False  # a probe is due: replay past the window, then probe
+    fenced = False  # a probe written after every other line has been answered
 
     def queue_job(self, command: str, token: int) -> None:
         """A job command to write after those already queued; ``Written`` tells its number."""
@@ -93,6 +94,13 @@ class Writing:
                     # drain first, outside the renumbering: until the M110 is written the
                     # printer keeps the old numbers, and a probe must recover a lost ok
                     return None
+                if not self.fenced:
+                    # the ok count may be off (noise): only a probe's answer after the last
+                    # line proves every line taken, and lines refused after the M110 could
+                    # never be replayed
+                    if not any(c.probe for c in self.control):
+                        self.queue_control("M105", internal=True, probe=True)
+                    return self._next_control_line()
                 self.stats.renumbers += 1
                 self.renumber = Renumber(self.next_number, 0, keep_history=False)
                 return self._next_renumber_line(now)
@@ -157,6 +165,7 @@ class Writing:
                               probe=control.probe, token=control.token)
 
     def _assign(self, command: str, internal: bool = False) -> int:
+        self.fenced = False
         number = self.next_number
         self.next_number += 1
         self.history[number] = (command, internal)

@@ -35,6 +35,7 @@ from drivers.linkevents import (
     Written,
 )
 from drivers.linkprofile import Profile, profile_for, tuned
+from drivers.linkwaiters import Waiters
 from drivers.protocol import Response
 from drivers.transport import Transport, TransportError
 
@@ -95,8 +96,7 @@ class Streamer:
         self.on_error: Callable[[str], None] | None = None
         self._transport = transport
         self._reopen = reopen
-        self._futures: dict[int, asyncio.Future[int]] = {}
-        self._tokens = 0
+        self._waiters = Waiters()
         self._started = asyncio.Event()
         self._wake = asyncio.Event()
         self._progress = asyncio.Event()
@@ -166,7 +166,8 @@ class Streamer:
             with contextlib.suppress(asyncio.CancelledError):
                 await self._group
             self._group = None
-        self._fail_futures(LinkError("link closed"))
+        self._waiters.fail_all(LinkError("link closed"))
+        self._progress.set()
         await self._transport.close()
         if self.core.alive():
             self.core.state = LinkState.DISCONNECTED
@@ -187,7 +188,7 @@ class Streamer:
             await self._transport.write(b"\n")  # end any noise the printer has buffered
         try:
             async with asyncio.timeout(self.config.connect_timeout_s):
-                token, waiter = self._future()
+                token, waiter = self._waiters.new()
                 self.core.begin_handshake(0, keep_history=False, token=token)
                 self._wake.set()
                 await waiter
@@ -225,16 +226,18 @@ class Streamer:
         if self.core.cancelled:
             raise StreamCancelled("stream cancelled")
         self._check_alive()
-        token, future = self._future()
+        token, future = self._waiters.new()
         self.core.queue_job(command, token)
         self._wake.set()
         return await future
 
     async def drain(self) -> None:
-        """Wait until every line written has been acknowledged."""
-        while not self.core.idle():
+        """Wait until every line written has been acknowledged (and a probe after them
+        answered, which proves it whatever noise did to the oks)."""
+        while not self.core.settled():
             self._check_alive()
             self._progress.clear()
+            self._wake.set()
             await self._progress.wait()
         self._check_alive()
 
@@ -262,7 +265,7 @@ class Streamer:
         ``begin_job()`` opens the link to the next job.
         """
         for token in self.core.cancel(list(end_gcode)):
-            self._settle(token, error=StreamCancelled("stream cancelled"))
+            self._waiters.settle(token, error=StreamCancelled("stream cancelled"))
         self._wake.set()
         await self.drain()
         if self.core.alive():
@@ -378,14 +381,8 @@ class Streamer:
 
     # -- waiters and events -------------------------------------------------------------------
 
-    def _future(self) -> tuple[int, asyncio.Future[int]]:
-        self._tokens += 1
-        future: asyncio.Future[int] = asyncio.get_running_loop().create_future()
-        self._futures[self._tokens] = future
-        return self._tokens, future
-
     async def _control_line(self, command: str, internal: bool = True) -> int:
-        token, waiter = self._future()
+        token, waiter = self._waiters.new()
         self.core.queue_control(command, internal=internal, token=token)
         self._wake.set()
         return await waiter
@@ -403,12 +400,12 @@ class Streamer:
             return
         for event in events:
             if isinstance(event, Written):
-                self._settle(event.token, result=event.number)
+                self._waiters.settle(event.token, result=event.number)
             elif isinstance(event, Acked):
                 if event.job and self.on_ack is not None:
                     self.on_ack(event.number, event.command)
                 if event.token is not None:
-                    self._settle(event.token, result=event.number)
+                    self._waiters.settle(event.token, result=event.number)
             elif isinstance(event, Temperature):
                 if self.on_temperature is not None:
                     self.on_temperature(event.response)
@@ -416,26 +413,10 @@ class Streamer:
                 if self.on_error is not None:
                     self.on_error(event.text)
             elif isinstance(event, Failed):
-                self._fail_futures(LinkError(event.reason))
+                self._waiters.fail_all(LinkError(event.reason))
             elif isinstance(event, Started):
                 self._started.set()
         self._wake.set()
-        self._progress.set()
-
-    def _settle(self, token: int, *, result: int = 0, error: Exception | None = None) -> None:
-        future = self._futures.pop(token, None)
-        if future is None or future.done():
-            return
-        if error is not None:
-            future.set_exception(error)
-        else:
-            future.set_result(result)
-
-    def _fail_futures(self, error: Exception) -> None:
-        futures, self._futures = self._futures, {}
-        for future in futures.values():
-            if not future.done():
-                future.set_exception(error)
         self._progress.set()
 
     def _check_alive(self) -> None:

@@ -234,3 +234,22 @@ def test_the_window_shrinks_on_refusals_and_grows_back_on_clean_oks():
         _write_all(core, t)
         t += 0.001
     assert core.window.limit == core.window.max_lines
+
+
+def test_the_core_does_no_io_and_reads_no_clock():
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent / "drivers"
+    forbidden = {"asyncio", "serial", "threading", "time", "os", "select", "socket"}
+    for name in ("linkcore", "linkwrite", "linkresync", "linkwatch", "linkmodel",
+                 "linkevents", "linkconfig", "linkprofile", "window", "resend", "responses",
+                 "protocol"):
+        tree = ast.parse((root / f"{name}.py").read_text(encoding="utf-8"))
+        imported = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                imported.update(alias.name.split(".")[0] for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                imported.add(node.module.split(".")[0])
+        assert not imported & forbidden, (name, imported & forbidden)
