@@ -69,7 +69,7 @@ class Row:
     stalls: int
     starved_s: float
     print_s: float
-    lost_s: float  # print_s less the same G-code's time on an endless wire
+    lost_s: float  # print_s less the same G-code's time on an endless wire (--lost; else nan)
 
 
 def _field_settings(field: str, workdir: Path) -> dict[str, object]:
@@ -118,9 +118,9 @@ def _prusa(model: Path, speed: float, workdir: Path) -> list[str] | None:
 
 def _feed_rows(
     lines: list[str], key: tuple[str, str, float], variant: str, bauds: tuple[int, ...],
-    send_and_wait: bool = False,
+    send_and_wait: bool = False, lost: bool = False,
 ) -> list[Row]:
-    ideal = simulate_feed(lines, 0).print_s
+    ideal = simulate_feed(lines, 0).print_s if lost else float("nan")
     rows = []
     for baud in bauds:
         r = simulate_feed(lines, baud, send_and_wait=send_and_wait)
@@ -140,6 +140,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--fields", default="", help="comma-separated infill fields")
     parser.add_argument("--speeds", default="", help="comma-separated speeds, mm/s")
     parser.add_argument("--no-peer", action="store_true", help="leave PrusaSlicer out")
+    parser.add_argument("--lost", action="store_true",
+                        help="also feed each G-code over an endless wire, for the time lost")
     parser.add_argument("--resolution", type=float, default=None,
                         help="our resolution, mm (default: the setting's default)")
     parser.add_argument("--out", type=Path, default=OUT / "serial_budget.json")
@@ -164,18 +166,20 @@ def main(argv: list[str] | None = None) -> int:
                 if not args.no_peer:
                     prusa = _prusa(model, speed, work)
                     if prusa is not None:
-                        rows += _feed_rows(prusa, (stem, "prusa", speed), "c", BAUDS)
-                        rows += _feed_rows(prusa, (stem, "prusa", speed), "d", BAUDS, True)
+                        rows += _feed_rows(prusa, (stem, "prusa", speed), "c", BAUDS,
+                                           lost=args.lost)
+                        rows += _feed_rows(prusa, (stem, "prusa", speed), "d", BAUDS, True,
+                                           lost=args.lost)
                 for field in fields:
                     base = {**_field_settings(field, work), "print_speed": speed,
                             "wall_speed": speed}
                     key = (stem, field, speed)
                     plain = _slice(geometry, {**base, "gcode.arcs": "off"})
-                    rows += _feed_rows(plain, key, "b", BAUDS)
+                    rows += _feed_rows(plain, key, "b", BAUDS, lost=args.lost)
                     plain_moves = gcodeparse.parse_moves(plain)
                     for baud in BAUDS:
                         arcs = _slice(geometry, {**base, "gcode.arcs": "on", "gcode.baud": baud})
-                        rows += _feed_rows(arcs, key, "a", (baud,))
+                        rows += _feed_rows(arcs, key, "a", (baud,), lost=args.lost)
                         agreement = gcodeparse.wall_agreement(
                             gcodeparse.parse_moves(arcs), plain_moves, align=False)
                         ious.append({"model": stem, "field": field, "speed": speed, "baud": baud,

@@ -57,12 +57,14 @@ class PlannerSettings:
 @dataclass
 class Block:
     """One planned straight move: length mm, nominal speed mm/s, acceleration mm/s^2,
-    highest entry speed squared (mm/s)^2."""
+    highest entry speed squared (mm/s)^2. ``serial`` and ``key`` are the planner's."""
 
     length: float
     speed: float
     accel: float
     max_entry_sq: float
+    serial: int = 0
+    key: float = 0.0
 
 
 @dataclass(frozen=True)
@@ -181,6 +183,12 @@ class MarlinPlanner:
         self.settings = settings or PlannerSettings()
         self.capacity = self.settings.blocks
         self._queue: deque[Block] = deque()  # waiting, not started
+        # the reverse pass as a sliding minimum: the next block may be entered at
+        # v^2 = min over queued k of (max_entry_k + C_k) - C_next, or stop at the end
+        # (min speed^2 + C), where C_k sums 2 a L over every block queued before k
+        self._climb = 0.0
+        self._serial = 0
+        self._mins: deque[tuple[int, float]] = deque()
         self._run_end: float | None = None  # end of the block being executed
         self._run_exit = 0.0  # speed it leaves at
         self._start_at: float | None = None  # first block after idle: when it may start
@@ -232,6 +240,7 @@ class MarlinPlanner:
     def clear(self) -> None:
         """Drop every block (quick stop, reset): the machine stops, expectedly."""
         self._queue.clear()
+        self._mins.clear()
         self._run_end = None
         self._start_at = None
         self._empty_since = None
@@ -256,6 +265,14 @@ class MarlinPlanner:
             else:
                 self.underruns += 1
                 self._report_underruns += 1
+        block.serial = self._serial
+        self._serial += 1
+        block.key = self._climb  # C before this block
+        self._climb += 2.0 * block.accel * block.length
+        entry_key = block.max_entry_sq + block.key
+        while self._mins and self._mins[-1][1] >= entry_key:
+            self._mins.pop()
+        self._mins.append((block.serial, entry_key))
         self._queue.append(block)
         if idle:
             delay = self.settings.first_move_delay_s if self.capacity > 1 else 0.0
@@ -290,6 +307,8 @@ class MarlinPlanner:
     def _start_next(self, t: float) -> None:
         """Fix the profile of the next block and start it at ``t``."""
         block = self._queue.popleft()
+        if self._mins and self._mins[0][0] == block.serial:
+            self._mins.popleft()
         if self._start_at is not None:  # restarting from rest
             self._start_at = None
             if self._empty_since is not None:
@@ -304,10 +323,11 @@ class MarlinPlanner:
         # reverse pass: the fastest the next block may be entered so that every queued
         # block can still stop at the end of the last one
         v_sq = self.settings.min_planner_speed ** 2
-        for nxt in reversed(self._queue):
-            v_sq = min(nxt.max_entry_sq, v_sq + 2.0 * nxt.accel * nxt.length)
-        if not self._queue:
-            v_sq = self.settings.min_planner_speed ** 2
+        if self._queue:
+            low = v_sq + self._climb
+            if self._mins:
+                low = min(low, self._mins[0][1])
+            v_sq = max(low - self._queue[0].key, v_sq)
         self._lean = not self._queue
         v_out = math.sqrt(min(v_sq, v_in * v_in + 2.0 * block.accel * block.length))
         v_in = min(v_in, block.speed)

@@ -71,19 +71,25 @@ def for_printer(
     return SliceSettings.from_mapping(changes, base=settings) if changes else settings
 
 
-def fit_arcs(pts: np.ndarray, starts: np.ndarray, ends: np.ndarray, tol: float) -> Arcs:
-    """Arcs within ``tol`` mm of the polylines ``pts[starts[i]:ends[i]]`` ((m, 2) mm).
+def fit_arcs(
+    pts: np.ndarray, starts: np.ndarray, ends: np.ndarray, tol: float | np.ndarray
+) -> Arcs:
+    """Arcs within ``tol`` mm (one for all, or (n,) one per path) of the polylines
+    ``pts[starts[i]:ends[i]]`` ((m, 2) mm).
 
     Each arc covers at least :data:`MIN_SEGMENTS` segments; its circle passes
     within ``tol`` of every vertex it replaces and of every segment's midpoint
     (where a chord is farthest from the arc through its ends).
     """
+    per_path = np.broadcast_to(np.asarray(tol, dtype=np.float64), starts.shape)
+    tol_pt = np.zeros(len(pts))  # each point's path's share of its tolerance
+    tol_pt[_points_of(starts, ends)] = np.repeat(per_path * _SHARE, ends - starts)
     long = (ends - starts - 1) >= MIN_SEGMENTS
     a = starts[long].astype(np.int64)
     b = (ends[long] - 1).astype(np.int64)
     kept: list[tuple[np.ndarray, ...]] = []
     while len(a):
-        ok, centre, ccw, sweep, radius = _try(pts, a, b, tol * _SHARE)
+        ok, centre, ccw, sweep, radius = _try(pts, a, b, tol_pt)
         kept.append((a[ok], b[ok], centre[ok], ccw[ok], sweep[ok], radius[ok]))
         a, b = a[~ok], b[~ok]
         m = (a + b) // 2
@@ -95,14 +101,52 @@ def fit_arcs(pts: np.ndarray, starts: np.ndarray, ends: np.ndarray, tol: float) 
         return Arcs(empty, empty, np.zeros((0, 2)), np.zeros(0, bool), np.zeros(0), np.zeros(0))
     cols = [np.concatenate(c) for c in zip(*kept, strict=True)]
     order = np.argsort(cols[0], kind="stable")
-    return Arcs(*(c[order] for c in cols))
+    return _merged(pts, [c[order] for c in cols], tol_pt)
+
+
+def _points_of(starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+    """Indices of every point of the paths ``[starts[i], ends[i])``, in order."""
+    n = ends - starts
+    return np.repeat(starts, n) + (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+
+
+def _merged(pts: np.ndarray, cols: list[np.ndarray], tol: np.ndarray) -> Arcs:
+    """Join neighbouring arcs (one ends where the next begins) while their union is still
+    an arc within ``tol`` (per point, (m,) mm): pairs are tried all at once, every other
+    one of a chain of joinable pairs is joined, and rounds repeat until none joins."""
+    first, last, centre, ccw, sweep, radius = cols
+    while len(first) > 1:
+        cand = np.flatnonzero(last[:-1] == first[1:])
+        if len(cand) == 0:
+            break
+        ok, c, w, sw, r = _try(pts, first[cand], last[cand + 1], tol)
+        good = cand[ok]
+        if len(good) == 0:
+            break
+        # a chain of joinable pairs k, k+1, k+2 ...: join the 1st, 3rd, ... of it
+        run_start = np.ones(len(good), dtype=bool)
+        run_start[1:] = good[1:] != good[:-1] + 1
+        pos = np.arange(len(good)) - np.maximum.accumulate(np.where(run_start,
+                                                                    np.arange(len(good)), 0))
+        take = pos % 2 == 0
+        k = good[take]
+        sel = np.flatnonzero(ok)[take]
+        last[k] = last[k + 1]
+        centre[k], ccw[k], sweep[k], radius[k] = c[sel], w[sel], sw[sel], r[sel]
+        drop = np.ones(len(first), dtype=bool)
+        drop[k + 1] = False
+        first, last, centre, ccw, sweep, radius = (
+            a[drop] for a in (first, last, centre, ccw, sweep, radius))
+    return Arcs(first, last, centre, ccw, sweep, radius)
 
 
 def _try(
-    pts: np.ndarray, a: np.ndarray, b: np.ndarray, tol: float
+    pts: np.ndarray, a: np.ndarray, b: np.ndarray, tol_pt: np.ndarray
 ) -> tuple[np.ndarray, ...]:
-    """Which stretches ``pts[a[k]..b[k]]`` are arcs within ``tol``; with each one's centre
-    (k, 2), direction (ccw), sweep (rad) and radius."""
+    """Which stretches ``pts[a[k]..b[k]]`` are arcs within the tolerance of their first
+    point (``tol_pt`` (m,) mm); with each one's centre (k, 2), direction (ccw), sweep
+    (rad) and radius."""
+    tol = tol_pt[a]
     m = (a + b) // 2
     p, q, r = pts[a], pts[m], pts[b]
     # circumcentre of p, q, r

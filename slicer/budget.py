@@ -3,11 +3,13 @@
 Every path is cut into pieces at its ends and at the ends of the arcs fitted
 to it (:mod:`slicer.arcs`, when arcs are on); the pieces that are not arcs are
 simplified (Douglas-Peucker, shapely, one vectorised call) within
-``resolution``. Then, when the link's baud rate is known (``gcode.baud``),
-each run of ``gcode.planner_blocks`` consecutive moves that would take less
-time to print than the wire needs to carry its lines marks its pieces, and
-those pieces alone are simplified again within ``gcode.coarse_resolution``.
-Pieces keep their ends, so paths start and end where they did.
+``resolution`` (sparse infill and support within ``infill.resolution``: where
+they run does not show, and curved fields would spend most lines there). Then,
+when the link's baud rate is known (``gcode.baud``), each run of
+``gcode.planner_blocks`` consecutive moves that would take less time to print
+than the wire needs to carry its lines marks its pieces, and those pieces alone
+are simplified again within ``gcode.coarse_resolution``. Pieces keep their
+ends, so paths start and end where they did.
 """
 
 from __future__ import annotations
@@ -49,22 +51,31 @@ def line_rate(settings: SliceSettings) -> float:
 
 def budget_moves(
     pts: np.ndarray, starts: np.ndarray, ends: np.ndarray, speeds: np.ndarray,
-    settings: SliceSettings,
+    settings: SliceSettings, loose: np.ndarray | None = None,
 ) -> Moves:
     """The moves of the packed paths ``pts[starts[i]:ends[i]]`` ((m, 2) mm), printed at
-    ``speeds[i]`` mm/s, within the settings' tolerances (see the module docstring)."""
-    tol = settings.resolution
-    arcs = fit_arcs(pts, starts, ends, tol) if arcs_wanted(settings) and tol > 0 else None
+    ``speeds[i]`` mm/s, within the settings' tolerances (see the module docstring).
+
+    Paths where ``loose`` ((n,) bool: sparse infill, support) get the larger of
+    ``resolution`` and ``infill.resolution``; the others ``resolution``.
+    """
+    path_tol = np.full(len(starts), settings.resolution)
+    if loose is not None:
+        path_tol[loose] = max(settings.resolution, settings.infill_resolution)
+    arcs = None
+    if arcs_wanted(settings) and (path_tol > 0).any():
+        arcs = fit_arcs(pts, starts, ends, path_tol)
     pa, pb, arc_of = _pieces(pts, starts, ends, arcs)
-    keep = _simplified(pts, pa, pb, arc_of, np.full(len(pa), tol))
+    tol = path_tol[np.searchsorted(starts, pa, "right") - 1]  # each piece's
+    keep = _simplified(pts, pa, pb, arc_of, tol)
     rate = line_rate(settings)
-    coarse = max(settings.gcode_coarse_resolution, tol)
-    if rate > 0 and coarse > tol:
+    coarse = np.maximum(settings.gcode_coarse_resolution, tol)
+    if rate > 0 and (coarse > tol).any():
         hot = _too_fast(pts, keep, starts, ends, speeds, rate, settings.gcode_planner_blocks)
         piece_of = np.searchsorted(pa, np.flatnonzero(hot), "right") - 1
         redo = np.zeros(len(pa), dtype=bool)
         redo[piece_of] = True
-        redo &= arc_of < 0
+        redo &= (arc_of < 0) & (coarse > tol)
         if redo.any():
             tols = np.where(redo, coarse, tol)
             keep = _simplified(pts, pa, pb, arc_of, tols)

@@ -95,6 +95,7 @@ class SliceSettings:
     fan_first_layer: int = 1
     skip_heating: bool = False
     resolution: float = 0.025
+    infill_resolution: float = 0.1
     gcode_arcs: str = "auto"
     gcode_baud: int = 0
     gcode_coarse_resolution: float = 0.05
@@ -231,6 +232,7 @@ _SPECS: dict[str, _Spec] = {
     "fan_first_layer": _Spec(int, 0, 1000),
     "skip_heating": _Spec(bool),
     "resolution": _Spec(float, 0.0, 1.0),
+    "infill.resolution": _Spec(float, 0.0, 1.0),
     "gcode.arcs": _Spec(str, choices=ARC_MODES),
     "gcode.baud": _Spec(int, 0, 10_000_000),
     "gcode.coarse_resolution": _Spec(float, 0.0, 1.0),

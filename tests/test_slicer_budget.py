@@ -30,7 +30,8 @@ def _moves(plan: SlicePlan, i: int):
     paths = plan.layer_toolpaths(i)
     pts, starts, ends = _pack([p.coords for p in paths])
     speeds = np.full(len(paths), plan.settings.print_speed)
-    return paths, budget_moves(pts, starts, ends, speeds, plan.settings)
+    loose = np.array([p.kind == "FILL" for p in paths])
+    return paths, budget_moves(pts, starts, ends, speeds, plan.settings, loose)
 
 
 def test_walls_stay_within_the_resolution_of_the_level_set() -> None:
@@ -47,22 +48,39 @@ def test_walls_stay_within_the_resolution_of_the_level_set() -> None:
         assert np.array_equal(simple.coords[0], path.coords[0])  # seams stay put
 
 
+def test_sparse_infill_gets_its_own_tolerance() -> None:
+    plan = _plan(**{"gcode.arcs": "off"})
+    paths, mv = _moves(plan, 5)
+    fill = [k for k, p in enumerate(paths) if p.kind == "FILL"]
+    assert fill
+    worst = max(
+        shapely.hausdorff_distance(shapely.linestrings(paths[k].coords),
+                                   shapely.linestrings(mv.pts[mv.starts[k] : mv.ends[k]]),
+                                   densify=0.05)
+        for k in fill
+    )
+    assert plan.settings.resolution < worst <= plan.settings.infill_resolution + 1e-9
+
+
 def test_zero_resolution_keeps_every_point() -> None:
-    plan = _plan(**{"gcode.arcs": "off", "resolution": 0.0})
+    plan = _plan(**{"gcode.arcs": "off", "resolution": 0.0, "infill.resolution": 0.0})
     paths, mv = _moves(plan, 5)
     pts, _, _ = _pack([p.coords for p in paths])
     assert np.array_equal(mv.pts, pts)
 
 
 def _arcs_of(lines: list[str]):
-    """Each G2/G3 of G-code lines: start, end, centre, ccw, E."""
+    """Each G2/G3 of G-code lines: start, end, centre, ccw, E, feature type."""
     pos = None
+    kind = ""
     for line in lines:
+        if line.startswith(";TYPE:"):
+            kind = line[6:]
         arc = _ARC.match(line)
         if arc:
             g, x, y, i, j, e = arc.groups()
             end = (float(x), float(y))
-            yield pos, end, (pos[0] + float(i), pos[1] + float(j)), g == "3", float(e)
+            yield pos, end, (pos[0] + float(i), pos[1] + float(j)), g == "3", float(e), kind
         move = _MOVE.match(line)
         if move:
             pos = (float(move.group(1)), float(move.group(2)))
@@ -77,7 +95,6 @@ def _sweep(start, end, centre, ccw) -> float:
 
 def test_arcs_lie_on_the_contour_they_replace_and_extrude_by_length() -> None:
     plan = _plan(**{"gcode.arcs": "on"})
-    tol = plan.settings.resolution
     i = 5
     lines = plan.layer_gcode(i)
     contour = shapely.multilinestrings([shapely.linestrings(p.coords)
@@ -85,7 +102,9 @@ def test_arcs_lie_on_the_contour_they_replace_and_extrude_by_length() -> None:
     e_per_mm = plan.layer_height(i) * plan.settings.line_width / plan.settings.filament_area
     arcs = list(_arcs_of(lines))
     assert len(arcs) > 10
-    for start, end, centre, ccw, e in arcs:
+    assert {a[-1] for a in arcs} >= {"WALL-OUTER", "FILL"}
+    for start, end, centre, ccw, e, kind in arcs:
+        tol = plan.settings.infill_resolution if kind == "FILL" else plan.settings.resolution
         r = math.dist(start, centre)
         sweep = _sweep(start, end, centre, ccw)
         t = np.linspace(0.0, 1.0, 50)
@@ -117,21 +136,24 @@ def test_arc_output_is_the_same_alone_and_in_sequence() -> None:
 def test_the_wire_budget_coarsens_only_fast_runs() -> None:
     base = {"gcode.arcs": "off", "print_speed": 150.0, "wall_speed": 150.0}
     free = _plan(**base)
-    slow = free.with_settings(SliceSettings.from_mapping({"gcode.baud": 9600},
+    coarse = {"gcode.coarse_resolution": 0.2}
+    slow = free.with_settings(SliceSettings.from_mapping({"gcode.baud": 9600, **coarse},
                                                          base=free.settings))
-    paths, loose = _moves(free, 5)
+    paths, plain = _moves(free, 5)
     _, tight = _moves(slow, 5)
     assert line_rate(slow.settings) == pytest.approx(0.8 * 960 / 40)
-    assert len(tight.pts) < len(loose.pts)
-    coarse = slow.settings.gcode_coarse_resolution
+    assert len(tight.pts) < len(plain.pts)
+    limit_walls = slow.settings.gcode_coarse_resolution
+    loose = max(limit_walls, slow.settings.infill_resolution)  # sparse infill's own
     for k, path in enumerate(paths):
         exact = shapely.linestrings(path.coords)
         simple = shapely.linestrings(tight.pts[tight.starts[k] : tight.ends[k]])
-        assert shapely.hausdorff_distance(exact, simple, densify=0.05) <= coarse + 1e-9
+        limit = loose if path.kind == "FILL" else limit_walls
+        assert shapely.hausdorff_distance(exact, simple, densify=0.05) <= limit + 1e-9
     # a wire fast enough for every run changes nothing
-    fast = free.with_settings(SliceSettings.from_mapping({"gcode.baud": 10_000_000},
+    fast = free.with_settings(SliceSettings.from_mapping({"gcode.baud": 10_000_000, **coarse},
                                                          base=free.settings))
-    assert np.array_equal(_moves(fast, 5)[1].pts, loose.pts)
+    assert np.array_equal(_moves(fast, 5)[1].pts, plain.pts)
 
 
 def test_auto_follows_the_firmware_capabilities() -> None:
