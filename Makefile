@@ -50,6 +50,7 @@ bench: $(STAMP)
 	$(BIN)/python bench/stream_throughput.py
 	$(BIN)/python bench/drop_to_extrusion.py
 	$(BIN)/python bench/lead_over_printer.py
+	$(BIN)/python bench/eta.py --plot docs/eta_error.png
 
 clean:
 	rm -rf $(VENV) var jobs .pytest_cache

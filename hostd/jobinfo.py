@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import io
 import logging
 import re
@@ -40,7 +41,9 @@ class _Current:
 class JobTracker:
     """Reads the printing job's G-code file (``<area>/<id>/NAME.gcode.part``) as layers complete.
 
-    ``on_event`` is a :meth:`hostd.status.StatusHub.listen` listener: at each
+    A resumed job is followed from its resume layer on (its filament counts
+    the layers printed since). ``on_event`` is a
+    :meth:`hostd.status.StatusHub.listen` listener: at each
     ``layer`` event the file holds every line written so far (the runner
     flushes it before the event), so the new bytes are read then and split at
     ``;LAYER:`` lines; filament is the sum of the E words of completed layers
@@ -81,8 +84,13 @@ class JobTracker:
                 density = grams_per_mm(self.settings_of(job_id))
             except Exception:  # an unknown job or odd settings: no grams, still mm
                 log.debug("no filament density for job %s", job_id, exc_info=True)
-        self.current = _Current(job_id, name, int(event.get("layers") or 0),
-                                self.area / job_id / f"{stem}.gcode.part", density)
+        part = self.area / job_id / f"{stem}.gcode.part"
+        self.current = _Current(job_id, name, int(event.get("layers") or 0), part, density)
+        first = event.get("resumed_from")
+        if first:  # the layers printed before are not read again (bounded work at each event)
+            self.current.completed = self.current.counted = int(first) - 1
+            with contextlib.suppress(OSError):
+                self.current.offset = part.stat().st_size
         with self._lock:
             self._texts.clear()
 

@@ -135,11 +135,12 @@ def test_hostd_slice_writes_thumbnails_labels_and_progress(tmp_path: Path) -> No
     check_progress(lines)
 
 
-def test_the_daemon_done_file_carries_them_too_and_one_body_gets_no_labels(
+def test_the_daemon_done_file_carries_them_too_equals_hostd_slice_s_and_one_body_has_none(
     daemon, tmp_path: Path
 ) -> None:
     hostd = daemon(sim_config())
-    hostd.drop(two_bodies(tmp_path / "pair.stl"), "pair.stl")
+    model = two_bodies(tmp_path / "pair.stl")
+    hostd.drop(model, "pair.stl")
     hostd.drop(small_box(tmp_path / "box.stl"), "cube.stl")
     done = hostd.jobs / "done"
     hostd.wait_for(lambda: (done / "cube.summary.txt").exists(), 120, "both printed")
@@ -151,6 +152,14 @@ def test_the_daemon_done_file_carries_them_too_and_one_body_gets_no_labels(
     cube = (done / "cube.gcode").read_text().splitlines()
     assert not any(line.startswith(("M486", "EXCLUDE_OBJECT")) for line in cube)
     check_progress(cube)
+    # hostd slice writes the same file: the same moves, totals (;TIME:, filament), labels, M73
+    sliced = tmp_path / "sliced.gcode"
+    result = subprocess.run([*HOSTD, "slice", str(model), "-o", str(sliced), "--quiet"],
+                            capture_output=True, text=True, timeout=120,
+                            env={"PYTHONPATH": str(ROOT)})
+    assert result.returncode == 0, result.stderr
+    assert sliced.read_text().splitlines() == lines
+    assert any(line.startswith(";TIME:") for line in lines[:5])
     # what was streamed is the file without the lines written for other hosts
     assert len(commands_of(done / "pair.gcode")) < len([c for c in lines if c[:1] not in ";"])
     assert hostd.stop() == 0

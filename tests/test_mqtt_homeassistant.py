@@ -14,8 +14,9 @@ from typing import Any
 
 import aiomqtt
 import pytest
+import trimesh
 from brokers import HOST, Broker, start_broker
-from conftest import DATA, ROOT
+from conftest import ROOT
 from PIL import Image
 
 from hostd.api import JobStatus, Snapshot, Temperature, Temps
@@ -221,14 +222,15 @@ def test_a_daemon_publishes_the_layer_picture_the_job_figures_and_the_history(
     job = json.loads(retained[f"hostd/{PRINTER}/job"])
     header = (tmp_path / "jobs" / "done" / "cube.gcode").read_text().splitlines()[:20]
     slicer_mm = float(next(line for line in header if "filament used [mm]" in line).split()[-1])
-    assert job["name"] == "cube.stl" and job["completed"] == job["layers"] - 1 == 99
+    assert job["name"] == "cube.stl" and job["completed"] == job["layers"] - 1 == 24
     assert abs(job["filament_mm"] - slicer_mm) <= 6  # the end's retraction is not a layer's
     history = json.loads(retained[f"hostd/{PRINTER}/history"])
     assert history["totals"]["jobs"] == 1 and history["last"][0]["outcome"] == "done"
 
 
 async def _print_and_collect(broker: Broker, folder: Path) -> dict[str, bytes]:
-    """Drop a cube once the daemon is online; the retained topics once its history has it."""
+    """Drop a 20 x 20 x 5 mm box once the daemon is online; the retained topics once the
+    history has it."""
     retained: dict[str, bytes] = {}
     async with aiomqtt.Client(HOST, broker.port) as client:
         await client.subscribe(f"hostd/{PRINTER}/#", qos=1)
@@ -238,9 +240,9 @@ async def _print_and_collect(broker: Broker, folder: Path) -> dict[str, bytes]:
                 topic = str(message.topic)
                 retained[topic] = message.payload
                 if topic.endswith("/online") and message.payload == b"online":
-                    cube = (DATA / "cube20_xyz.stl").read_bytes()
                     (folder / "jobs").mkdir(exist_ok=True)
-                    (folder / "jobs" / ".cube.stl.part").write_bytes(cube)
+                    hidden = folder / "jobs" / ".cube.stl.part"
+                    trimesh.creation.box((20.0, 20.0, 5.0)).export(hidden, file_type="stl")
                     os.replace(folder / "jobs" / ".cube.stl.part", folder / "jobs" / "cube.stl")
                 if topic.endswith("/history") and json.loads(message.payload)["totals"]["jobs"]:
                     return retained

@@ -13,7 +13,8 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from conftest import DATA, sim_config
+import trimesh
+from conftest import sim_config
 from PIL import Image
 from test_daemon import command, printing_layer, small_box
 
@@ -92,7 +93,9 @@ def test_a_print_and_a_bad_model_notify_with_pictures_despite_bad_endpoints(
 ) -> None:
     good, failing, hung = endpoints
     hostd = daemon(sim_config(extra=notify_section(hung.port, failing.port, good.port)))
-    hostd.drop(DATA / "cube20_xyz.stl", "cube.stl")
+    box = trimesh.creation.box((20.0, 20.0, 5.0))
+    box.export(tmp_path / "cube.stl")
+    hostd.drop(tmp_path / "cube.stl", "cube.stl")
     hostd.wait_for(lambda: (hostd.jobs / "done" / "cube.gcode").exists(), 120, "cube printed")
     hostd.drop(b"\x00" * 40, "junk.stl")
     hostd.wait_for(lambda: (hostd.jobs / "failed" / "junk.error.txt").exists(), 30, "junk failed")
@@ -101,12 +104,12 @@ def test_a_print_and_a_bad_model_notify_with_pictures_despite_bad_endpoints(
     titles = good.titles()
     assert titles == ["cube.stl: first layer done", "cube.stl printed", "junk.stl failed"]
     first, done, failed = good.received
-    assert "job 1" in first["message"] and "100 layers" in first["message"]
+    assert "job 1" in first["message"] and "25 layers" in first["message"]
     assert png_of(first).size[0] > 100
     header = (hostd.jobs / "done" / "cube.gcode").read_text().splitlines()
     slicer_mm = float(next(line for line in header if "filament used [mm]" in line).split()[-1])
     metres = float(done["message"].split("filament ")[1].split(" m")[0])
-    assert "cube.stl (job 1) is done. 100 layers, filament" in done["message"]
+    assert "cube.stl (job 1) is done. 25 layers, filament" in done["message"]
     assert abs(metres * 1000 - slicer_mm) <= 6  # the same moves, but not the end's retraction
     assert done["type"] == "success"
     png_of(done)
