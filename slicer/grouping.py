@@ -46,21 +46,41 @@ def group_rows(rows: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         part <<= shift
         part |= np.arange(a, a + len(part), dtype=np.uint64)
     key.sort()
-    order = np.empty(n, dtype=itype)
-    mask = (np.uint64(1) << shift) - np.uint64(1)
-    for a in range(0, n, _STEP):
-        order[a : a + _STEP] = key[a : a + _STEP] & mask
-    key >>= shift
     first = np.empty(n, dtype=bool)
     first[0] = True
-    np.not_equal(key[1:], key[:-1], out=first[1:])
-    del key
+    for a in range(1, n, _STEP):
+        b = min(n, a + _STEP)
+        np.not_equal(key[a:b] >> shift, key[a - 1 : b - 1] >> shift, out=first[a:b])
+    order = _low_bits(key, shift, itype)
     same = _same_as_previous(rows, order)
     clash = np.flatnonzero(~first & ~same)
     if len(clash):
         _resort(rows, order, first, same, clash)
     first |= ~same
     return order, first
+
+
+def _low_bits(key: np.ndarray, shift: np.uint64, itype: type) -> np.ndarray:
+    """The low ``shift`` bits of ``key`` (n,) uint64 as (n,) ``itype``, reusing its memory.
+
+    Chunk by chunk in ascending order, each value is written at or before where it
+    was read (4 of every 8 bytes for int32), so nothing unread is overwritten;
+    the buffer is then shrunk to the result's size (no second array of n).
+    """
+    n = len(key)
+    mask = (np.uint64(1) << shift) - np.uint64(1)
+    if np.dtype(itype).itemsize == 8:
+        key &= mask
+        return key.view(np.int64)
+    out = key.view(itype)  # 2n slots over the same bytes
+    for a in range(0, n, _STEP):
+        low = key[a : a + _STEP] & mask
+        out[a : a + len(low)] = low
+    try:
+        key.resize((n + 1) // 2, refcheck=False)  # give back the upper half
+    except (ValueError, SystemError):  # does not own its memory: keep the view
+        return out[:n]
+    return key.view(itype)[:n]
 
 
 def _same_as_previous(rows: np.ndarray, order: np.ndarray) -> np.ndarray:

@@ -127,12 +127,17 @@ def _merge(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     c32 = np.ascontiguousarray(corners, dtype=np.float32)
     c32 += np.float32(0.0)  # -0 becomes 0 (in place when already float32)
     order, new = group_rows(c32.view(np.uint32))
-    index = np.cumsum(new, dtype=order.dtype)
-    index -= 1
-    inverse = np.empty(len(order), dtype=order.dtype)
-    inverse[order] = index
-    del index
     vertices = np.take(c32, order[new], axis=0).astype(np.float64)
+    # each corner's vertex: the running count of groups, scattered back a step at
+    # a time (no full array of sorted-position labels)
+    inverse = np.empty(len(order), dtype=order.dtype)
+    done = 0
+    step = 1 << 18
+    for a in range(0, len(order), step):
+        index = np.cumsum(new[a : a + step], dtype=order.dtype)
+        index += done - 1
+        inverse[order[a : a + step]] = index
+        done = int(index[-1]) + 1
     return vertices, inverse.reshape(-1, 3)
 
 
@@ -155,14 +160,18 @@ def _stl_kind(head: bytes, size: int) -> str | None:
     return None
 
 
-def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, float]) -> PlacedMesh:
+def prepare(
+    vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, float],
+    in_place: bool = False,
+) -> PlacedMesh:
     """Repair, validate and place a merged mesh on the bed.
 
     ``vertices`` (v, 3) float64 mm, ``faces`` (f, 3) int64. Repairs (each
     reported): removed degenerate and duplicate faces and dangling fins, fixed
     winding and inverted normals, filled small holes. Refuses (ModelError):
     open after repair beyond a small fraction of edges, zero volume, bigger
-    than the bed.
+    than the bed. With ``in_place`` the vertices are moved onto the bed in
+    ``vertices`` itself (a float64 array the caller hands over).
     """
     warnings: list[str] = []
     faces, removed, stats = _remove_bad_faces(faces, len(vertices))
@@ -212,7 +221,10 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, fl
     shift = np.array(
         [bed[0] / 2.0 - (lo[0] + hi[0]) / 2.0, bed[1] / 2.0 - (lo[1] + hi[1]) / 2.0, -lo[2]]
     )
-    vertices = vertices + shift
+    if in_place:  # the caller's array is moved, not copied (large files)
+        vertices += shift
+    else:
+        vertices = vertices + shift
     face_body, bodies = _bodies(faces, len(vertices))
     return PlacedMesh(vertices, faces, face_body, bodies, stats.open, tuple(warnings))
 

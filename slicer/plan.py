@@ -135,7 +135,7 @@ class SlicePlan:
         Raises ModelError with a specific reason when the file cannot be sliced.
         """
         bed = (float(bed[0]), float(bed[1]), float(bed[2]))
-        mesh = prepare(*read_stl(path), bed)
+        mesh = prepare(*read_stl(path), bed, in_place=True)
         geometry = _cut_model(mesh, settings, bed)
         del mesh
         return cls(geometry, settings)
