@@ -9,8 +9,14 @@ slicing time on the same model (a batch slicer writes no G-code before it has sl
 everything). Then the idle daemon's CPU use over 60 s and its peak resident memory
 while printing the largest models to the end.
 
+With ``--corpus`` the drops are the shared models and the generated corpus
+(``bench/corpus.py``), and each row says whether the first extrusion came at least
+10x sooner than CuraEngine's whole slice where CuraEngine needs 0.5 s or more.
+``--print-model large_sphere_3m`` prints the 3.03M-triangle memory case.
+
 Usage (from the repository root):
     .venv/bin/python bench/drop_to_extrusion.py [--models bunny,dragon_100k] [--repeat 3]
+    .venv/bin/python bench/drop_to_extrusion.py --corpus --idle-s 0 --print-model ''
 """
 
 from __future__ import annotations
@@ -32,11 +38,24 @@ from bench import proctree
 from bench.daemonproc import Daemon, DaemonSetup
 from bench.gcodeparse import is_extruding_line
 from bench.peers import curaengine
-from bench.slice_vs_peers import MODELS, OUT, SCALE_SOURCE, make_scale_model, model_paths, stl_faces
+from bench.slice_vs_peers import (
+    MODELS,
+    OUT,
+    SCALE_SOURCE,
+    corpus_paths,
+    make_scale_model,
+    model_paths,
+    stl_faces,
+)
 
 _POLL_S = 0.005
 SCALE_NAME = "bunny_x16"
 _PLAN_LOG = re.compile(r"whole-model pass ([0-9.]+) s")
+LARGE_NAME = "large_sphere_3m"
+# the lead asked for: first extrusion this many times sooner than CuraEngine's whole
+# slice, on every model CuraEngine needs at least LEAD_FROM_S for
+LEAD_TARGET = 10.0
+LEAD_FROM_S = 0.5
 
 
 @dataclass
@@ -179,9 +198,12 @@ def print_memory(model: Path, setup: DaemonSetup, timeout: float) -> PrintMemory
 
 def print_models(folder: Path, names: str) -> list[Path]:
     """The models to print for peak RSS: shared models by name, or the scale model."""
+    from bench.corpus import large_model
+
     wanted = [n.strip() for n in names.split(",") if n.strip()]
     paths = [make_scale_model(folder / SCALE_SOURCE) for n in wanted if n == SCALE_NAME]
-    shared = ",".join(n for n in wanted if n != SCALE_NAME)
+    paths += [large_model() for n in wanted if n == LARGE_NAME]
+    shared = ",".join(n for n in wanted if n not in (SCALE_NAME, LARGE_NAME))
     return (model_paths(folder, shared) if shared else []) + paths
 
 
@@ -199,6 +221,8 @@ def latency_table(rows: list[Latency]) -> str:
         def s(v: float | None) -> str:
             return "-" if v is None else f"{v:.3f} s"
         lead = "-" if r.lead is None else f"{r.lead:.1f}x"
+        if r.lead is not None and r.cura_slice_s and r.cura_slice_s >= LEAD_FROM_S:
+            lead += " ok" if r.lead >= LEAD_TARGET else " **short**"
         lines.append(f"| {r.model} | {r.faces:,} | {s(r.settled_to_extrusion_s)} "
                      f"| {s(r.dropped_to_extrusion_s)} | {s(r.plan_s)} "
                      f"| {s(r.cura_slice_s)} | {lead} | {r.note} |")
@@ -221,6 +245,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--print-timeout", type=float, default=900.0)
     p.add_argument("--no-cura", action="store_true", help="skip CuraEngine's timings")
     p.add_argument("--out", type=Path, default=OUT)
+    p.add_argument("--corpus", action="store_true",
+                   help="drop the shared models and the generated corpus")
     return p.parse_args(argv)
 
 
@@ -229,7 +255,9 @@ def main(argv: list[str] | None = None) -> int:
     args = parse_args(argv)
     setup = DaemonSetup(settle_s=args.settle_s, baud=args.baud)
     rows: list[Latency] = []
-    for model in model_paths(args.models_dir, args.models):
+    models = (corpus_paths(args.models_dir, args.models) if args.corpus
+              else model_paths(args.models_dir, args.models))
+    for model in models:
         row = Latency(model=model.stem, faces=stl_faces(model))
         drops = [measure_latency(model, setup, args.timeout) for _ in range(args.repeat)]
         good = [d for d in drops if d.settled_s is not None and d.dropped_s is not None]
@@ -247,6 +275,10 @@ def main(argv: list[str] | None = None) -> int:
         rows.append(row)
     results: dict[str, object] = {"setup": asdict(setup), "latency": [asdict(r) for r in rows]}
     print(latency_table(rows))
+    short = [r.model for r in rows if r.lead is not None and r.cura_slice_s
+             and r.cura_slice_s >= LEAD_FROM_S and r.lead < LEAD_TARGET]
+    print(f"\nfirst extrusion under {LEAD_TARGET:g}x sooner than CuraEngine (where it needs "
+          f">= {LEAD_FROM_S:g} s): {', '.join(short) if short else 'none'}")
     if args.idle_s > 0:
         idle = idle_cpu(setup, args.idle_s)
         results["idle_cpu_percent"] = idle
@@ -257,9 +289,11 @@ def main(argv: list[str] | None = None) -> int:
                               args.print_timeout)
         memories.append(asdict(memory))
         took = "-" if memory.print_s is None else f"{memory.print_s:.1f} s"
-        print(f"printing {memory.model} ({memory.faces:,} faces, unlimited wire): daemon peak "
-              f"RSS (VmHWM) {memory.daemon_hwm_mb:.0f} MB, daemon and children together (PSS) "
-              f"{memory.tree_peak_mb:.0f} MB, drop to done {took} {memory.note}")
+        size_mb = model.stat().st_size / 1e6
+        print(f"printing {memory.model} ({memory.faces:,} faces, {size_mb:.1f} MB, unlimited "
+              f"wire): daemon peak RSS (VmHWM) {memory.daemon_hwm_mb:.0f} MB (target under "
+              f"{2 * size_mb + 100:.0f} MB = 2x the file + 100 MB), daemon and children together "
+              f"(PSS) {memory.tree_peak_mb:.0f} MB, drop to done {took} {memory.note}")
     results["print_memory"] = memories
     args.out.mkdir(parents=True, exist_ok=True)
     (args.out / "drop_to_extrusion.json").write_text(json.dumps(results, indent=1))

@@ -144,6 +144,23 @@ def corpus_paths(shared: Path, selected: str) -> list[Path]:
     return [p for p in paths if p.stem in wanted]
 
 
+def large_case(args: argparse.Namespace, config: Path, gcode_dir: Path) -> int:
+    """`hostd slice` of the 3.03M-triangle model: time, peak RSS against 2x the file + 100 MB."""
+    from bench.corpus import large_model
+
+    model = large_model()
+    size_mb = model.stat().st_size / 1e6
+    target = 2 * size_mb + 100
+    out = gcode_dir / f"{model.stem}.hostd.gcode"
+    for _ in range(args.repeat):
+        result = run_measured(ours_command(model, out, config), timeout=args.timeout)
+        rss = result.rss_mb or 0.0
+        verdict = "ok" if result.ok and rss < target else "**over**"
+        print(f"| {model.stem} | {stl_faces(model):,} | {size_mb:.1f} MB | {result.wall_s:.2f} s "
+              f"| {rss:.0f} MB | {target:.0f} MB | {verdict} | {result.reason()} |")
+    return 0
+
+
 def make_scale_model(source: Path, rounds: int = 2) -> Path:
     """Subdivide every triangle of ``source`` into four, ``rounds`` times, into the cache."""
     import trimesh
@@ -302,6 +319,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
     p.add_argument("--no-scale", action="store_true", help="skip the ~1M-face scale case")
     p.add_argument("--scale-only", action="store_true", help="only the scale case")
     p.add_argument("--out", type=Path, default=OUT, help="G-code and JSON results folder")
+    p.add_argument("--large", action="store_true",
+                   help="only the memory case: `hostd slice` of a 3.03M-triangle STL, peak RSS")
     p.add_argument("--corpus", action="store_true",
                    help="the shared models and the generated corpus, with the targets checked")
     return p.parse_args(argv)
@@ -319,6 +338,8 @@ def main(argv: list[str] | None = None) -> int:
     config = args.out / "bench-printer.toml"
     config.write_text(BED_TOML)
     results: dict[str, object] = {"ours_settings": OUR_SETTINGS}
+    if args.large:
+        return large_case(args, config, gcode_dir)
     if args.corpus:
         rows = [measure_model(m, runners, args.repeat, args.timeout, config, gcode_dir,
                               compare=m.stem != "bad_triangle_soup")

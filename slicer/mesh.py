@@ -13,6 +13,7 @@ import numpy as np
 
 from slicer import repair
 from slicer.errors import ModelError
+from slicer.grouping import group_rows
 from slicer.stl_ascii import read_ascii_corners
 
 # an open mesh whose open edges are at most this fraction of all edges is still
@@ -88,7 +89,9 @@ def read_stl(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
             f"non-finite coordinates (NaN or infinity) in {int((~finite).sum())} vertices"
         )
     del finite
-    return merge_corners(corners)
+    vertices, inverse = _merge(corners)
+    del corners  # the corners go before the faces widen to int64
+    return vertices, inverse.astype(np.int64)
 
 
 def _read_binary(path: str | os.PathLike[str], count: int) -> np.ndarray:
@@ -107,60 +110,35 @@ def _read_binary(path: str | os.PathLike[str], count: int) -> np.ndarray:
     return out
 
 
-# odd 64-bit multipliers of the corner hash (from splitmix64)
-_MIX = (np.uint64(0x9E3779B97F4A7C15), np.uint64(0xBF58476D1CE4E5B9), np.uint64(0x94D049BB133111EB))
-
-
 def merge_corners(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Merge bitwise-equal triangle corners: (3n, 3) float -> vertices (v, 3), faces (n, 3).
 
     Exact: two corners merge only when their float32 coordinates are equal
-    (``-0`` and ``0`` alike). Corners are sorted by a 64-bit hash of their
-    bits; equal hashes are then checked coordinate by coordinate, and the
-    rare hash collision falls back to an exact lexicographic sort. Memory stays
-    at a few arrays of 3n 64-bit numbers.
+    (``-0`` and ``0`` alike); see :func:`slicer.grouping.group_rows`.
     """
+    vertices, inverse = _merge(corners)
+    return vertices, inverse.astype(np.int64)
+
+
+def _merge(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`merge_corners` with faces in the sort's index type (int32 below 2^31
+    corners: the largest array of the read stays half as big). ``corners`` is
+    changed in place when it is float32 already (``-0`` becomes ``0``)."""
     c32 = np.ascontiguousarray(corners, dtype=np.float32)
     c32 += np.float32(0.0)  # -0 becomes 0 (in place when already float32)
-    bits = c32.view(np.uint32)
-    key = bits[:, 0].astype(np.uint64)
-    key *= _MIX[0]
-    tmp = bits[:, 1].astype(np.uint64)
-    tmp *= _MIX[1]
-    key ^= tmp
-    tmp[:] = bits[:, 2]
-    tmp *= _MIX[2]
-    key ^= tmp
-    del tmp
-    order = np.argsort(key)  # ties are identical corners: their order does not matter
-    key = key[order]
-    new = np.empty(len(order), dtype=bool)
-    new[0] = True
-    np.not_equal(key[1:], key[:-1], out=new[1:])
-    del key
-    vertices, inverse = _labels(c32, order, new)
-    # a hash collision would merge different corners: check every corner against
-    # its vertex (sequential reads, lookups in the small vertex table)
+    order, new = group_rows(c32.view(np.uint32))
+    vertices = np.take(c32, order[new], axis=0).astype(np.float64)
+    # each corner's vertex: the running count of groups, scattered back a step at
+    # a time (no full array of sorted-position labels)
+    inverse = np.empty(len(order), dtype=order.dtype)
+    done = 0
     step = 1 << 18
-    for a in range(0, len(inverse), step):
-        if not (c32[a : a + step] == vertices[inverse[a : a + step]]).all():
-            order = np.lexsort((bits[:, 2], bits[:, 1], bits[:, 0]))
-            s = bits[order]
-            new[1:] = (s[1:] != s[:-1]).any(axis=1)
-            del s
-            vertices, inverse = _labels(c32, order, new)
-            break
-    return vertices.astype(np.float64), inverse.reshape(-1, 3)
-
-
-def _labels(c32: np.ndarray, order: np.ndarray, new: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Vertices (float32) and each corner's vertex index from a sort ``order`` whose
-    runs of equal corners start where ``new`` is True."""
-    index = np.cumsum(new, dtype=np.int64)
-    index -= 1
-    inverse = np.empty(len(order), dtype=np.int64)
-    inverse[order] = index
-    return c32[order[new]], inverse
+    for a in range(0, len(order), step):
+        index = np.cumsum(new[a : a + step], dtype=order.dtype)
+        index += done - 1
+        inverse[order[a : a + step]] = index
+        done = int(index[-1]) + 1
+    return vertices, inverse.reshape(-1, 3)
 
 
 def _stl_kind(head: bytes, size: int) -> str | None:
@@ -182,14 +160,18 @@ def _stl_kind(head: bytes, size: int) -> str | None:
     return None
 
 
-def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, float]) -> PlacedMesh:
+def prepare(
+    vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, float],
+    in_place: bool = False,
+) -> PlacedMesh:
     """Repair, validate and place a merged mesh on the bed.
 
     ``vertices`` (v, 3) float64 mm, ``faces`` (f, 3) int64. Repairs (each
     reported): removed degenerate and duplicate faces and dangling fins, fixed
     winding and inverted normals, filled small holes. Refuses (ModelError):
     open after repair beyond a small fraction of edges, zero volume, bigger
-    than the bed.
+    than the bed. With ``in_place`` the vertices are moved onto the bed in
+    ``vertices`` itself (a float64 array the caller hands over).
     """
     warnings: list[str] = []
     faces, removed, stats = _remove_bad_faces(faces, len(vertices))
@@ -239,24 +221,22 @@ def prepare(vertices: np.ndarray, faces: np.ndarray, bed: tuple[float, float, fl
     shift = np.array(
         [bed[0] / 2.0 - (lo[0] + hi[0]) / 2.0, bed[1] / 2.0 - (lo[1] + hi[1]) / 2.0, -lo[2]]
     )
-    vertices = vertices + shift
+    if in_place:  # the caller's array is moved, not copied (large files)
+        vertices += shift
+    else:
+        vertices = vertices + shift
     face_body, bodies = _bodies(faces, len(vertices))
     return PlacedMesh(vertices, faces, face_body, bodies, stats.open, tuple(warnings))
 
 
 def signed_volume(vertices: np.ndarray, faces: np.ndarray) -> float:
     """Volume enclosed by the faces, mm^3 (negative when the normals point inwards)."""
-    # the triple product v0 . (v1 x v2) per face, from contiguous coordinate columns
-    x, y, z = (np.ascontiguousarray(vertices[:, k]) for k in range(3))
+    # the triple product v0 . (v1 x v2) per face, from rows gathered whole (np.take
+    # reads each corner's row at once, unlike indexing the coordinates one by one)
     total = 0.0
     for a in range(0, len(faces), 1 << 16):
-        f = faces[a : a + (1 << 16)]
-        i, j, k = f[:, 0], f[:, 1], f[:, 2]
-        x1, y1, z1, x2, y2, z2 = x[j], y[j], z[j], x[k], y[k], z[k]
-        total += float(
-            (x[i] * (y1 * z2 - z1 * y2) + y[i] * (z1 * x2 - x1 * z2) + z[i] * (x1 * y2 - y1 * x2))
-            .sum()
-        )
+        t = np.take(vertices, faces[a : a + (1 << 16)], axis=0)  # (k, 3, 3)
+        total += float(np.einsum("ij,ij->", t[:, 0], np.cross(t[:, 1], t[:, 2])))
     return total / 6.0
 
 
@@ -303,15 +283,21 @@ def _edge_stats(faces: np.ndarray, nv: int) -> _EdgeStats:
         part *= nv
         part += np.maximum(a, b)
     keys.sort()
-    starts = np.concatenate(([0], np.flatnonzero(keys[1:] != keys[:-1]) + 1))
-    counts = np.diff(np.append(starts, len(keys)))
-    single = counts == 1
+    # masks over the sorted keys (no index arrays): a run of equal keys is one edge
+    m = len(keys)
+    first = np.ones(m + 1, dtype=bool)  # first[i]: keys[i] starts a run (first[m]: the end)
+    np.not_equal(keys[1:], keys[:-1], out=first[1:m])
+    single = first[:m] & first[1:]
+    long_runs = np.zeros(m, dtype=bool)  # runs of three or more, marked at their start
+    if m >= 3:
+        np.equal(keys[2:], keys[:-2], out=long_runs[: m - 2])
+        long_runs &= first[:m]
     return _EdgeStats(
         int(single.sum()),
-        len(counts),
+        int(first[:m].sum()),
         not repeated,
-        int((counts >= 3).sum()),
-        keys[starts[single]].copy(),
+        int(long_runs.sum()),
+        keys[single],
     )
 
 
@@ -325,24 +311,12 @@ def _remove_bad_faces(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int, _Edg
     """
     f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
     keep = (f0 != f1) & (f1 != f2) & (f0 != f2)
-    lo = np.minimum(np.minimum(f0, f1), f2).astype(np.int64)
-    hi = np.maximum(np.maximum(f0, f1), f2).astype(np.int64)
-    mid = f0 + f1 + f2 - lo - hi
-    if nv < 2_000_000:
-        key = (lo * nv + mid) * nv + hi
-        order = np.argsort(key, kind="stable")
-        key = key[order]
-        dup_sorted = key[1:] == key[:-1]
-    else:
-        order = np.lexsort((hi, mid, lo))
-        dup_sorted = (
-            (lo[order[1:]] == lo[order[:-1]])
-            & (mid[order[1:]] == mid[order[:-1]])
-            & (hi[order[1:]] == hi[order[:-1]])
-        )
-    del lo, hi, mid
+    corners = faces.astype(np.int32 if nv < 2**31 else np.int64)
+    corners.sort(axis=1)
+    order, first = group_rows(corners)
+    del corners
     dup = np.zeros(len(faces), dtype=bool)
-    dup[order[1:][dup_sorted]] = True
+    dup[order[~first]] = True  # all but the first (lowest-numbered) face of each group
     keep &= ~dup
     del order, dup
     if not keep.all():
@@ -368,6 +342,15 @@ def _fins(faces: np.ndarray, nv: int) -> np.ndarray:
     return ((per_face == 1).sum(axis=1) >= 2) & (per_face >= 3).any(axis=1)
 
 
+def _jump(parent: np.ndarray) -> np.ndarray:
+    """Every node pointed straight at its root (pointer jumping until nothing moves)."""
+    while True:
+        jumped = parent[parent]
+        if np.array_equal(jumped, parent):
+            return parent
+        parent = jumped
+
+
 def _bodies(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
     """Connected shells: (body of each face (f,) int64 numbered by first face, count).
 
@@ -375,24 +358,43 @@ def _bodies(faces: np.ndarray, n_vertices: int) -> tuple[np.ndarray, int]:
     ends disagree onto the smaller one, then jumps pointers to the roots; a
     mesh settles in a handful of rounds.
     """
-    parent = np.arange(n_vertices, dtype=np.int64)
-    u = np.concatenate([faces[:, 0], faces[:, 1]])
-    v = np.concatenate([faces[:, 1], faces[:, 2]])
+    itype = np.int32 if n_vertices < 2**31 else np.int64
+    parent = np.arange(n_vertices, dtype=itype)
+    f = len(faces)
+    u = np.empty(2 * f, dtype=itype)
+    v = np.empty(2 * f, dtype=itype)
+    u[:f], u[f:] = faces[:, 0], faces[:, 1]
+    v[:f], v[f:] = faces[:, 1], faces[:, 2]
+    # first round: every vertex is its own root, so hook straight from the edges
+    parent[np.maximum(u, v)] = np.minimum(u, v)
+    parent = _jump(parent)
     while True:
-        pu, pv = parent[u], parent[v]
+        pu = parent[u]
+        pv = parent[v]
         differ = pu != pv
         if not differ.any():
             break
-        u, v, pu, pv = u[differ], v[differ], pu[differ], pv[differ]
-        np.minimum.at(parent, np.maximum(pu, pv), np.minimum(pu, pv))
-        while True:
-            jumped = parent[parent]
-            if np.array_equal(jumped, parent):
-                break
-            parent = jumped
+        if not differ.all():  # one array at a time: bounded temporaries
+            u = u[differ]
+            v = v[differ]
+            pu = pu[differ]
+            pv = pv[differ]
+        del differ
+        # hook each larger root onto a smaller one (any: the last write wins); a
+        # component ends labelled by its lowest vertex whichever hooks won
+        hi = np.maximum(pu, pv)
+        np.minimum(pu, pv, out=pu)
+        del pv
+        parent[hi] = pu
+        del hi, pu
+        parent = _jump(parent)
     del u, v
-    face_label = parent[faces[:, 0]]
-    used, first = np.unique(face_label, return_index=True)
-    rank = np.empty(len(used), dtype=np.int64)
-    rank[np.argsort(first)] = np.arange(len(used))
-    return rank[np.searchsorted(used, face_label)], len(used)
+    roots = np.flatnonzero(parent == np.arange(n_vertices))  # ascending
+    comp = np.searchsorted(roots, parent[faces[:, 0]])  # each face's component
+    del parent
+    first = np.full(len(roots), f, dtype=np.int64)
+    first[comp[::-1]] = np.arange(f - 1, -1, -1)  # the last write is the lowest face
+    used = np.flatnonzero(first < f)
+    rank = np.zeros(len(roots), dtype=np.int64)
+    rank[used[np.argsort(first[used])]] = np.arange(len(used))
+    return rank[comp], len(used)

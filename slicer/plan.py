@@ -135,7 +135,7 @@ class SlicePlan:
         Raises ModelError with a specific reason when the file cannot be sliced.
         """
         bed = (float(bed[0]), float(bed[1]), float(bed[2]))
-        mesh = prepare(*read_stl(path), bed)
+        mesh = prepare(*read_stl(path), bed, in_place=True)
         geometry = _cut_model(mesh, settings, bed)
         del mesh
         return cls(geometry, settings)
@@ -411,6 +411,9 @@ def _cut_model(
     if mesh.bodies <= 1:
         body_map = np.zeros(1, dtype=np.int64)
         body_count = 1
+    elif _apart(mesh):  # no two shells can overlap or nest: each is one object
+        body_map = np.arange(mesh.bodies, dtype=np.int64)
+        body_count = mesh.bodies
     else:
         outlines.cut_all()
         raw = [outlines.polygons(i)[1] for i in range(top + 1)]
@@ -425,6 +428,31 @@ def _cut_model(
         bed=bed,
         mesh_warnings=mesh.warnings,
     )
+
+
+# shells compared pairwise by bounding box up to this many (beyond: cut whole)
+_MAX_APART_CHECK = 2000
+
+
+def _apart(mesh: PlacedMesh) -> bool:
+    """Whether the mesh's shells have pairwise disjoint bounding boxes (touching counts as
+    meeting), so none can overlap or hold another as a cavity and the whole-model cut
+    that numbers objects is not needed. Shells are numbered by first face either way."""
+    k = mesh.bodies
+    if k > _MAX_APART_CHECK:
+        return False
+    order = np.argsort(mesh.face_body, kind="stable")
+    starts = np.searchsorted(mesh.face_body[order], np.arange(k))  # every shell has faces
+    lo = np.full((k, 3), np.inf)
+    hi = np.full((k, 3), -np.inf)
+    for j in range(3):
+        pts = mesh.vertices[mesh.faces[order, j]]
+        lo = np.minimum(lo, np.minimum.reduceat(pts, starts, axis=0))
+        hi = np.maximum(hi, np.maximum.reduceat(pts, starts, axis=0))
+    meet = (lo[:, None, :] <= hi[None, :, :]) & (lo[None, :, :] <= hi[:, None, :])
+    meet = meet.all(axis=2)
+    np.fill_diagonal(meet, False)
+    return not meet.any()
 
 
 def _warnings(geo: _Geometry) -> list[str]:

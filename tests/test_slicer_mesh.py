@@ -163,13 +163,13 @@ def test_binary_and_ascii_read_the_same(tmp_path) -> None:
 
 
 def test_merge_survives_hash_collisions(monkeypatch) -> None:
-    import slicer.mesh as mesh_module
+    import slicer.grouping as grouping
 
     rng = np.random.default_rng(1)
     corners = rng.integers(0, 4, size=(300, 3)).astype(np.float32)
     expected = len(np.unique(corners, axis=0))
     zero = np.uint64(0)
-    monkeypatch.setattr(mesh_module, "_MIX", (zero, zero, zero))  # every key collides
+    monkeypatch.setattr(grouping, "_MIX", (zero, zero, zero))  # every key collides
     vertices, faces = merge_corners(corners)
     assert len(vertices) == expected
     assert np.array_equal(vertices[faces.ravel()], corners.astype(np.float64))
