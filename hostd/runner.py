@@ -190,6 +190,9 @@ class JobRunner:
     async def _stream(self, lines: list[str], layer: int, write: bool, skip: int = 0) -> None:
         if write and lines:
             self._save(self.output.write, "\n".join(lines) + "\n")
+            # to the kernel (no fsync: that is the checkpoint writer's): readers of the
+            # file at this layer's event (the job tracker) find the whole layer there
+            self._save(self.output.flush)
         done: list[str] = []
         for line in lines:
             command = strip_comment(line)
