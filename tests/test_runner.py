@@ -125,7 +125,8 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
 
 
 def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> None:
-    seen = asyncio.run(print_job(tmp_path, depth=2, renumber_at=1000))
+    # every 800 lines: the line budget cut the job to about 9,000 lines
+    seen = asyncio.run(print_job(tmp_path, depth=2, renumber_at=800))
     assert sum(c.startswith("M110") for c in seen["executed"]) > 10  # renumbered often
     assert [c[0] for c in seen["checkpoints"]] == list(range(seen["plan"].layer_count))
 
