@@ -125,9 +125,9 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
 
 
 def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> None:
-    # every 800 lines: the line budget cut the job to about 9,000 lines
-    seen = asyncio.run(print_job(tmp_path, depth=2, renumber_at=800))
-    assert sum(c.startswith("M110") for c in seen["executed"]) > 10  # renumbered often
+    seen = asyncio.run(print_job(tmp_path, depth=2, renumber_at=1000))
+    # renumbered often: the line budget cut the job to about 9,000 lines
+    assert sum(c.startswith("M110") for c in seen["executed"]) >= 8
     assert [c[0] for c in seen["checkpoints"]] == list(range(seen["plan"].layer_count))
 
 
