@@ -41,7 +41,8 @@ def test_each_fault_kind_at_one_percent(tmp_path, kind):
     if kind == "corrupt_rx":
         # lines still on the wire after a refused one are refused too: one replay each time
         assert link.stats.duplicate_resends > 0
-        assert link.stats.lines_resent < 4 * fired[kind]
+        # (on a loaded machine probes overflow the buffer now and then: refusals too)
+        assert link.stats.lines_resent < 4 * max(fired[kind], link.stats.errors)
 
 
 def test_all_faults_combined_but_resets(tmp_path):
