@@ -1,0 +1,49 @@
+"""The benchmark corpus: generated the same every time; its targets checked as design.md says."""
+
+from __future__ import annotations
+
+from bench import corpus, corpus_table
+from bench.slice_vs_peers import Measured, Row
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+
+
+def test_corpus_models_are_deterministic_and_slice(tmp_path):
+    names = ["bracket_bad_winding", "ascii_no_endsolid", "plate_five_bodies"]
+    first = {p.name: p.read_bytes() for p in corpus.build(tmp_path / "a", names=names)}
+    again = {p.name: p.read_bytes() for p in corpus.build(tmp_path / "b", names=names)}
+    assert first == again and len(first) == 3
+    assert not first["ascii_no_endsolid.stl"].rstrip().endswith(b"endsolid corpus")
+    plan = SlicePlan.from_file(tmp_path / "a" / "bracket_bad_winding.stl", SliceSettings(),
+                               (200.0, 200.0, 200.0))
+    assert any("fixed inconsistent face winding" in w for w in plan.warnings_so_far)
+    five = SlicePlan.from_file(tmp_path / "a" / "plate_five_bodies.stl", SliceSettings(),
+                               (200.0, 200.0, 200.0))
+    assert five.body_count == 5
+
+
+def _row(ours, cura, prusa, f_ours=100.0, f_cura=100.0, f_prusa=100.0, iou=(0.99, 0.98)):
+    results = {
+        "hostd": Measured(ok=True, wall_s=ours, filament_mm=f_ours),
+        "curaengine": Measured(ok=True, wall_s=cura, filament_mm=f_cura),
+        "prusaslicer": Measured(ok=True, wall_s=prusa, filament_mm=f_prusa),
+    }
+    return Row(model="m", faces=1, results=results, iou_vs_prusa=iou[0],
+               iou_cura_vs_prusa=iou[1])
+
+
+def test_targets_follow_the_design_rules():
+    v = corpus_table.verdict(_row(0.9, 1.0, 2.0))
+    assert v.time_ok and abs(v.time_ratio - 0.9) < 1e-9
+    assert not corpus_table.verdict(_row(1.1, 1.0, 2.0)).time_ok
+    # a peer under 0.3 s: within 0.3 s of it is enough
+    assert corpus_table.verdict(_row(0.30, 0.05, 0.2)).time_ok
+    assert not corpus_table.verdict(_row(0.40, 0.05, 0.2)).time_ok
+    # filament: within 10 % of PrusaSlicer, or between the peers where they differ more
+    assert corpus_table.verdict(_row(1, 1, 1, f_ours=109.0)).filament_ok
+    assert not corpus_table.verdict(_row(1, 1, 1, f_ours=112.0)).filament_ok
+    assert corpus_table.verdict(_row(1, 1, 1, f_ours=115.0, f_cura=120.0)).filament_ok
+    # the wall: at least as close to PrusaSlicer as CuraEngine's
+    assert not corpus_table.verdict(_row(1, 1, 1, iou=(0.97, 0.98))).iou_ok
+    text = corpus_table.table([_row(1.2, 1.0, 2.0)])
+    assert "worst time ratio: 1.20 (m)" in text and "m (time)" in text
