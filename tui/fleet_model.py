@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from hostd.api import Snapshot
+from tui.format import duration
 
 # Problems first: a lower rank sorts higher in the table.
 RANKS = {"error": 0, "offline": 1, "paused": 2, "heating": 3, "printing": 3, "idle": 4}
@@ -39,16 +40,6 @@ class PrinterEntry:
         return self.snapshot.state
 
 
-def duration(seconds: float | None) -> str:
-    """``H:MM:SS`` or ``M:SS``; ``--`` when unknown."""
-    if seconds is None:
-        return "--"
-    seconds = int(max(seconds, 0))
-    hours, rest = divmod(seconds, 3600)
-    minutes, secs = divmod(rest, 60)
-    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
-
-
 def progress_bar(fraction: float) -> str:
     """A ``BAR_WIDTH``-cell bar in eighths plus a percentage, e.g. ``█████▌     55%``."""
     fraction = min(max(fraction, 0.0), 1.0)
@@ -74,7 +65,7 @@ def row_cells(printer: str, entry: PrinterEntry) -> tuple[str, ...]:
         progress = layer = eta = ""
     else:
         progress = progress_bar(job.progress)
-        layer = f"{job.layer}/{job.layers}" if job.layers else ""
+        layer = f"{job.layer + 1}/{job.layers}" if job.layers else ""  # from 1, as everywhere
         eta = duration(job.eta_s)
     if state == "error" and snap.error:
         name = snap.error

@@ -12,7 +12,7 @@ from textual.screen import Screen
 from textual.widgets import Footer, ProgressBar, RichLog, Static
 
 from hostd.api import ControlError, Snapshot
-from tui.fleet_model import duration
+from tui.format import duration, layer_text
 from tui.sources import EventItem, Source, StatusItem
 
 
@@ -27,7 +27,7 @@ def _job_text(snapshot: Snapshot) -> str:
         return "no job"
     return (
         f"[b]{job.name}[/b] (job {job.id})\n"
-        f"layer {job.layer} of {job.layers}\n"
+        f"{layer_text(job.layer, job.layers)}\n"
         f"elapsed {duration(job.elapsed_s)}  ETA {duration(job.eta_s)}\n"
         f"layers sliced ahead {job.layers_ready_ahead}"
     )
