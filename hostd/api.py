@@ -201,7 +201,8 @@ class ControlClient:
 
     async def request(self, cmd: str, **args: Any) -> dict[str, Any]:
         """Send one command and return its reply; raise ControlError when refused."""
-        assert self._reader is not None and self._writer is not None
+        assert self._reader is not None
+        assert self._writer is not None
         self._writer.write((json.dumps({"cmd": cmd, **args}) + "\n").encode())
         await self._writer.drain()
         while True:

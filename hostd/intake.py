@@ -59,16 +59,9 @@ class Intake:
             self.fail(job, str(exc), extra=extra)
             return None
         incoming = self.area / f"incoming-{uuid.uuid4().hex}"
-        incoming.mkdir(parents=True)
-        if path.is_symlink():  # a link inside the folder: take a copy of what it points to
-            staged = Path(shutil.copyfile(path, incoming / path.name))
-            path.unlink()
-        else:
-            staged = move(path, incoming / path.name)
-        if override.is_file() and not override.is_symlink():
-            move(override, incoming / override.name)
-        if kind == "stl" and load.is_file() and not load.is_symlink():
-            move(load, incoming / load.name)  # found beside the model when it is sliced
+        staged = await asyncio.to_thread(
+            _stage, path, override, load if kind == "stl" else None, incoming
+        )
         job = self.store.add(path.name, str(path), str(staged), kind, digest, settings)
         home = move(incoming, self.area / job.id)
         job = self.store.set_path(job.id, str(home / path.name))
@@ -192,3 +185,23 @@ def _sha256(path: Path) -> str:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
     return digest.hexdigest()
+
+
+def _stage(path: Path, override: Path, load: Path | None, incoming: Path) -> Path:
+    """Move the model and its side files into ``incoming``; return the model's new path.
+
+    A link inside the folder is taken as a copy of what it points to (the copy of
+    a large file is why this runs in a thread). The load case is found beside the
+    model when it is sliced.
+    """
+    incoming.mkdir(parents=True)
+    if path.is_symlink():
+        staged = Path(shutil.copyfile(path, incoming / path.name))
+        path.unlink()
+    else:
+        staged = move(path, incoming / path.name)
+    if override.is_file() and not override.is_symlink():
+        move(override, incoming / override.name)
+    if load is not None and load.is_file() and not load.is_symlink():
+        move(load, incoming / load.name)
+    return staged

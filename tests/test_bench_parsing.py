@@ -116,7 +116,8 @@ def test_layer_missing_in_one_file_counts_as_zero() -> None:
     a = g.parse_moves(["M83", *loop(0, 0, 10, 0.2), *loop(0, 0, 10, 0.4)])
     b = g.parse_moves(["M83", *loop(0, 0, 10, 0.4)])
     agreement = g.wall_agreement(a, b, align=False)
-    assert agreement.layers_a == 2 and agreement.layers_b == 1
+    assert agreement.layers_a == 2
+    assert agreement.layers_b == 1
     assert agreement.mean_iou == pytest.approx(0.5)
     assert agreement.mean_iou_common == pytest.approx(1.0)
 

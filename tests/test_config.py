@@ -70,7 +70,9 @@ nozzle_temp = 215
     assert config.printer.bed == (250.0, 210.0, 200.0)
     assert config.printer.id == "mk3"
     assert config.simulator.baud == 0
-    assert config.mqtt.tls and config.mqtt.allow_commands and config.mqtt.keepalive == 10
+    assert config.mqtt.tls
+    assert config.mqtt.allow_commands
+    assert config.mqtt.keepalive == 10
     assert config.runner.lookahead == 2
     assert config.slicing.infill_density == 0.5
     assert config.slicing.infill_field == "wave"

@@ -74,8 +74,11 @@ def test_socket_is_private_and_answers_status(tmp_path: Path) -> None:
             snapshot = await client.status()
             raw = await client.request("status", id=41)
         assert snapshot.state == "printing"
-        assert snapshot.job is not None and snapshot.job.layer == 3
-        assert raw["reply"] == "status" and raw["ok"] is True and raw["id"] == 41
+        assert snapshot.job is not None
+        assert snapshot.job.layer == 3
+        assert raw["reply"] == "status"
+        assert raw["ok"] is True
+        assert raw["id"] == 41
         assert raw["status"] == hub.current.to_dict()
 
     serve(tmp_path, scenario)
@@ -96,7 +99,8 @@ def test_subscribe_streams_status_and_events_to_many_clients(tmp_path: Path) -> 
         for stream in streams:
             assert (await anext(stream))["status"].state == "heating"
             event = (await anext(stream))["event"]
-            assert event["event"] == "started" and event["name"] == "part.stl"
+            assert event["event"] == "started"
+            assert event["name"] == "part.stl"
         for client in clients:
             await client.__aexit__(None, None, None)
 
@@ -121,15 +125,21 @@ def test_commands_reach_the_controller_and_refusals_are_answered(tmp_path: Path)
             ],
         )
         pause, cancel_object, garbage, array, no_cmd, gcode, cancel, bug, deep, resume = replies
-        assert deep["ok"] is False and "malformed JSON" in deep["error"]
+        assert deep["ok"] is False
+        assert "malformed JSON" in deep["error"]
         assert pause == {"reply": "pause", "ok": True, "id": 1, "error": None, "done": "pause"}
         assert cancel_object["ok"] is True
-        assert garbage["ok"] is False and "malformed JSON" in garbage["error"]
-        assert array["ok"] is False and "JSON object" in array["error"]
-        assert no_cmd["ok"] is False and "cmd" in no_cmd["error"]
-        assert gcode["ok"] is False and "unknown command 'gcode'" in gcode["error"]
+        assert garbage["ok"] is False
+        assert "malformed JSON" in garbage["error"]
+        assert array["ok"] is False
+        assert "JSON object" in array["error"]
+        assert no_cmd["ok"] is False
+        assert "cmd" in no_cmd["error"]
+        assert gcode["ok"] is False
+        assert "unknown command 'gcode'" in gcode["error"]
         assert cancel == {"reply": "cancel", "ok": False, "id": "c", "error": "no job is printing"}
-        assert bug["ok"] is False and "ZeroDivisionError" in bug["error"]
+        assert bug["ok"] is False
+        assert "ZeroDivisionError" in bug["error"]
         assert resume["ok"] is True  # the connection survived every bad line
         with pytest.raises(ControlError, match="no job is printing"):
             async with ControlClient(str(path)) as client:
@@ -164,7 +174,8 @@ def test_an_overlong_line_is_refused_and_the_server_lives_on(tmp_path: Path) -> 
         reader, writer = await asyncio.open_unix_connection(str(path))
         writer.write(b"x" * (2 << 20) + b"\n")
         reply = json.loads(await reader.readline())
-        assert reply["ok"] is False and "too long" in reply["error"]
+        assert reply["ok"] is False
+        assert "too long" in reply["error"]
         writer.close()
         async with ControlClient(str(path)) as client:
             assert (await client.status()).state == "idle"
@@ -249,8 +260,11 @@ def test_hostd_status_reads_the_running_daemon(tmp_path: Path) -> None:
         assert json.loads(out) == hub.current.to_dict()
         code, out, err = await run_cli("status", "--socket", str(path))()
         assert code == 0, err
-        assert "printing" in out and "bunny.stl" in out and "layer 41 of 120" in out
-        assert "1:02:05" in out and "cube.stl" in out
+        assert "printing" in out
+        assert "bunny.stl" in out
+        assert "layer 41 of 120" in out
+        assert "1:02:05" in out
+        assert "cube.stl" in out
 
     serve(tmp_path, scenario)
 
@@ -271,12 +285,14 @@ def test_hostd_status_finds_the_socket_through_the_config(tmp_path: Path) -> Non
 
 def test_hostd_status_without_a_daemon_fails_with_a_reason(tmp_path: Path) -> None:
     code, out, err = asyncio.run(run_cli("status", "--socket", str(tmp_path / "none.sock"))())
-    assert code == 1 and out == ""
+    assert code == 1
+    assert out == ""
     assert "cannot reach the daemon" in err
     bad = tmp_path / "bad.toml"
     bad.write_text("[state]\nfolder = 3\n")
     code, _, err = asyncio.run(run_cli("status", "--config", str(bad))())
-    assert code == 2 and "state.folder" in err
+    assert code == 2
+    assert "state.folder" in err
 
 
 def test_many_clients_at_once_all_follow_the_hub(tmp_path: Path) -> None:
@@ -349,4 +365,5 @@ def test_any_request_line_gets_a_reply_and_the_connection_survives(
         if reply["reply"] == "subscribe" and reply["ok"]:
             assert "status" in json.loads(stream.readline())  # the stream's first snapshot
         follow = json.loads(stream.readline())
-        assert follow["reply"] == "status" and follow["ok"] is True
+        assert follow["reply"] == "status"
+        assert follow["ok"] is True

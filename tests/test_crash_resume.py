@@ -103,7 +103,8 @@ def test_kill_9_at_random_instants_then_resume_reproduces_the_print(daemon) -> N
             break
         hostd.kill9()
         state, layer, layer_lines = checkpoint_row(hostd.state)
-        assert state == "printing" and layer >= last_layer
+        assert state == "printing"
+        assert layer >= last_layer
         runs.append(executed_job_lines_from(executed_log, log_start))
         log_start = executed_log.stat().st_size
         hostd.start()
@@ -147,7 +148,8 @@ def test_kill_9_at_random_instants_then_resume_reproduces_the_print(daemon) -> N
             preamble = [c for c in map(strip_comment, plan.resume_gcode(
                 min(last_layer + 1, plan.layer_count - 1))) if c]
             moves_back = executed[len(preamble):before] if before >= len(preamble) else []
-            assert len(moves_back) <= 4 and not any(map(extruding, moves_back))
+            assert len(moves_back) <= 4
+            assert not any(map(extruding, moves_back))
         if number + 1 < len(runs):
             end = start + count
             following = starts[number + 1]
@@ -157,9 +159,9 @@ def test_kill_9_at_random_instants_then_resume_reproduces_the_print(daemon) -> N
             gone_back.append(sum(map(extruding, reference[following:recorded[number]])))
         else:
             assert start + count == len(reference)  # the last run finished the job
-    print(f"extruding moves carried out twice per resume: {repeated} "
-          f"(of which the resume went back over: {gone_back})")
-    assert all(count <= 16 for count in gone_back)
+    report = (f"extruding moves carried out twice per resume: {repeated} "
+              f"(of which the resume went back over: {gone_back})")
+    assert all(count <= 16 for count in gone_back), report
 
 
 def executed_job_lines_from(log: Path, offset: int) -> list[str]:

@@ -90,7 +90,8 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     first_cancelled, first_retuned = cancelled["from_layer"], retuned["from_layer"]
     assert 2 <= first_cancelled <= first_retuned < 50
     snap = hostd.wait_for(printing_layer(socket, first_retuned + 1), 60, "the retuned layers")
-    assert snap.job is not None and snap.job.layers == 50
+    assert snap.job is not None
+    assert snap.job.layers == 50
     assert 0 <= snap.job.layers_ready_ahead <= 2
     hostd.kill9()
 
@@ -195,7 +196,8 @@ def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
     assert hostd.proc.wait(20) == 0
     hostd.proc = None
     state, layer = job_state(hostd.state, "1")
-    assert state == "interrupted" and layer >= 1
+    assert state == "interrupted"
+    assert layer >= 1
     assert not socket.exists()
     assert subprocess.run(["ps", "-o", "pid=", "--ppid", str(pid)],
                           capture_output=True, text=True).stdout.strip() == ""
@@ -211,7 +213,8 @@ def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
         [*HOSTD, "resume", "nope", "--config", str(hostd.config)],
         capture_output=True, text=True, cwd=hostd.folder, env={"PYTHONPATH": str(ROOT)},
     )
-    assert result.returncode == 2 and "no job 'nope'" in result.stderr
+    assert result.returncode == 2
+    assert "no job 'nope'" in result.stderr
     assert hostd.stop() == 0
     store = JobStore(hostd.state / "jobs.sqlite3")
     assert [entry.to_state for entry in store.history("2")] == ["queued"]  # never started
@@ -220,7 +223,8 @@ def test_sigterm_mid_print_checkpoints_and_exits_cleanly(daemon):
         [*HOSTD, "resume", "1", "--config", str(hostd.config)],
         capture_output=True, text=True, cwd=hostd.folder, env={"PYTHONPATH": str(ROOT)},
     )
-    assert result.returncode == 1 and "no daemon is running" in result.stdout
+    assert result.returncode == 1
+    assert "no daemon is running" in result.stdout
 
 
 def test_an_absent_printer_leaves_the_daemon_serving_offline(tmp_path):
@@ -239,7 +243,8 @@ def test_an_absent_printer_leaves_the_daemon_serving_offline(tmp_path):
             if snap.queue == ("wait.stl",) and snap.state == "offline":
                 break
             time.sleep(0.05)
-        assert snap.state == "offline" and not snap.printer.connected
+        assert snap.state == "offline"
+        assert not snap.printer.connected
         assert "hostd-no-such-port" in (snap.error or "")
         assert snap.queue == ("wait.stl",)  # taken and kept until a printer answers
         proc.send_signal(2)
@@ -255,10 +260,12 @@ def test_the_queue_lists_what_waits_not_the_job_printing(daemon, tmp_path):
     socket = hostd.state / "hostd.sock"
     hostd.drop(small_box(tmp_path / "box.stl"), "only.stl")
     snap = hostd.wait_for(printing_layer(socket, 0), 60, "printing")
-    assert snap.job.name == "only.stl" and snap.queue == ()
+    assert snap.job.name == "only.stl"
+    assert snap.queue == ()
     hostd.drop(small_box(tmp_path / "box.stl"), "next.stl")
     snap = hostd.wait_for(lambda: (s := status(socket)).queue and s, 10, "queued")
-    assert snap.queue == ("next.stl",) and snap.job.name == "only.stl"
+    assert snap.queue == ("next.stl",)
+    assert snap.job.name == "only.stl"
     assert hostd.stop() == 0
 
 

@@ -23,8 +23,11 @@ def test_sample_is_dropped_whole_under_its_final_name(tmp_path: Path) -> None:
 def test_progress_line_shows_job_bar_and_layer() -> None:
     job = JobStatus(id="1", name="dogbone.stl", layer=5, layers=25, progress=0.2, eta_s=75)
     line = progress_line(Snapshot(state="printing", job=job), columns=120)
-    assert "dogbone.stl" in line and "20.0%" in line and "layer 6 of 25" in line
-    assert "ETA 1:15" in line and "[######------" in line
+    assert "dogbone.stl" in line
+    assert "20.0%" in line
+    assert "layer 6 of 25" in line
+    assert "ETA 1:15" in line
+    assert "[######------" in line
     assert "waiting for a job" in progress_line(Snapshot())
     for columns in (20, 40, 60, 80, 200):
         narrow = progress_line(Snapshot(state="printing", job=job), columns=columns)

@@ -74,7 +74,8 @@ def test_a_refusal_of_a_line_the_printer_took_is_answered_once_and_never_feeds_i
     # numbering: M110 was line 1, so job line k is line k + 1; 346 was just taken
     _write_all(core, t)
     on_wire = [n for n in core.window.numbers() if n > 346]
-    assert 346 in core.window.numbers() and len(on_wire) >= 2
+    assert 346 in core.window.numbers()
+    assert len(on_wire) >= 2
     core.feed(f"Error:{ERR_CHECKSUM}346", t)
     core.feed("Resend: 347", t)
     core.feed("ok", t)
@@ -212,12 +213,14 @@ def test_bytes_split_anywhere_and_replies_delayed_anywhere(data, seed, ok_after_
 
 def test_the_state_is_an_explicit_enum_and_halts_on_kill():
     core = _connected_core()
-    assert core.state is LinkState.READY and core.state == "ready"
+    assert core.state is LinkState.READY
+    assert core.state == "ready"
     core.queue_job("G1 X1", 5)
     _write_all(core, 0.01)
     events = core.feed("Error:Printer halted. kill() called!", 0.02)
     assert core.state is LinkState.HALTED
-    assert not core.alive() and core.next_bytes(0.03) is None
+    assert not core.alive()
+    assert core.next_bytes(0.03) is None
     assert any(not isinstance(e, Acked) for e in events)
 
 

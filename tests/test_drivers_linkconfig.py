@@ -93,5 +93,6 @@ def test_the_profile_is_chosen_and_logged_at_connect(caplog):
         link = asyncio.run(stream_job(sim, lines, FAST))
         executed = list(sim.executed)
     assert job_lines(executed) == lines
-    assert link.profile is not None and link.profile.name == "marlin-2.1"
+    assert link.profile is not None
+    assert link.profile.name == "marlin-2.1"
     assert any("marlin-2.1" in record.getMessage() for record in caplog.records)

@@ -166,7 +166,8 @@ def test_mangled_responses_never_raise(case, data):
     response = recover(parse_response(raw.decode("latin-1")))
     assert response.kind in KINDS
     if response.kind == "resend":
-        assert response.line is not None and response.line >= 0
+        assert response.line is not None
+        assert response.line >= 0
 
 
 @settings(max_examples=300, deadline=None)
@@ -213,7 +214,8 @@ def test_recover_garbled_replies():
     assert recover(parse_response("oj")).kind == "ok"
     # a probe's answer with the space after "ok" changed still answers the probe
     probe = recover(parse_response("ok!T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"))
-    assert probe.kind == "ok" and probe.has_temperatures
+    assert probe.kind == "ok"
+    assert probe.has_temperatures
     assert recover(parse_response("oj T:20.00 /0.00 B:20.00 /0.00")).has_temperatures
     assert recover(parse_response("Resgnd: 12")).line == 12
     assert recover(parse_response("Erbor:checksum mismatch, Last Line: 7")).error_kind == "checksum"
@@ -221,7 +223,7 @@ def test_recover_garbled_replies():
     assert recover(parse_response("hello")).kind == "other"
 
 
-@pytest.mark.parametrize("garbled, kind", [
+@pytest.mark.parametrize(("garbled", "kind"), [
     ("Error:Line Numbes is not Last Line Number+1, Last Line: 39", "line_number"),
     ("Error:checksum mismatah, Last Line: 7", "checksum"),
     ("Error:No Checksum with lijne number, Last Line: 7", "no_checksum"),

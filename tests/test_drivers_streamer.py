@@ -309,7 +309,8 @@ def test_lost_oks_and_a_refused_probe_are_recovered_without_a_probe_storm():
         link = asyncio.run(stream_scripted(printer, lines))
         executed = [c for c in printer.executed if c.split()[0] not in INTERNAL]
     assert executed == lines
-    assert probes_refused and len(lost) == 4
+    assert probes_refused
+    assert len(lost) == 4
     # the probe's replay goes out past the full window and its answer resyncs the count;
     # a probe numbered ahead of the replay would be refused again and again
     assert link.stats.probes <= 4
@@ -441,7 +442,8 @@ def test_no_autoreport_means_m105_polling():
         received = list(printer.received)
     assert not any("M155" in line for line in received)
     assert sum("M105" in line for line in received) >= 3
-    assert reports and reports[0].temperatures["T"] == (20.0, 0.0)
+    assert reports
+    assert reports[0].temperatures["T"] == (20.0, 0.0)
 
 
 def test_silent_printer_is_probed_then_the_link_fails_and_stops_sending():
@@ -468,7 +470,8 @@ def test_silent_printer_is_probed_then_the_link_fails_and_stops_sending():
     with scripted(answer) as printer:
         asyncio.run(run(printer))
         received = list(printer.received)
-    assert errors and "not responding" in errors[-1]
+    assert errors
+    assert "not responding" in errors[-1]
     probes = [i for i, line in enumerate(received) if "M105" in line]
     assert len(probes) == 2
     # after the first probe, nothing but probes went out
@@ -652,7 +655,8 @@ def test_unplug_mid_stream_reports_at_once_and_reconnects(tmp_path, reset_on_ope
                     sim.disconnect()
                 await link.send(line)
             await link.drain()
-            assert seen and seen[0] - unplugged < 1.0
+            assert seen
+            assert seen[0] - unplugged < 1.0
             return link
 
     config = sim_config(baud=250000, link_path=link_path, reconnect_delay_s=0.05,

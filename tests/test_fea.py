@@ -97,5 +97,6 @@ def test_the_nodal_field_fills_the_whole_lattice_with_the_model_corner_first() -
     lattice = nodal_lattice(solution)
     points = lattice_points(solution)
     assert lattice.size == len(points)
-    assert np.all(np.isfinite(lattice)) and lattice.min() >= 0
+    assert np.all(np.isfinite(lattice))
+    assert lattice.min() >= 0
     assert np.allclose(points.min(axis=0), [5.0, -2.0, 1.0])

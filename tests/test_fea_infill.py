@@ -48,7 +48,8 @@ def cache(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def test_variant_a_puts_more_infill_in_the_gage_than_in_the_gripped_ends(cache: Path) -> None:
     settings = SliceSettings.from_mapping({"infill.stress": "A"})
     plan, tailoring = tailored_plan(DOGBONE, settings, BED, cache)
-    assert plan.settings.infill_field == "stress" and tailoring.field is not None
+    assert plan.settings.infill_field == "stress"
+    assert tailoring.field is not None
     layers = [10, 11]
     gage = fill_length_per_area(plan, layers, [GAGE])
     ends = fill_length_per_area(plan, layers, FREE_ENDS)
@@ -60,10 +61,13 @@ def test_variant_a_puts_more_infill_in_the_gage_than_in_the_gripped_ends(cache: 
 def test_variant_b_reads_the_field_along_the_long_axis_only(cache: Path) -> None:
     settings = SliceSettings.from_mapping({"infill.stress": "B"})
     plan, tailoring = tailored_plan(DOGBONE, settings, BED, cache)
-    assert tailoring.field is not None and tailoring.field.cached  # A's analysis, reused
+    assert tailoring.field is not None
+    assert tailoring.field.cached
     data = load_stress(tailoring.field.path)
     axis, stations, values = axis_profile(data)
-    assert axis == 0 and stations[0] == pytest.approx(0.0) and stations[-1] >= 100.0
+    assert axis == 0
+    assert stations[0] == pytest.approx(0.0)
+    assert stations[-1] >= 100.0
     gage = values[(stations > 40) & (stations < 60)]
     grip = values[stations < 6]
     assert gage.min() > 3 * grip.max()  # 1 kN over 10 x 5 mm: about 20 MPa; the held end: ~0
@@ -97,7 +101,8 @@ def test_equal_mass_lands_within_one_percent(tmp_path: Path, ask: str) -> None:
         "infill.target_mass_g": target}
     plan, tailoring = tailored_plan(stl, SliceSettings.from_mapping({**base, **keys}), BED,
                                     tmp_path / "cache")
-    assert tailoring.field is not None and tailoring.mass is not None
+    assert tailoring.field is not None
+    assert tailoring.mass is not None
     grams = extruded_grams(plan)
     assert grams == pytest.approx(target, rel=0.01)
     assert tailoring.mass.mass_g == pytest.approx(grams)
@@ -124,7 +129,8 @@ def test_optimal_density_keeps_the_mass_and_stiffens_the_part() -> None:
     mesh = mesh_arrays(vertices, faces, case, size=2.0)
     density, compliance = optimal_density(mesh, case, 0.3, iterations=3)
     assert density.mean() == pytest.approx(0.3, rel=1e-3)
-    assert density.min() >= FLOOR - 1e-12 and density.max() <= 1.0
+    assert density.min() >= FLOOR - 1e-12
+    assert density.max() <= 1.0
     assert compliance[-1] < 0.8 * compliance[0]  # stiffer than uniform at the same mass
     assert all(b <= a * 1.001 for a, b in itertools.pairwise(compliance))
     x = mesh.centres[:, 0]

@@ -59,5 +59,6 @@ def test_a_stress_job_starts_before_its_analysis_and_a_resume_reads_the_cache(da
     summary = hostd.jobs / "done" / "arm.summary.txt"
     hostd.wait_for(summary.exists, 300, "the resumed job done")
     text = summary.read_text()
-    assert "stress analysis:" in text and "(cached)" in text, text
+    assert "stress analysis:" in text, text
+    assert "(cached)" in text, text
     assert len(list(cache.glob("stress-*.npz"))) == 1

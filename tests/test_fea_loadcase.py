@@ -121,12 +121,15 @@ def test_daemon_fails_bad_load_cases_with_their_reasons_and_prints_a_good_one(da
     hostd.wait_for(lambda: len(list(failed.glob("*.error.txt"))) >= expected, 60, "the failures")
     for stem, (_text, words) in DAEMON_CASES.items():
         reason = (failed / f"{stem}.error.txt").read_text()
-        assert f"{stem}.load.toml: " in reason and words in reason, reason
-        assert (failed / f"{stem}.stl").exists() and (failed / f"{stem}.load.toml").exists()
+        assert f"{stem}.load.toml: " in reason, reason
+        assert words in reason, reason
+        assert (failed / f"{stem}.stl").exists()
+        assert (failed / f"{stem}.load.toml").exists()
     lonely = (failed / "lonely.load.error.txt").read_text()
     assert "lonely.load.toml: its model lonely.stl is missing" in lonely
     hostd.wait_for(lambda: (done / "good.summary.txt").exists(), 120, "the good job")
     summary = (done / "good.summary.txt").read_text()
-    assert "stress analysis:" in summary and "peak von Mises" in summary
+    assert "stress analysis:" in summary
+    assert "peak von Mises" in summary
     assert (done / "good.load.toml").exists()
     assert list((hostd.state / "fea").glob("stress-*.npz"))

@@ -88,12 +88,14 @@ def test_fleet_sorts_problems_first_shows_a_lost_printer_offline_and_filters(
             order = rows(app)
             assert [state for _, state in order[:3]] == ["error", "error", "offline"]
             assert order[2][0] == "p0050"
-            assert "offline 1" in counts_line(app) and "printing 4" in counts_line(app)
+            assert "offline 1" in counts_line(app)
+            assert "printing 4" in counts_line(app)
 
             await pilot.press("slash", *"paus")
             await until(lambda: len(rows(app)) == 2)
             assert {state for _, state in rows(app)} == {"paused"}
-            assert "2" in counts_line(app) and "shown" in counts_line(app)
+            assert "2" in counts_line(app)
+            assert "shown" in counts_line(app)
             await pilot.press("escape")
             await until(lambda: len(rows(app)) == 13)
 

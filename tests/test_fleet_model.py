@@ -55,12 +55,15 @@ def test_cells_and_progress_bar() -> None:
     fleet = model()
     cells = row_cells("c-err", fleet.entries["c-err"])
     assert cells[:3] == ("c-err", "error", "thermal runaway on the hotend")
-    assert cells[6].endswith("/210") and cells[7].endswith("/60")
+    assert cells[6].endswith("/210")
+    assert cells[7].endswith("/60")
     idle = row_cells("b-idle", fleet.entries["b-idle"])
-    assert idle[3:6] == ("", "", "") and idle[7] == "23"
+    assert idle[3:6] == ("", "", "")
+    assert idle[7] == "23"
     assert progress_bar(0.0).strip() == "0%"
     assert progress_bar(1.0) == "████████ 100%"
-    assert progress_bar(0.5).startswith("████ ") and len(progress_bar(0.5)) == 13
+    assert progress_bar(0.5).startswith("████ ")
+    assert len(progress_bar(0.5)) == 13
     assert progress_bar(2.0) == progress_bar(1.0)
 
 

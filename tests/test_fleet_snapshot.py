@@ -80,19 +80,24 @@ def test_a_thousand_printers_scroll_and_filter_at_80x24() -> None:
             table = app.screen.query_one("#fleet", FleetTable)
             while table.row_count < 1000:
                 await pilot.pause(0.05)
-            assert table.row_at(0)[1] == "error" and table.row_at(999)[1] == "idle"
+            assert table.row_at(0)[1] == "error"
+            assert table.row_at(999)[1] == "idle"
             assert table.scroll_offset.y == 0
             await pilot.press("pagedown", "pagedown")
-            assert table.cursor > 20 and table.scroll_offset.y > 0
+            assert table.cursor > 20
+            assert table.scroll_offset.y > 0
             await pilot.press("end")
             await pilot.pause()
             assert table.cursor_printer() == table.order[-1]
             assert table.scroll_offset.y == 1000 - table.scrollable_content_region.height
             await pilot.press("home", "slash", *"heat")
             await pilot.pause(0.2)
-            assert table.row_count == 125 and {table.row_at(i)[1] for i in range(125)} == {
+            assert table.row_count == 125
+            assert {table.row_at(i)[1] for i in range(125)} == {
                 "heating"}
             counts = str(app.screen.query_one("#counts").render())
-            assert "1000 printers" in counts and "125" in counts and "error 125" in counts
+            assert "1000 printers" in counts
+            assert "125" in counts
+            assert "error 125" in counts
 
     asyncio.run(scenario())

@@ -108,8 +108,11 @@ def check_progress(lines: list[str]) -> None:
     layers = sum(line.startswith(";LAYER:") for line in lines)
     assert len(marks) == layers + 1
     percents, minutes = zip(*marks, strict=True)
-    assert list(percents) == sorted(percents) and percents[0] == 0 and percents[-1] == 100
-    assert list(minutes) == sorted(minutes, reverse=True) and minutes[-1] == 0
+    assert list(percents) == sorted(percents)
+    assert percents[0] == 0
+    assert percents[-1] == 100
+    assert list(minutes) == sorted(minutes, reverse=True)
+    assert minutes[-1] == 0
     for k, line in enumerate(lines):
         if line.startswith(";LAYER:"):
             assert lines[k + 1].startswith("M73 P")
@@ -147,7 +150,8 @@ def test_the_daemon_done_file_carries_them_too_equals_hostd_slice_s_and_one_body
     lines = (done / "pair.gcode").read_text().splitlines()
     assert set(thumbnails(lines)) == {(32, 32), (220, 124)}  # the default sizes
     defined = objects(lines)
-    assert len(defined) == 2 and check_labelled_moves(lines, defined) > 500
+    assert len(defined) == 2
+    assert check_labelled_moves(lines, defined) > 500
     check_progress(lines)
     cube = (done / "cube.gcode").read_text().splitlines()
     assert not any(line.startswith(("M486", "EXCLUDE_OBJECT")) for line in cube)

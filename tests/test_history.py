@@ -45,16 +45,21 @@ def test_done_and_failed_jobs_are_recorded_listed_and_reprinted_alike(daemon, tm
     mm, grams = header_filament(hostd.jobs / "done" / "box.gcode")
     assert (box.outcome, box.filament_mm, box.filament_g) == ("done", mm, grams)
     assert box.layers == box.layers_done == 10  # 3 mm at 0.3 mm
-    assert box.settings["layer_height"] == 0.3 and box.settings["infill.density"] == 0.35
-    assert box.infill_field == "linear" and box.retunes == [] and box.cancelled == []
-    assert box.started is not None and 0 < box.print_s <= box.total_s
+    assert box.settings["layer_height"] == 0.3
+    assert box.settings["infill.density"] == 0.35
+    assert box.infill_field == "linear"
+    assert box.retunes == []
+    assert box.cancelled == []
+    assert box.started is not None
+    assert 0 < box.print_s <= box.total_s
     assert box.model == str(hostd.jobs / "done" / "box.stl")
     assert junk.outcome == "failed"
     assert junk.reason == (hostd.jobs / "failed" / "junk.error.txt").read_text().strip()
     totals = data["totals"]
     assert (totals["jobs"], totals["done"], totals["failed"], totals["success_rate"]) == (
         2, 1, 1, 0.5)
-    assert totals["total_filament_mm"] == mm and totals["longest_print_s"] == box.print_s
+    assert totals["total_filament_mm"] == mm
+    assert totals["longest_print_s"] == box.print_s
 
     table = hostd_cli("history", "--csv", "--limit", "1", "--config", str(hostd.config),
                       cwd=hostd.folder)
@@ -70,7 +75,8 @@ def test_done_and_failed_jobs_are_recorded_listed_and_reprinted_alike(daemon, tm
     original = (hostd.jobs / "done" / "box.gcode").read_bytes()
     assert (hostd.jobs / "done" / "box-1.gcode").read_bytes() == original
     missing = hostd_cli("reprint", "nothing.stl", "--config", str(hostd.config), cwd=hostd.folder)
-    assert missing.returncode == 2 and "no job 'nothing.stl'" in missing.stderr
+    assert missing.returncode == 2
+    assert "no job 'nothing.stl'" in missing.stderr
     assert hostd.stop() == 0
 
 
@@ -89,9 +95,11 @@ def test_a_cancelled_job_keeps_its_retunes_cancelled_bodies_and_filament(daemon,
     history = History(hostd.state / "history.sqlite3", readonly=True)
     (record,) = history.records()
     history.close()
-    assert record.outcome == "cancelled" and "cancelled at layer" in (record.reason or "")
+    assert record.outcome == "cancelled"
+    assert "cancelled at layer" in (record.reason or "")
     assert record.cancelled == [[1, body["from_layer"]]]
     assert record.retunes == [[tune["from_layer"], {"fan_speed": 0.5}]]
     assert record.layers_done >= body["from_layer"] + 1
-    assert record.filament_mm > 0 and record.filament_g > 0
+    assert record.filament_mm > 0
+    assert record.filament_g > 0
     assert record.model == str(hostd.jobs / "failed" / "pair.stl")

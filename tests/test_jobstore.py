@@ -28,7 +28,9 @@ def add(store: JobStore, name: str = "part.stl"):
 
 def test_add_and_read_back(store: JobStore) -> None:
     job = add(store)
-    assert job.state == "queued" and job.layer == -1 and job.settings == {"a": 1}
+    assert job.state == "queued"
+    assert job.layer == -1
+    assert job.settings == {"a": 1}
     assert store.get(job.id) == job
     assert store.find("part.stl").id == job.id
     with pytest.raises(JobNotFound):
@@ -39,7 +41,9 @@ def test_transitions_follow_the_state_machine(store: JobStore) -> None:
     job = add(store)
     for state in ("slicing", "heating", "printing", "paused", "printing", "done"):
         job = store.transition(job.id, state)
-    assert job.state == "done" and job.finished is not None and job.started is not None
+    assert job.state == "done"
+    assert job.finished is not None
+    assert job.started is not None
     with pytest.raises(TransitionError):
         store.transition(job.id, "printing")
     history = [entry.to_state for entry in store.history(job.id)]
@@ -145,7 +149,8 @@ def test_kill_9_at_any_instant_leaves_a_consistent_store(tmp_path: Path, seed: i
         [sys.executable, "-c", WRITER, str(db), str(seed)],
         stdout=subprocess.PIPE, cwd=Path(__file__).parent.parent,
     )
-    assert proc.stdout is not None and proc.stdout.readline().strip() == b"ready"
+    assert proc.stdout is not None
+    assert proc.stdout.readline().strip() == b"ready"
     # killed once the writer has recorded a few jobs: at a different instant per seed
     deadline = time.monotonic() + 30
     while recorded_jobs(db) < 2 * seed and time.monotonic() < deadline:
@@ -161,7 +166,8 @@ def test_kill_9_at_any_instant_leaves_a_consistent_store(tmp_path: Path, seed: i
     for job in jobs:
         history = store.history(job.id)
         assert history[-1].to_state == job.state  # each transition is one transaction
-        assert -1 <= job.layer < 50 and job.lines_acked == max(job.layer, 0) * 10
+        assert -1 <= job.layer < 50
+        assert job.lines_acked == max(job.layer, 0) * 10
     store.recover()
     assert not store.jobs("slicing", "heating", "printing", "paused")
     store.close()

@@ -54,6 +54,8 @@ def test_failed_outcomes_never_overwrite(tmp_path: Path) -> None:
     failed = config.jobs.folder / "failed"
     assert (failed / "part.error.txt").read_text() == "first reason\n"
     assert (failed / "part-1.error.txt").read_text() == "second reason\n"
-    assert (failed / "part.stl").exists() and (failed / "part-1.stl").exists()
-    assert store.get(first.id).state == "failed" and store.get(second.id).state == "cancelled"
+    assert (failed / "part.stl").exists()
+    assert (failed / "part-1.stl").exists()
+    assert store.get(first.id).state == "failed"
+    assert store.get(second.id).state == "cancelled"
     assert store.get(second.id).outcome == str(failed / "part-1")

@@ -39,7 +39,8 @@ def test_layers_come_in_order_never_more_than_the_depth_ahead() -> None:
             taken.append(layer[0])
             # what was submitted and not yet taken never exceeds the depth
             assert len(maker.submitted) - len(taken) <= 3
-    assert taken == list(range(5, 20)) and maker.submitted == list(range(5, 20))
+    assert taken == list(range(5, 20))
+    assert maker.submitted == list(range(5, 20))
 
 
 def test_alone_makes_one_layer_at_a_time_until_one_is_worth_it() -> None:

@@ -58,7 +58,8 @@ def test_winding_fix_makes_every_edge_run_both_ways():
     assert turned == flip.sum()  # the majority kept: exactly the flipped faces turned back
     assert np.array_equal(fixed, sphere.faces)
     again, none = fix_winding(sphere.vertices, fixed)
-    assert none == 0 and again is fixed
+    assert none == 0
+    assert again is fixed
 
 
 def test_winding_patches_are_set_apart():
@@ -99,7 +100,8 @@ def test_ascii_without_endsolid_reads_like_the_whole_file(tmp_path):
     vw, fw = read_stl(whole)
     vc, fc = read_stl(cut)
     assert len(fc) == 12
-    assert np.array_equal(vw, vc) and np.array_equal(fw, fc)
+    assert np.array_equal(vw, vc)
+    assert np.array_equal(fw, fc)
 
 
 @pytest.mark.parametrize(
@@ -165,7 +167,8 @@ def test_repairs_go_into_the_summary_and_the_events(daemon, tmp_path):
     assert "model: self-intersecting or overlapping outlines made valid" in summary
     assert "model:" not in (done / "good.summary.txt").read_text()
     repaired = [e for e in events if e["event"] == "repaired"]
-    assert repaired and all(e["name"] == "overlapping.stl" for e in repaired)
+    assert repaired
+    assert all(e["name"] == "overlapping.stl" for e in repaired)
     assert any("overlapping outlines" in e["message"] for e in repaired)
 
 

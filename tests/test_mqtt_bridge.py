@@ -138,7 +138,8 @@ def test_online_status_events_and_offline_on_clean_exit(broker: Broker) -> None:
             assert observer.last_json(topic("status")) == hub.current.to_dict()
             hub.event("failed", job="3", name="junk.stl", reason="not an STL file")
             event = await observer.wait_for(lambda: observer.last_json(topic("event")))
-            assert event["event"] == "failed" and event["reason"] == "not an STL file"
+            assert event["event"] == "failed"
+            assert event["reason"] == "not an STL file"
 
         await with_bridge(bridge, while_running)
         await observer.wait_for(lambda: observer.on(topic("online"))[-1].payload == "offline")
@@ -150,7 +151,8 @@ def test_online_status_events_and_offline_on_clean_exit(broker: Broker) -> None:
         await observer.wait_for(lambda: observer.on(topic("online")) and observer.on(
             topic("status")))
         online = observer.on(topic("online"))[-1]
-        assert online.retain and online.payload == "offline"
+        assert online.retain
+        assert online.payload == "offline"
         assert observer.on(topic("status"))[-1].retain
         assert observer.last_json(topic("status"))["state"] == "idle"
 
@@ -200,7 +202,9 @@ def test_commands_are_refused_without_allow_commands(secured_broker: Broker) -> 
         async def send() -> None:
             await observer.client.publish(topic("cmd"), '{"cmd": "pause", "id": 9}', qos=1)
             event = await observer.wait_for(lambda: observer.last_json(topic("event")))
-            assert event["event"] == "error" and event["cmd"] == "pause" and event["id"] == 9
+            assert event["event"] == "error"
+            assert event["cmd"] == "pause"
+            assert event["id"] == 9
             assert "allow_commands" in event["reason"]
 
         await with_bridge(bridge, send)
@@ -217,7 +221,8 @@ def test_commands_are_refused_without_credentials(broker: Broker) -> None:
         async def send() -> None:
             await observer.client.publish(topic("cmd"), '{"cmd": "cancel"}', qos=1)
             event = await observer.wait_for(lambda: observer.last_json(topic("event")))
-            assert event["event"] == "error" and event["cmd"] == "cancel"
+            assert event["event"] == "error"
+            assert event["cmd"] == "cancel"
             assert "credentials" in event["reason"]
 
         await with_bridge(bridge, send)
@@ -256,7 +261,8 @@ def test_allowed_commands_reach_the_controller_and_bad_ones_are_answered(
             )
             answers = [json.loads(item.payload) for item in errors]
             for answer, (_, cmd, reason) in zip(answers, bad, strict=True):
-                assert answer["event"] == "error" and answer["cmd"] == cmd
+                assert answer["event"] == "error"
+                assert answer["cmd"] == cmd
                 assert reason in answer["reason"]
 
         await with_bridge(bridge, send)
@@ -277,7 +283,8 @@ def test_a_retained_command_is_never_executed(secured_broker: Broker) -> None:
 
         async def check() -> None:
             event = await observer.wait_for(lambda: observer.last_json(topic("event")))
-            assert event["event"] == "error" and "retained" in event["reason"]
+            assert event["event"] == "error"
+            assert "retained" in event["reason"]
             await observer.client.publish(topic("cmd"), b"", qos=1, retain=True)  # clear it
 
         await with_bridge(bridge, check)

@@ -156,5 +156,7 @@ def test_bad_models_fail_on_mqtt_and_the_next_job_prints_with_pause_and_resume(
         assert (tmp_path / "jobs" / "failed" / name).exists()
     kinds = [kind for kind in events if kind in ("started", "paused", "resumed", "done")]
     assert kinds == ["started", "paused", "resumed", "done"], events
-    assert "printing" in states and "paused" in states, states  # state changes go out at once
+    # state changes go out at once
+    assert "printing" in states, states
+    assert "paused" in states, states
     assert (tmp_path / "jobs" / "done" / "cube.gcode").exists()

@@ -52,8 +52,10 @@ SENSOR_CLASSES = {"temperature": {"°C"}, "duration": {"s"}, "timestamp": {None}
 def check_discovery(config: dict[str, Any], commands: bool) -> dict[str, dict[str, Any]]:
     """Assert Home Assistant's rules for a device discovery payload; its components by key."""
     assert set(config) <= ROOT_KEYS, set(config) - ROOT_KEYS
-    assert config["dev"]["ids"] == [NODE] and config["dev"]["name"]
-    assert config["o"]["name"] == "hostd" and config["o"]["sw"]
+    assert config["dev"]["ids"] == [NODE]
+    assert config["dev"]["name"]
+    assert config["o"]["name"] == "hostd"
+    assert config["o"]["sw"]
     assert config["availability_topic"] == f"hostd/{PRINTER}/online"
     assert (config["payload_available"], config["payload_not_available"]) == ("online", "offline")
     components = config["cmps"]
@@ -218,14 +220,17 @@ def test_a_daemon_publishes_the_layer_picture_the_job_figures_and_the_history(
     config = json.loads(retained[DEVICE_TOPIC])
     components = check_discovery(config, False)  # no credentials: no buttons
     image = Image.open(io.BytesIO(retained[components["layer_image"]["image_topic"]]))
-    assert image.format == "PNG" and max(image.size) == 480
+    assert image.format == "PNG"
+    assert max(image.size) == 480
     job = json.loads(retained[f"hostd/{PRINTER}/job"])
     header = (tmp_path / "jobs" / "done" / "cube.gcode").read_text().splitlines()[:20]
     slicer_mm = float(next(line for line in header if "filament used [mm]" in line).split()[-1])
-    assert job["name"] == "cube.stl" and job["completed"] == job["layers"] - 1 == 24
+    assert job["name"] == "cube.stl"
+    assert job["completed"] == job["layers"] - 1 == 24
     assert abs(job["filament_mm"] - slicer_mm) <= 6  # the end's retraction is not a layer's
     history = json.loads(retained[f"hostd/{PRINTER}/history"])
-    assert history["totals"]["jobs"] == 1 and history["last"][0]["outcome"] == "done"
+    assert history["totals"]["jobs"] == 1
+    assert history["last"][0]["outcome"] == "done"
 
 
 async def _print_and_collect(broker: Broker, folder: Path) -> dict[str, bytes]:

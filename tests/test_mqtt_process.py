@@ -108,7 +108,8 @@ def test_a_clean_stop_publishes_offline_itself(broker: Broker) -> None:
         if child.poll() is None:
             child.kill()
             child.wait()
-    assert child.returncode == 0 and out.strip() == "stopped"
+    assert child.returncode == 0
+    assert out.strip() == "stopped"
     # mosquitto sends no last will after a clean DISCONNECT: this `offline` is the bridge's own
     asyncio.run(retained_online(broker, "offline"))
     if broker.kind == "mosquitto":

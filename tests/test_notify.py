@@ -104,7 +104,8 @@ def test_a_print_and_a_bad_model_notify_with_pictures_despite_bad_endpoints(
     titles = good.titles()
     assert titles == ["cube.stl: first layer done", "cube.stl printed", "junk.stl failed"]
     first, done, failed = good.received
-    assert "job 1" in first["message"] and "25 layers" in first["message"]
+    assert "job 1" in first["message"]
+    assert "25 layers" in first["message"]
     assert png_of(first).size[0] > 100
     header = (hostd.jobs / "done" / "cube.gcode").read_text().splitlines()
     slicer_mm = float(next(line for line in header if "filament used [mm]" in line).split()[-1])
@@ -153,11 +154,13 @@ def test_a_hung_endpoint_never_blocks_the_caller_and_the_queue_is_bounded() -> N
             notifier.on_event({"event": "failed", "id": str(number), "name": "x.stl",
                                "reason": "bad"})
         # all six were queued or dropped while the first send still waits for its timeout
-        assert notifier.failed == 0 and notifier.dropped >= 3
+        assert notifier.failed == 0
+        assert notifier.dropped >= 3
         deadline = time.monotonic() + 20
         while notifier.failed + notifier.dropped < 6 and time.monotonic() < deadline:
             time.sleep(0.05)
-        assert notifier.failed + notifier.dropped == 6 and notifier.sent == 0
+        assert notifier.failed + notifier.dropped == 6
+        assert notifier.sent == 0
         notifier.close()
     finally:
         hung.close()
@@ -170,4 +173,5 @@ def test_messages_name_the_job_and_skip_what_is_not_wanted() -> None:
     message = notifier.compose({"event": "error", "source": "printer", "message": "MINTEMP"})
     assert message == Message("error", "hostd: printer error", "printer: MINTEMP", "failure")
     paused = notifier.compose({"event": "paused", "id": "3", "name": "a.stl", "layer": 7})
-    assert paused is not None and "a.stl (job 3) is paused at layer 9" in paused.body
+    assert paused is not None
+    assert "a.stl (job 3) is paused at layer 9" in paused.body

@@ -35,7 +35,8 @@ def test_a_straight_line_of_short_moves_runs_at_speed() -> None:
     ramps = 2 * 100.0 / SETTINGS.acceleration  # accelerate once, brake once
     # three blocks queued at once start the motion without the first-move delay
     assert end == pytest.approx(ideal + ramps / 2, rel=0.02)
-    assert planner.underruns == 0 and planner.stalls == 0
+    assert planner.underruns == 0
+    assert planner.stalls == 0
 
 
 def test_sharp_corners_cost_time_and_gentle_ones_do_not() -> None:
@@ -63,7 +64,9 @@ def test_a_well_fed_planner_never_underruns() -> None:
     for _ in range(100):  # each move queued as soon as a slot is free
         t = _feed(planner, t, [(5.0, 0.0), (0.0, 5.0)], 100.0)
     planner.idle_at(t)
-    assert planner.underruns == 0 and planner.stalls == 0 and planner.starved_s == 0.0
+    assert planner.underruns == 0
+    assert planner.stalls == 0
+    assert planner.starved_s == 0.0
 
 
 def test_a_starved_planner_counts_underruns_and_starved_time() -> None:
@@ -77,7 +80,8 @@ def test_a_starved_planner_counts_underruns_and_starved_time() -> None:
     assert planner.stalls == 9
     assert 9 * 0.3 < planner.starved_s < 9 * 0.5
     report = planner.report(t)
-    assert report.underruns == 9 and report.longest_ms > 300
+    assert report.underruns == 9
+    assert report.longest_ms > 300
     assert planner.report(t).underruns == 0  # per report, as Marlin's M576
 
 
@@ -87,7 +91,8 @@ def test_idle_after_a_long_command_is_not_an_underrun() -> None:
     t = planner.idle_at(t) + 30.0  # G4 S30 (or homing, heating) after the move
     _feed(planner, t, [(-10.0, 0.0)], 50.0)
     planner.idle_at(t)
-    assert planner.underruns == 0 and planner.starved_s == 0.0
+    assert planner.underruns == 0
+    assert planner.starved_s == 0.0
 
 
 def test_arcs_are_cut_as_marlin_cuts_them() -> None:
@@ -122,12 +127,15 @@ def test_feed_over_a_slow_wire_starves_and_arcs_do_not() -> None:
     fed = simulate_feed(dense, 0)
     assert slow.stalls > 100
     assert slow.print_s > 1.3 * fed.print_s
-    assert fed.stalls == 0 and fed.underruns == 0
+    assert fed.stalls == 0
+    assert fed.underruns == 0
     arcs = ["G28", "G90", "M83", "G0 F9000 X110 Y100 Z0.2"]
     arcs += ["G3 F9000 X110 Y100 I-10 J0 E4"] * 5
     result = simulate_feed(arcs, 115200, send_and_wait=True)
-    assert result.arcs == 5 and result.blocks == 1 + 5 * 72
-    assert result.underruns == 0 and result.stalls == 0
+    assert result.arcs == 5
+    assert result.blocks == 1 + 5 * 72
+    assert result.underruns == 0
+    assert result.stalls == 0
     # the 0.16 mm chords limit the look-ahead even on an endless wire: 16 blocks are
     # 2.5 mm, less than the 3.75 mm needed to brake from 150 mm/s; the arcs' 0.87 mm are not
     assert result.print_s < 0.9 * fed.print_s
@@ -158,7 +166,8 @@ def test_simulator_executes_and_logs_arcs() -> None:
     position = next(line for line in lines if line.startswith("X:"))
     assert position.startswith("X:10.00 Y:0.00")
     stats = sim.stats()
-    assert stats.arcs == 2 and stats.arc_segments == 72 + 54
+    assert stats.arcs == 2
+    assert stats.arc_segments == 72 + 54
     arc_s = (2 * math.pi * 10 + 1.5 * math.pi * 10) / 20.0
     assert stats.motion_s == pytest.approx(math.hypot(20, 10) / 10.0 + arc_s, rel=1e-3)
     assert stats.planned_s > stats.motion_s  # acceleration and the chords' corners

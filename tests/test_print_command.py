@@ -34,7 +34,8 @@ def test_prints_a_gcode_file_exactly(tmp_path, capsys):
     expected = [strip_comment(line) for line in body if strip_comment(line)]
     assert _job(executed) == expected
     err = capsys.readouterr().err
-    assert "100.0%" in err and f"done: {len(expected)} lines" in err
+    assert "100.0%" in err
+    assert f"done: {len(expected)} lines" in err
 
 
 def test_prints_an_stl_sliced_just_in_time(capsys):

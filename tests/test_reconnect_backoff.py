@@ -16,7 +16,8 @@ def test_delays_double_up_to_the_cap_and_are_spread_by_a_quarter() -> None:
         waits.append(wait)
         delays.append(delay)
         delay = following
-    assert delays[:6] == [1.0, 2.0, 4.0, 8.0, 16.0, 30.0] and set(delays[5:]) == {RECONNECT_MAX_S}
+    assert delays[:6] == [1.0, 2.0, 4.0, 8.0, 16.0, 30.0]
+    assert set(delays[5:]) == {RECONNECT_MAX_S}
     # two hosts that lost the same link do not retry in step
     other = [backoff(d, random.Random(4))[0] for d in delays]
     assert all(abs(a - b) > 1e-6 for a, b in zip(waits, other, strict=True))

@@ -98,7 +98,8 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
     plan = seen["plan"]
     layers = plan.layer_count
     # never the whole file first: streaming began with at most the lookahead sliced
-    assert seen["sliced_at_first_send"] is not None and seen["sliced_at_first_send"] <= 3
+    assert seen["sliced_at_first_send"] is not None
+    assert seen["sliced_at_first_send"] <= 3
     assert max(seen["ahead"]) <= 3  # bounded: backpressure
     # checkpoints in order: layers, line counts and file offsets never go back; a newer
     # one replaces one not yet written, and the last records the last layer
@@ -124,7 +125,8 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
     text = (tmp_path / "out.gcode.part").read_text()
     assert [c for c in map(strip_comment, text.splitlines()) if c] == expected
     assert job.gcode_bytes <= len(text.encode())
-    assert seen["hub"].job.progress == 1.0 and seen["hub"].state == "printing"
+    assert seen["hub"].job.progress == 1.0
+    assert seen["hub"].state == "printing"
 
 
 def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> None:
@@ -132,9 +134,11 @@ def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> 
     executed = seen["executed"]
     renumbered = sum(c.startswith("M110") for c in executed)
     # renumbered at every 1000th line number: at least once per 1000 job lines
-    assert renumbered >= 2 and renumbered >= (len(executed) - renumbered) // 1000
+    assert renumbered >= 2
+    assert renumbered >= (len(executed) - renumbered) // 1000
     layers = [c[0] for c in seen["checkpoints"]]
-    assert layers == sorted(layers) and layers[-1] == seen["plan"].layer_count - 1
+    assert layers == sorted(layers)
+    assert layers[-1] == seen["plan"].layer_count - 1
 
 
 def test_a_store_whose_commits_take_200_ms_does_not_hold_up_the_printer(tmp_path: Path) -> None:
@@ -150,7 +154,8 @@ def test_a_store_whose_commits_take_200_ms_does_not_hold_up_the_printer(tmp_path
     stats = seen["stats"]
     assert (stats.resends, stats.lines_resent, stats.probes, stats.errors) == (0, 0, 0, 0)
     # the commits ran in the writer's thread, never in the loop that reads the printer
-    assert seen["threads"] and seen["loop_thread"] not in seen["threads"]
+    assert seen["threads"]
+    assert seen["loop_thread"] not in seen["threads"]
     assert set(seen["threads"]) == {"hostd-checkpoint_0"}
     # the store still ends at the last layer, with every line acknowledged
     assert seen["checkpoints"][-1][0] == plan.layer_count - 1
@@ -223,7 +228,8 @@ def test_a_resume_within_a_layer_sends_the_rest_of_it_after_lifted_moves_back(
     last_xy = next(c for c in reversed(carried_out) if " X" in c and " Y" in c)
     x, y = (w for w in last_xy.split() if w[0] in "XY")
     assert back[-3:-1] == [f"G0 F9000 {x} {y}", f"G0 F600 Z{plan.layer_z(layer + 1):.3f}"]
-    assert back[-1].startswith("G1 F") and len(back) <= 4
+    assert back[-1].startswith("G1 F")
+    assert len(back) <= 4
     assert not any("E" in c and c.startswith("G1 X") for c in back)
     # the G-code file is the uninterrupted print's
     reference = [c for c in map(strip_comment, plan.start_gcode()) if c]

@@ -34,7 +34,8 @@ def test_retunes_apply_from_their_layer_and_rebuild_identically(plan: SlicePlan)
     at6, at9 = schedule.settings_at(6), schedule.settings_at(9)
     assert (at6.nozzle_temp, at6.infill_density) == (230, 0.2)
     assert (at9.nozzle_temp, at9.infill_density) == (230, 0.5)
-    assert schedule.excluded_at(11) == frozenset() and schedule.excluded_at(12) == {1}
+    assert schedule.excluded_at(11) == frozenset()
+    assert schedule.excluded_at(12) == {1}
 
     after = [schedule.layer_gcode(i) for i in range(plan.layer_count)]
     assert after[:6] == before[:6]

@@ -128,7 +128,8 @@ def test_m105_reports_temperatures(host):
 def test_m115_capabilities(host):
     lines = host.command(1, "M115")
     assert lines[0].startswith("FIRMWARE_NAME:Marlin ")
-    assert "PROTOCOL_VERSION:" in lines[0] and "EXTRUDER_COUNT:1" in lines[0]
+    assert "PROTOCOL_VERSION:" in lines[0]
+    assert "EXTRUDER_COUNT:1" in lines[0]
     caps = dict(line[4:].rsplit(":", 1) for line in lines[1:-1])
     assert caps["AUTOREPORT_TEMP"] == "1"
     assert caps["EMERGENCY_PARSER"] == "1"
@@ -142,7 +143,8 @@ def test_advanced_ok_reports_line_planner_and_queue():
         link = Host(sim.start())
         link.wait_start()
         lines = link.command(1, "M115")
-        assert "Cap:ADVANCED_OK:1" in lines and "Cap:EMERGENCY_PARSER:0" in lines
+        assert "Cap:ADVANCED_OK:1" in lines
+        assert "Cap:EMERGENCY_PARSER:0" in lines
         assert lines[-1] == "ok N1 P16 B3"  # the running command holds its slot
         assert link.command(2, "G1 X10 F600") == ["ok N2 P15 B3"]
         link.write(b"M400\n")

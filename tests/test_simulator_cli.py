@@ -82,4 +82,5 @@ def test_hostd_simulate_rejects_an_unknown_fault():
         capture_output=True, text=True, timeout=20,
     )
     assert result.returncode == 2
-    assert "gremlins" in result.stderr and result.stdout == ""
+    assert "gremlins" in result.stderr
+    assert result.stdout == ""

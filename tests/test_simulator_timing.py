@@ -121,7 +121,8 @@ def test_m109_waits_with_temperature_lines_and_busy():
     final = received[-1]
     t = float(final.split("T:")[1].split()[0])
     b = float(final.split("B:")[1].split()[0])
-    assert math.isclose(t, 210.0, abs_tol=1.0) and math.isclose(b, 60.0, abs_tol=1.0)
+    assert math.isclose(t, 210.0, abs_tol=1.0)
+    assert math.isclose(b, 60.0, abs_tol=1.0)
 
 
 def test_autoreport_sends_temperatures_without_being_asked():
@@ -130,7 +131,8 @@ def test_autoreport_sends_temperatures_without_being_asked():
     try:
         link.command(1, "M155 S0.2")
         lines = link.read_until(lambda line: line.startswith(" T:"), timeout=2.0)
-        assert lines[-1].startswith(" T:") and " B@:" in lines[-1]
+        assert lines[-1].startswith(" T:")
+        assert " B@:" in lines[-1]
         link.command(2, "M155 S0")
         link.readline(0.3)
         assert link.readline(0.5) is None

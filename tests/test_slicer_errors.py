@@ -167,7 +167,8 @@ def test_cli_reads_slicing_and_bed_from_the_config(tmp_path) -> None:
         for w in line.split()
         if w.startswith("X")
     ]
-    assert min(xs) >= 80 and max(xs) <= 100  # centred on the 180 mm bed
+    assert min(xs) >= 80
+    assert max(xs) <= 100
     assert text.count(";TYPE:WALL-INNER") > 0
     bad = tmp_path / "bad.toml"
     bad.write_text("[slicing]\nperimeters = -1\n")
@@ -177,4 +178,5 @@ def test_cli_reads_slicing_and_bed_from_the_config(tmp_path) -> None:
         text=True,
         check=False,
     )
-    assert refused.returncode == 2 and "slicing.perimeters" in refused.stderr
+    assert refused.returncode == 2
+    assert "slicing.perimeters" in refused.stderr

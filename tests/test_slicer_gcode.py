@@ -65,16 +65,21 @@ def test_start_and_resume_blocks() -> None:
     plan = SlicePlan.from_file(DATA / "cube20_xyz.stl", SliceSettings())
     start = plan.start_gcode()
     assert start[:4] == ["M140 S60", "M104 S210", "M190 S60", "M109 S210"]
-    assert "G28" in start and "M83" in start and "G92 E0" in start
+    assert "G28" in start
+    assert "M83" in start
+    assert "G92 E0" in start
     cold = plan.with_settings(SliceSettings.from_mapping({"skip_heating": True}))
     assert not any(
         line.split()[0] in ("M104", "M109", "M140", "M190") for line in cold.start_gcode()
     )
     resume = plan.resume_gcode(10)
-    assert "G28 X Y" in resume and "M83" in resume and "G92 E0" in resume
+    assert "G28 X Y" in resume
+    assert "M83" in resume
+    assert "G92 E0" in resume
     assert f"G92 Z{plan.layer_z(9):.3f}" in resume
     lift = [line for line in resume if line.startswith("G0") and "Z" in line]
-    assert lift and _words(lift[0])["Z"] > plan.layer_z(9)
+    assert lift
+    assert _words(lift[0])["Z"] > plan.layer_z(9)
     assert "M109 S210" in resume
     assert not any("M109" in line for line in cold.resume_gcode(10))
     assert "G28" not in resume  # never home Z onto the part
@@ -114,7 +119,8 @@ def test_excluded_bodies_drop_one_object(two_boxes) -> None:
     for i in (5, 20):
         kept = plan.layer_gcode(i, excluded_bodies=frozenset({0}))
         xs = [_words(line)["X"] for line in kept if line.startswith("G1") and "X" in line]
-        assert xs and min(xs) > cx, i  # body 0 (the left box) is gone
+        assert xs, i
+        assert min(xs) > cx, i  # body 0 (the left box) is gone
     # above the short box only the tall one remains; excluding it leaves an empty layer
     top = plan.layer_count - 1
     assert plan.layer_gcode(top, excluded_bodies=frozenset({1})) == [f";LAYER:{top}"]

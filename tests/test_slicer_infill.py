@@ -90,7 +90,8 @@ def test_skin_under_an_overhang_ledge(tmp_path) -> None:
     lines = plan.layer_gcode(i)
     skin = extrusions(lines, SKIN)
     fill = extrusions(lines, FILL)
-    assert skin and fill
+    assert skin
+    assert fill
     cx, cy = plan.bed[0] / 2, plan.bed[1] / 2
     tower = shapely.box(cx - 8, cy - 8, cx + 8, cy + 8)
     for p in fill:
@@ -128,7 +129,8 @@ def test_sloped_shell_is_solid_and_small_regions_are_solid(tmp_path) -> None:
     lines = plan.layer_gcode(i)
     skin = extrusions(lines, SKIN)
     fill = extrusions(lines, FILL)
-    assert skin and fill
+    assert skin
+    assert fill
     cone_centre = shapely.Point(plan.bounds[0] + 15, (plan.bounds[1] + plan.bounds[3]) / 2)
     radius = 15 * (1 - plan.layer_z(i) / 20)
     inner = radius - fill_distance(s)

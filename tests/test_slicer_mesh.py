@@ -96,7 +96,8 @@ def test_wide_gaps_close_as_solid_but_never_as_holes() -> None:
     pocket = _arc(50, 0, 10, 1.5 * np.pi, 0.0)  # clockwise: a pocket seen through the opening
     loops, closed, dropped = close_open_chains([solid, pocket], 2.0, 60.0, hole_gap=10.0)
     assert (closed, dropped) == (1, 1)
-    assert len(loops) == 1 and loops[0][0] == pytest.approx(solid[0])
+    assert len(loops) == 1
+    assert loops[0][0] == pytest.approx(solid[0])
     # a narrow opening closes either way
     narrow = _arc(50, 0, 10, 1.9 * np.pi, 0.1 * np.pi)
     loops, closed, dropped = close_open_chains([narrow], 2.0, 60.0, hole_gap=10.0)
@@ -158,7 +159,8 @@ def test_binary_and_ascii_read_the_same(tmp_path) -> None:
     ascii_path.write_text(trimesh.exchange.stl.export_stl_ascii(mesh))
     vb, fb = read_stl(DATA / "featuretype_mm.stl")
     va, fa = read_stl(ascii_path)
-    assert len(vb) == len(va) and len(fb) == len(fa)
+    assert len(vb) == len(va)
+    assert len(fb) == len(fa)
     assert np.allclose(np.sort(vb, axis=0), np.sort(va, axis=0), atol=1e-4)
 
 

@@ -75,7 +75,8 @@ def test_thin_wall_outer_lines_widen_to_meet(thickness: float) -> None:
     plan = _tube_plan(thickness)
     paths = plan.layer_toolpaths(5)
     outer = [p for p in paths if p.kind == WALL_OUTER]
-    assert len(outer) == 2 and all(p.kind == WALL_OUTER for p in paths if p.kind.startswith("WALL"))
+    assert len(outer) == 2
+    assert all(p.kind == WALL_OUTER for p in paths if p.kind.startswith("WALL"))
     for p in outer:
         assert p.width == pytest.approx(thickness / 2.0, abs=0.02)
     for p in outer:
@@ -98,7 +99,8 @@ def test_thin_wall_extrudes_for_its_width() -> None:
 def test_walls_keep_the_line_width_outside_the_thin_range(thickness: float) -> None:
     plan = _tube_plan(thickness)
     outer = [p for p in plan.layer_toolpaths(5) if p.kind == WALL_OUTER]
-    assert len(outer) == 2 and all(p.width is None for p in outer)
+    assert len(outer) == 2
+    assert all(p.width is None for p in outer)
     for p in outer:
         assert _off_level(plan, p.coords, 0.2) < 0.03
 

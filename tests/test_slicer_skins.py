@@ -95,7 +95,8 @@ def test_cache_forgets_what_no_block_needs() -> None:
     cache = SkinCache(outlines, FILL, 3, 3, block=8)
     for i in range(len(outlines)):
         cache.get(i)
-    assert not cache._fill and not cache._cover
+    assert not cache._fill
+    assert not cache._cover
 
 
 def test_no_slivers_between_nearly_equal_layers() -> None:
@@ -106,7 +107,8 @@ def test_no_slivers_between_nearly_equal_layers() -> None:
         dtype=object,
     )
     skins = skin_regions(outlines, FILL, 3, 3)
-    assert all(g is not None for g in skins[:3]) and all(g is not None for g in skins[-3:])
+    assert all(g is not None for g in skins[:3])
+    assert all(g is not None for g in skins[-3:])
     assert all(g is None for g in skins[3:-3])
 
 

@@ -109,7 +109,8 @@ def test_support_paths_wall_infill_and_interface_stay_in_the_region(
     low = LayerContext(index=2, z=0.6, domain=tee[2], bounds=bounds, settings=SETTINGS)
     paths = support_paths(regions[2], tee[2], low, roofs[2])
     assert set(paths) == {"wall", "infill", "interface"}
-    assert not paths["wall"].is_empty and not paths["infill"].is_empty
+    assert not paths["wall"].is_empty
+    assert not paths["infill"].is_empty
     assert paths["interface"].is_empty  # far below the plate
     for geom in (paths["wall"], paths["infill"]):
         assert regions[2].buffer(1e-6).covers(geom)

@@ -53,7 +53,8 @@ def test_unit_has_every_required_directive(name: str) -> None:
     assert one(service, "ExecStart") == f"/usr/local/bin/hostd run --config {config}"
     assert int(one(service, "WatchdogSec")) >= 10
     assert one(service, "Restart") == "on-failure"
-    assert one(service, "User") == "hostd" and one(service, "Group") == "hostd"
+    assert one(service, "User") == "hostd"
+    assert one(service, "Group") == "hostd"
     assert "dialout" in one(service, "SupplementaryGroups").split()
     assert one(service, "StateDirectory") == f"hostd{instance}"
     assert one(service, "WorkingDirectory") == f"/var/lib/hostd{instance}"
@@ -77,7 +78,8 @@ def test_exec_start_is_a_valid_hostd_command_line(name: str) -> None:
     service = parse_unit(SYSTEMD / name)["Service"]
     argv = shlex.split(one(service, "ExecStart"))
     args = build_parser().parse_args(argv[1:])
-    assert args.command == "run" and args.config.startswith("/etc/hostd/")
+    assert args.command == "run"
+    assert args.config.startswith("/etc/hostd/")
 
 
 def test_the_template_differs_from_the_single_unit_only_by_instance() -> None:
@@ -114,7 +116,8 @@ def test_systemd_analyze_verify_accepts_the_units(tmp_path: Path) -> None:
         )
         complaints = [line for line in (result.stdout + result.stderr).splitlines()
                       if unit.name in line or "hostd" in line]
-        assert result.returncode == 0 and not complaints, result.stdout + result.stderr
+        assert result.returncode == 0, result.stdout + result.stderr
+        assert not complaints, result.stdout + result.stderr
 
 
 def test_sysusers_and_tmpfiles_make_the_user_and_folders(tmp_path: Path) -> None:
@@ -140,7 +143,8 @@ def test_sysusers_and_tmpfiles_make_the_user_and_folders(tmp_path: Path) -> None
                    check=True, capture_output=True, timeout=60)
     state, jobs = root / "var/lib/hostd", root / "var/lib/hostd/jobs"
     if os.geteuid() == 0:  # only root can hand the folders to hostd
-        assert state.stat().st_uid == uid and jobs.stat().st_uid == uid
+        assert state.stat().st_uid == uid
+        assert jobs.stat().st_uid == uid
     assert stat.S_IMODE(state.stat().st_mode) == 0o750
     assert stat.S_IMODE(jobs.stat().st_mode) == 0o2770
 
@@ -190,4 +194,5 @@ def test_install_script_makes_one_config_per_template_instance(tmp_path: Path) -
             assert _under_read_write_paths(folder, "hostd@.service", printer)
     assert "hostd@left.service hostd@right.service" in result.stdout
     refused = _install(tmp_path, "../evil")
-    assert refused.returncode == 2 and "printer id" in refused.stderr
+    assert refused.returncode == 2
+    assert "printer id" in refused.stderr

@@ -127,11 +127,15 @@ async def until(check, timeout: float = 30.0) -> None:
 
 
 def test_text_helpers() -> None:
-    assert layer_text(0, 25) == "layer 1 of 25" and layer_text(24, 25) == "layer 25 of 25"
-    assert duration(None) == "--" and duration(103) == "1:43" and duration(3725) == "1:02:05"
+    assert layer_text(0, 25) == "layer 1 of 25"
+    assert layer_text(24, 25) == "layer 25 of 25"
+    assert duration(None) == "--"
+    assert duration(103) == "1:43"
+    assert duration(3725) == "1:02:05"
     for fraction in (0.0, 0.33, 0.5, 1.0):
         assert len(bar(fraction, 17)) == 17
-    assert bar(0.5, 10).startswith("█████") and bar(1.0, 4) == "████"
+    assert bar(0.5, 10).startswith("█████")
+    assert bar(1.0, 4) == "████"
 
 
 def test_canvas_draws_a_square_where_it_belongs() -> None:
@@ -147,7 +151,8 @@ def test_canvas_draws_a_square_where_it_belongs() -> None:
     assert not lit[1:-1, 1:-1].any()  # hollow
     assert set(canvas.fg[lit].tolist()) == {3}
     text = canvas.text([None, None, None, __import__("rich.style").style.Style(color="red")])
-    assert text.plain.count("\n") == 4 and len(text.plain.split("\n")[0]) == 10
+    assert text.plain.count("\n") == 4
+    assert len(text.plain.split("\n")[0]) == 10
 
 
 def test_screen_at_80x24_shows_every_panel_without_wrapping() -> None:
@@ -161,7 +166,8 @@ def test_screen_at_80x24_shows_every_panel_without_wrapping() -> None:
             await until(lambda: screen.query_one(LayerView).printed is not None)
             job = [t.plain for t in screen.query_one("#job").render().renderables]
             width = screen.query_one("#job").content_size.width
-            assert job[0].startswith("dogbone.stl") and job[1].startswith("layer 13 of 25")
+            assert job[0].startswith("dogbone.stl")
+            assert job[1].startswith("layer 13 of 25")
             assert job[2] == "elapsed 1:35  ETA 1:43  ahead 3"
             assert job[3] == "filament ≈1.21 of 2.53 m"
             assert all(len(line) <= width for line in job), (job, width)
@@ -177,11 +183,13 @@ def test_screen_at_80x24_shows_every_panel_without_wrapping() -> None:
             assert len(lines) == view.content_size.height - 1
             assert {len(line) for line in lines} == {view.content_size.width}
             for widget in screen.query("#job, #temps, #queue, #layer, #log"):
-                assert widget.region.right <= 80 and widget.region.bottom <= 23
+                assert widget.region.right <= 80
+                assert widget.region.bottom <= 23
 
     asyncio.run(scenario())
     layer_args = [args for cmd, args in source.queries if cmd == "layer"]
-    assert layer_args and all(args["layer"] == 12 for args in layer_args)
+    assert layer_args
+    assert all(args["layer"] == 12 for args in layer_args)
 
 
 def test_keys_pause_resume_confirmed_cancel_filter_and_retune() -> None:
@@ -214,7 +222,8 @@ def test_keys_pause_resume_confirmed_cancel_filter_and_retune() -> None:
             await until(lambda: isinstance(app.screen, ConfirmScreen))
             question = str(app.screen.query_one("#question").render())
             assert "infill.density = 0.4" in question
-            assert "ETA 1:43 -> 2:11" in question and "2.53 m -> 3.10 m" in question
+            assert "ETA 1:43 -> 2:11" in question
+            assert "2.53 m -> 3.10 m" in question
             await pilot.press("y")
             await until(lambda: ("set", {"settings": {"infill.density": 0.4}}) in source.calls)
             help_key = next(k for k in screen.query(FooterKey) if k.key == "question_mark")

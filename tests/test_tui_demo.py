@@ -80,5 +80,6 @@ def test_hostd_print_progress_line_fits_the_terminal(monkeypatch) -> None:
         line = out.getvalue().strip("\r\n")
         assert 0 < len(line) < max(columns, 20), (columns, line)
         if columns >= 80:
-            assert "layer 100 of 309" in line and line.startswith("[")
+            assert "layer 100 of 309" in line
+            assert line.startswith("[")
     assert fit_bar(0.5, "tail", 12) == "tail"  # no room for a bar: the text alone

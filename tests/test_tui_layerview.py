@@ -31,9 +31,11 @@ def test_parse_layer_follows_the_gcode_command_by_command(dogbone: LayerSchedule
                     and not c.split(" E")[1].startswith("-"))
     assert sum(len(coords) - 1 for _kind, coords, _end in paths) == extruding
     ends = [end for _kind, _coords, end in paths]
-    assert ends == sorted(ends) and 0 < ends[-1] <= count
+    assert ends == sorted(ends)
+    assert 0 < ends[-1] <= count
     kinds = [kind for kind, _coords, _end in paths]
-    assert kinds[0] == "WALL-OUTER" and {"WALL-INNER", "FILL"} <= set(kinds)
+    assert kinds[0] == "WALL-OUTER"
+    assert {"WALL-INNER", "FILL"} <= set(kinds)
     # each path's end is the command that draws its last point
     for _kind, coords, end in paths:
         x, y = coords[-1]
@@ -43,38 +45,48 @@ def test_parse_layer_follows_the_gcode_command_by_command(dogbone: LayerSchedule
 def test_layer_view_is_json_simplified_and_framed_by_the_model(dogbone: LayerSchedule) -> None:
     exact = layer_view(dogbone, 8, tolerance=0.0)
     coarse = layer_view(dogbone, 8, tolerance=0.5)
-    assert exact["layer"] == 8 and exact["layers"] == 25 and exact["z"] == pytest.approx(1.8)
+    assert exact["layer"] == 8
+    assert exact["layers"] == 25
+    assert exact["z"] == pytest.approx(1.8)
     assert exact["bounds"] == pytest.approx(dogbone.base_plan.bounds, abs=0.01)
     assert len(coarse["paths"]) == len(exact["paths"])
     assert [p["end"] for p in coarse["paths"]] == [p["end"] for p in exact["paths"]]
     count = lambda view: sum(len(p["points"]) for p in view["paths"])  # noqa: E731
     assert count(coarse) < count(exact)
     assert json.loads(json.dumps(coarse)) == coarse
-    assert exact["body_count"] == 1 and exact["bodies"] == [] and exact["field"] is None
+    assert exact["body_count"] == 1
+    assert exact["bodies"] == []
+    assert exact["field"] is None
 
 
 def test_field_samples_cover_the_layer_only(dogbone: LayerSchedule) -> None:
     field = field_samples(dogbone, 8, 40, 12)
     values = np.asarray(field["values"])
-    assert values.shape == (12, 40) and field["name"] == "linear"
+    assert values.shape == (12, 40)
+    assert field["name"] == "linear"
     inside = values >= 0
-    assert inside.any() and (~inside).any()  # the dogbone's waist leaves corners outside
-    assert values[inside].min() >= 0 and values[inside].max() <= 255
+    assert inside.any()
+    assert (~inside).any()
+    assert values[inside].min() >= 0
+    assert values[inside].max() <= 255
     assert values[inside].max() - values[inside].min() > 100  # a ramp, not a flat colour
     big = field_samples(dogbone, 8, 1000, 1000)
-    assert big["columns"] * big["rows"] <= 40_000 and np.asarray(big["values"]).shape == (200, 200)
+    assert big["columns"] * big["rows"] <= 40_000
+    assert np.asarray(big["values"]).shape == (200, 200)
 
 
 def test_estimate_and_a_retune_preview(dogbone: LayerSchedule) -> None:
     assert sample_layers(25) == [0, 3, 7, 10, 14, 17, 21, 24]
     now = estimate(dogbone, current=12, next_unsliced=15, eta_s=100.0)
     assert 0 < now["filament_used_mm"] < now["filament_total_mm"]
-    assert now["settings"]["infill.density"] == 0.2 and "wave" in now["fields"]
+    assert now["settings"]["infill.density"] == 0.2
+    assert "wave" in now["fields"]
     denser = estimate(dogbone, 12, 15, 100.0, {"infill.density": 0.6})
     assert denser["filament_total_mm"] == now["filament_total_mm"]
     new = denser["retuned"]
     assert new["filament_total_mm"] > now["filament_total_mm"]
-    assert new["eta_s"] > 100.0 and new["time_ratio"] > 1.0
+    assert new["eta_s"] > 100.0
+    assert new["time_ratio"] > 1.0
     assert dogbone.changes == []  # nothing applied
     with pytest.raises(SettingsError, match="layer_height"):
         estimate(dogbone, 12, 15, 100.0, {"layer_height": 0.3})

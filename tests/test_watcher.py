@@ -106,7 +106,8 @@ def test_hidden_and_temporary_files_are_ignored(tmp_path: Path) -> None:
             shutil.copyfile(CUBE, folder / name)
 
     taken, store = asyncio.run(watch_for(config, 0, drop, sentinel=True))
-    assert taken == [] and [job.name for job in store.jobs()] == [SENTINEL]
+    assert taken == []
+    assert [job.name for job in store.jobs()] == [SENTINEL]
     assert sorted(p.name for p in config.jobs.folder.iterdir() if p.is_file()) == sorted(names)
 
 
@@ -169,7 +170,8 @@ def test_refusals_end_in_failed_with_a_reason(tmp_path: Path) -> None:
     assert "not valid TOML" in reasons["garbled.error.txt"]
     assert (failed / "escape.stl").is_symlink()  # the link moved, its target untouched
     assert outside.exists()
-    assert (failed / "dir.stl").is_dir() and (failed / "tuned.toml").exists()
+    assert (failed / "dir.stl").is_dir()
+    assert (failed / "tuned.toml").exists()
     assert {job.state for job in store.jobs()} == {"failed"}
     assert len(store.jobs()) == 7
 
@@ -185,7 +187,8 @@ def test_a_good_override_is_applied_and_kept_with_the_job(tmp_path: Path) -> Non
 
     _taken, store = asyncio.run(watch_for(config, 1, drop))
     (job,) = store.jobs()
-    assert job.settings["infill.density"] == 0.6 and job.settings["infill.field"] == "wave"
+    assert job.settings["infill.density"] == 0.6
+    assert job.settings["infill.field"] == "wave"
     assert (Path(job.path).parent / "dense.toml").exists()
     assert not (config.jobs.folder / "dense.toml").exists()
 
@@ -201,7 +204,8 @@ def test_a_link_inside_the_folder_is_taken_as_a_copy(tmp_path: Path) -> None:
 
     _taken, store = asyncio.run(watch_for(config, 1, drop))
     (job,) = store.jobs()
-    assert job.state == "queued" and not Path(job.path).is_symlink()
+    assert job.state == "queued"
+    assert not Path(job.path).is_symlink()
     assert Path(job.path).read_bytes() == CUBE.read_bytes()
     assert (config.jobs.folder / "library" / "cube.stl").exists()
     assert not (config.jobs.folder / "linked.stl").is_symlink()
