@@ -93,6 +93,9 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     assert snap.job is not None
     assert snap.job.layers == 50
     assert 0 <= snap.job.layers_ready_ahead <= 2
+    # checkpoints are committed by their own writer, a moment after the status moves on
+    hostd.wait_for(lambda: job_state(hostd.state, "1")[1] >= first_retuned, 30,
+                   "the checkpoint of the first retuned layer")
     hostd.kill9()
 
     hostd.start()
