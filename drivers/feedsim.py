@@ -128,16 +128,8 @@ def simulate_feed(
                 if code == "G28":
                     motion.home("".join(a for a in "XYZ" if a in params))
                 t = planner.idle_at(t)
-            elif code == "G90":
-                motion.set_absolute(True)
-            elif code == "G91":
-                motion.set_absolute(False)
-            elif code == "M82":
-                motion.absolute_e = True
-            elif code == "M83":
-                motion.absolute_e = False
-            elif code == "G92":
-                motion.set_position(values)
+            else:
+                _set_mode(motion, code, values)
         done = t
         sizes.append(size)
         in_window += size
@@ -182,14 +174,16 @@ def ideal_print_s(lines: Iterable[str]) -> float:
                 total += motion.arc(values, code == "G2", PlannerSettings())[2]
             except ValueError:
                 continue
-        elif code == "G90":
-            motion.set_absolute(True)
-        elif code == "G91":
-            motion.set_absolute(False)
-        elif code == "M82":
-            motion.absolute_e = True
-        elif code == "M83":
-            motion.absolute_e = False
-        elif code == "G92":
-            motion.set_position(values)
+        else:
+            _set_mode(motion, code, values)
     return total
+
+
+def _set_mode(motion: Motion, code: str, values: dict[str, float]) -> None:
+    """Apply a positioning command (G90, G91, M82, M83, G92); any other code is ignored."""
+    if code in ("G90", "G91"):
+        motion.set_absolute(code == "G90")
+    elif code in ("M82", "M83"):
+        motion.absolute_e = code == "M82"
+    elif code == "G92":
+        motion.set_position(values)

@@ -20,7 +20,7 @@ from drivers.heater import BED, HOTEND, Heater, format_temperatures
 from drivers.planner import MarlinPlanner, PlannerSettings, move_block
 from drivers.simclock import SimClock
 from drivers.simconfig import SimulatorConfig
-from drivers.simlines import ERR_CHECKSUM, check_line
+from drivers.simlines import check_line, spurious_replies
 from drivers.simmotion import Motion
 
 ERR_KILLED = "Error:Printer halted. kill() called!"
@@ -206,18 +206,13 @@ class Firmware:
         if not check.command:
             return
         self._queue.append((check.command, check.number))
-        spurious = check.number is not None and "M110" not in check.command
-        if spurious and self.faults.fires("resend"):
-            # a request for a line that arrived intact; its own ok follows when it runs,
-            # so every received line is still answered by exactly one ok
-            self.emit(f"Resend: {self.last_n}")
-        if spurious and self.faults.fires("refuse"):
-            # Marlin's refusal of a line that arrived intact (noise on a real board): the
-            # lines behind it are accepted as usual
-            self.emit(f"Error:{ERR_CHECKSUM}{self.last_n}")
-            self.emit(f"Resend: {self.last_n + 1}")
-            if self.config.ok_after_resend:
-                self.send_ok()
+        replies, refused = spurious_replies(
+            self.faults.fires, check.command, check.number, self.last_n
+        )
+        for reply in replies:
+            self.emit(reply)
+        if refused and self.config.ok_after_resend:
+            self.send_ok()
 
     def _line_error(self, message: str) -> None:
         """Marlin's ``gcode_line_error``: report, drain the receive buffer, ask for a resend."""

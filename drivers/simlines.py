@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 from dataclasses import dataclass
 
 ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
@@ -70,3 +71,27 @@ def check_line(raw: bytes, last_n: int) -> LineCheck:
         if param >= 0:
             last_n = strtol(command[param + 1 :])
     return LineCheck("", command, number, last_n)
+
+
+def spurious_replies(
+    fires: Callable[[str], bool], command: str, number: int | None, last_n: int
+) -> tuple[list[str], bool]:
+    """The seeded noise that follows an intact numbered line ``last_n``, as Marlin shows it.
+
+    ``fires(kind)`` draws the fault ``resend`` (a request for the line that just
+    arrived; its own ok follows when it runs, so every received line is still
+    answered by exactly one ok) and then ``refuse`` (Marlin's refusal of an intact
+    line, noise on a real board; the lines behind it are accepted as usual).
+    Returns the lines to emit and whether the refusal is followed by its ``ok``
+    where the firmware sends one after a resend. Renumbering (``M110``) and
+    unnumbered lines draw nothing.
+    """
+    if number is None or "M110" in command:
+        return [], False
+    lines: list[str] = []
+    if fires("resend"):
+        lines.append(f"Resend: {last_n}")
+    refused = fires("refuse")
+    if refused:
+        lines += [f"Error:{ERR_CHECKSUM}{last_n}", f"Resend: {last_n + 1}"]
+    return lines, refused

@@ -18,7 +18,7 @@ from collections.abc import Callable
 from drivers.faults import FaultInjector
 from drivers.simcommands import FIRMWARE_NAME
 from drivers.simconfig import SimulatorConfig
-from drivers.simlines import ERR_CHECKSUM, check_line
+from drivers.simlines import check_line, spurious_replies
 
 BUSY = "echo:busy: processing"
 TEMPERATURES = " T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"
@@ -190,14 +190,13 @@ class VirtualPrinter:
         if not check.command:
             return
         self._queue.append((check.command, check.number))
-        spurious = check.number is not None and "M110" not in check.command
-        if spurious and self.faults.fires("resend"):
-            self.emit(f"Resend: {self.last_n}")
-        if spurious and self.faults.fires("refuse"):
-            self.emit(f"Error:{ERR_CHECKSUM}{self.last_n}")
-            self.emit(f"Resend: {self.last_n + 1}")
-            if self.config.ok_after_resend:
-                self._ok()
+        replies, refused = spurious_replies(
+            self.faults.fires, check.command, check.number, self.last_n
+        )
+        for reply in replies:
+            self.emit(reply)
+        if refused and self.config.ok_after_resend:
+            self._ok()
 
     def _start_next(self) -> None:
         if self.faults.fires("reset"):
