@@ -93,6 +93,22 @@ async def print_job(
     return seen
 
 
+
+HOUSEKEEPING = ("M110", "M115", "M155", "M105")
+
+
+def whole_program(plan) -> list[str]:
+    """The commands of the whole print: start, every layer, ending."""
+    expected = [c for c in map(strip_comment, plan.start_gcode()) if c]
+    for index in range(plan.layer_count):
+        expected += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
+    return expected + [c for c in map(strip_comment, plan.end_gcode()) if c]
+
+
+def job_lines(executed: list[str]) -> list[str]:
+    """The executed commands less the link's own (renumbering, capabilities, probes)."""
+    return [c for c in executed if c.split()[0] not in HOUSEKEEPING]
+
 def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path: Path) -> None:
     seen = asyncio.run(print_job(tmp_path, depth=3))
     plan = seen["plan"]
@@ -114,8 +130,7 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
         expected += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
     ending = [c for c in map(strip_comment, plan.end_gcode()) if c]
     expected += ending
-    housekeeping = ("M110", "M115", "M155", "M105")
-    executed = [c for c in seen["executed"] if c.split()[0] not in housekeeping]
+    executed = job_lines(seen["executed"])
     assert executed == expected
     job = seen["job"]
     assert (job.state, job.layer, job.layers) == ("printing", layers - 1, layers)
@@ -144,13 +159,9 @@ def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> 
 def test_a_store_whose_commits_take_200_ms_does_not_hold_up_the_printer(tmp_path: Path) -> None:
     seen = asyncio.run(print_job(tmp_path, depth=3, commit_delay_s=0.2, time_scale=0.002))
     plan = seen["plan"]
-    expected = [c for c in map(strip_comment, plan.start_gcode()) if c]
-    for index in range(plan.layer_count):
-        expected += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
-    expected += [c for c in map(strip_comment, plan.end_gcode()) if c]
-    housekeeping = ("M110", "M115", "M155", "M105")
+    expected = whole_program(plan)
     # every line carried out exactly once, in order
-    assert [c for c in seen["executed"] if c.split()[0] not in housekeeping] == expected
+    assert job_lines(seen["executed"]) == expected
     stats = seen["stats"]
     assert (stats.resends, stats.lines_resent, stats.probes, stats.errors) == (0, 0, 0, 0)
     # the commits ran in the writer's thread, never in the loop that reads the printer
@@ -165,12 +176,8 @@ def test_a_store_whose_commits_take_200_ms_does_not_hold_up_the_printer(tmp_path
 def test_a_full_disk_stops_the_gcode_file_but_not_the_print(tmp_path: Path) -> None:
     seen = asyncio.run(print_job(tmp_path, depth=2, output_path=Path("/dev/full")))
     plan = seen["plan"]
-    expected = [c for c in map(strip_comment, plan.start_gcode()) if c]
-    for index in range(plan.layer_count):
-        expected += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
-    expected += [c for c in map(strip_comment, plan.end_gcode()) if c]
-    housekeeping = ("M110", "M115", "M155", "M105")
-    assert [c for c in seen["executed"] if c.split()[0] not in housekeeping] == expected
+    expected = whole_program(plan)
+    assert job_lines(seen["executed"]) == expected
     assert "No space left on device" in seen["output_error"]
     assert seen["hub"].job.progress == 1.0
 
