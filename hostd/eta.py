@@ -46,16 +46,26 @@ class EtaModel:
         self._thread: threading.Thread | None = None
 
     def start(self, now: float) -> None:
-        """The start block is acknowledged: printing begins now. Measures the geometry."""
+        """The start block is acknowledged: printing begins now."""
         self.started = now
-        if self.schedule is not None and self._thread is None:
+
+    def layer_done(self, layer: int, now: float) -> None:
+        """Every line of ``layer`` is acknowledged at ``now`` (monotonic seconds).
+
+        The first layer done that extruded starts measuring the geometry of every
+        layer: not sooner, so that cutting the whole model never delays the first
+        extrusion.
+        """
+        self.done_at[layer] = now
+        self.last_done = layer
+        if self.schedule is not None and self._thread is None and self._printed(layer):
             self._thread = threading.Thread(target=self._measure, name="hostd-eta", daemon=True)
             self._thread.start()
 
-    def layer_done(self, layer: int, now: float) -> None:
-        """Every line of ``layer`` is acknowledged at ``now`` (monotonic seconds)."""
-        self.done_at[layer] = now
-        self.last_done = layer
+    def _printed(self, layer: int) -> bool:
+        """Whether ``layer`` laid filament, by the slicer's estimate (unknown: yes)."""
+        estimate = self.schedule.estimates.get(layer)
+        return estimate is None or estimate[1] > 0
 
     def _measure(self) -> None:
         """Each layer's rough time per body, (layers, bodies) s, from its outline polygons."""

@@ -32,13 +32,15 @@ def test_the_eta_follows_the_printer_pace_and_a_cancelled_body(tmp_path) -> None
     layers = plan.layer_count
     model = EtaModel(schedule, layers, 0)
     model.start(0.0)
-    wait_geometry(model)
+    assert model._thread is None  # nothing of the whole model is cut before the first layer
     clock = 0.0
     for layer in range(layers // 2):  # sliced a few ahead, printed 1.5 times slower
         schedule.layer_gcode(layer)
         schedule.layer_gcode(layer + 1)
         clock += 1.5 * schedule.estimates[layer][0]
         model.layer_done(layer, clock)
+        if layer == 0:  # the geometry is measured once a layer has laid filament
+            wait_geometry(model)
     estimates = model._estimates()
     assert model.pace(estimates) == pytest.approx(1.5)
     remaining = model.remaining(clock)
