@@ -10,6 +10,12 @@ when the link's baud rate is known (``gcode.baud``), each run of
 than the wire needs to carry its lines marks its pieces, and those pieces alone
 are simplified again within ``gcode.coarse_resolution``. Pieces keep their
 ends, so paths start and end where they did.
+
+The wire's test is a buffer's: the planner holds ``gcode.planner_blocks``
+moves, so a run of short moves starves it only once the run has printed that
+many lines' wire time faster than the wire carried them; then every move of
+the run is marked. Outer walls are never coarsened (they are the part's
+surface): the other pieces of a marked run carry the saving.
 """
 
 from __future__ import annotations
@@ -52,12 +58,14 @@ def line_rate(settings: SliceSettings) -> float:
 def budget_moves(
     pts: np.ndarray, starts: np.ndarray, ends: np.ndarray, speeds: np.ndarray,
     settings: SliceSettings, loose: np.ndarray | None = None,
+    exact: np.ndarray | None = None,
 ) -> Moves:
     """The moves of the packed paths ``pts[starts[i]:ends[i]]`` ((m, 2) mm), printed at
     ``speeds[i]`` mm/s, within the settings' tolerances (see the module docstring).
 
     Paths where ``loose`` ((n,) bool: sparse infill, support) get the larger of
-    ``resolution`` and ``infill.resolution``; the others ``resolution``.
+    ``resolution`` and ``infill.resolution``; the others ``resolution``. Paths where
+    ``exact`` ((n,) bool: outer walls) keep their tolerance when the wire is short.
     """
     path_tol = np.full(len(starts), settings.resolution)
     if loose is not None:
@@ -70,8 +78,10 @@ def budget_moves(
     keep = _simplified(pts, pa, pb, arc_of, tol)
     rate = line_rate(settings)
     coarse = np.maximum(settings.gcode_coarse_resolution, tol)
+    if exact is not None:
+        coarse = np.where(exact[np.searchsorted(starts, pa, "right") - 1], tol, coarse)
     if rate > 0 and (coarse > tol).any():
-        hot = _too_fast(pts, keep, starts, ends, speeds, rate, settings.gcode_planner_blocks)
+        hot = _starving(pts, keep, starts, speeds, rate, settings.gcode_planner_blocks)
         piece_of = np.searchsorted(pa, np.flatnonzero(hot), "right") - 1
         redo = np.zeros(len(pa), dtype=bool)
         redo[piece_of] = True
@@ -135,31 +145,38 @@ def _simplified(
     return keep
 
 
-def _too_fast(
-    pts: np.ndarray, keep: np.ndarray, starts: np.ndarray, ends: np.ndarray,
-    speeds: np.ndarray, rate: float, blocks: int,
+def _starving(
+    pts: np.ndarray, keep: np.ndarray, starts: np.ndarray, speeds: np.ndarray,
+    rate: float, blocks: int,
 ) -> np.ndarray:
-    """Points whose move lies in a run of ``blocks`` consecutive moves that prints faster
-    than ``blocks / rate`` seconds: (m,) bool over ``pts``."""
+    """Points whose move lies in a run that would empty a planner of ``blocks`` moves
+    fed ``rate`` lines a second: (m,) bool over ``pts``.
+
+    With ``G[k]`` the wire time of the first ``k`` moves' lines less their print time,
+    move ``j`` finds the planner empty once ``G[j + 1]`` exceeds the lowest ``G``
+    before it (when the planner was last full) by ``blocks / rate``; the moves since
+    that lowest point are the run.
+    """
     hot = np.zeros(len(pts), dtype=bool)
     idx = np.flatnonzero(keep)
     path = np.searchsorted(starts, idx, "right") - 1
     move = np.ones(len(idx), dtype=bool)
     move[np.searchsorted(idx, starts)] = False  # a path's first point ends no move
     step = np.hypot(*np.diff(pts[idx], axis=0, prepend=pts[idx[:1]]).T)
-    dur = np.where(move, step / speeds[path], 0.0)
     mv = np.flatnonzero(move)
-    if len(mv) < blocks:
+    if len(mv) <= blocks:
         return hot
-    t = np.concatenate(([0.0], np.cumsum(dur[mv])))
-    window = t[blocks:] - t[:-blocks]  # time of moves w..w+blocks-1
-    fast = window < blocks / rate
-    if not fast.any():
+    dur = step[mv] / speeds[path[mv]]
+    lag = np.concatenate(([0.0], np.arange(1, len(mv) + 1) / rate - np.cumsum(dur)))
+    low = np.minimum.accumulate(lag)
+    since = np.maximum.accumulate(np.where(lag == low, np.arange(len(lag)), 0))
+    starved = np.flatnonzero(lag[1:] - low[:-1] > blocks / rate)
+    if len(starved) == 0:
         return hot
-    # every move inside a fast window
+    # every move from the run's start (the lowest point before it) to the starved one
     mark = np.zeros(len(mv) + 1, dtype=np.int64)
-    np.add.at(mark, np.flatnonzero(fast), 1)
-    np.add.at(mark, np.flatnonzero(fast) + blocks, -1)
+    np.add.at(mark, since[starved], 1)
+    np.add.at(mark, starved + 1, -1)
     inside = np.cumsum(mark)[:-1] > 0
     hot[idx[mv[inside]]] = True
     return hot

@@ -15,7 +15,7 @@ import numpy as np
 import shapely
 
 from slicer.budget import Moves, budget_moves
-from slicer.layer import FILL, SUPPORT, Path
+from slicer.layer import FILL, SUPPORT, WALL_OUTER, Path
 from slicer.motion import packed_runs_time, run_time, segment_times
 from slicer.settings import SliceSettings
 
@@ -102,7 +102,8 @@ def layer_code(
     widths = np.array([settings.line_width if p.width is None else p.width for p in paths])
     # the emitted moves: simplified within the resolution, arcs where they fit
     loose = np.array([p.kind in (FILL, SUPPORT) for p in paths])
-    mv = budget_moves(pts, starts, ends, speeds, settings, loose)
+    exact = np.array([p.kind == WALL_OUTER for p in paths])
+    mv = budget_moves(pts, starts, ends, speeds, settings, loose, exact)
     # extrusion moves: every point but each path's first
     move = np.ones(len(mv.pts), dtype=bool)
     move[mv.starts] = False

@@ -31,7 +31,8 @@ def _moves(plan: SlicePlan, i: int):
     pts, starts, ends = _pack([p.coords for p in paths])
     speeds = np.full(len(paths), plan.settings.print_speed)
     loose = np.array([p.kind == "FILL" for p in paths])
-    return paths, budget_moves(pts, starts, ends, speeds, plan.settings, loose)
+    exact = np.array([p.kind == "WALL-OUTER" for p in paths])
+    return paths, budget_moves(pts, starts, ends, speeds, plan.settings, loose, exact)
 
 
 def test_walls_stay_within_the_resolution_of_the_level_set() -> None:
@@ -150,6 +151,12 @@ def test_the_wire_budget_coarsens_only_fast_runs() -> None:
         simple = shapely.linestrings(tight.pts[tight.starts[k] : tight.ends[k]])
         limit = loose if path.kind == "FILL" else limit_walls
         assert shapely.hausdorff_distance(exact, simple, densify=0.05) <= limit + 1e-9
+        if path.kind == "WALL-OUTER":  # the surface is never coarsened for the wire
+            kept = plain.pts[plain.starts[k] : plain.ends[k]]
+            assert np.array_equal(tight.pts[tight.starts[k] : tight.ends[k]], kept)
+    coarsened = [k for k, p in enumerate(paths)
+                 if tight.ends[k] - tight.starts[k] < plain.ends[k] - plain.starts[k]]
+    assert coarsened and all(paths[k].kind != "WALL-OUTER" for k in coarsened)
     # a wire fast enough for every run changes nothing
     fast = free.with_settings(SliceSettings.from_mapping({"gcode.baud": 10_000_000, **coarse},
                                                          base=free.settings))
@@ -166,3 +173,24 @@ def test_auto_follows_the_firmware_capabilities() -> None:
     assert for_printer(auto, set(), 115200).gcode_baud == 115200
     with pytest.raises(SettingsError, match=r"gcode\.arcs"):
         SliceSettings.from_mapping({"gcode.arcs": "yes"})
+
+
+def test_a_short_fast_run_fits_in_the_planner_and_a_long_one_is_coarsened() -> None:
+    # moves of about 0.3 mm at 100 mm/s (3 ms) on a wire of 6 ms a line: each move takes
+    # 3 ms more of the wire than it prints, so 16 planner blocks last 32 moves
+    settings = SliceSettings.from_mapping({"gcode.arcs": "off", "gcode.baud": 83_333,
+                                           "gcode.coarse_resolution": 0.2})
+    assert 1.0 / line_rate(settings) == pytest.approx(0.006, rel=1e-3)
+
+    def zigzag(moves: int) -> np.ndarray:
+        x = 0.3 * np.arange(moves + 1)
+        return np.column_stack([x, 0.1 * (np.arange(moves + 1) % 2)])  # kept at 0.025 mm
+
+    for moves, coarsened in ((20, False), (28, False), (120, True)):
+        pts = zigzag(moves)
+        mv = budget_moves(pts, np.array([0]), np.array([len(pts)]), np.array([100.0]),
+                          settings)
+        assert (len(mv.pts) < len(pts)) is coarsened, moves
+        outer = budget_moves(pts, np.array([0]), np.array([len(pts)]), np.array([100.0]),
+                             settings, exact=np.array([True]))
+        assert len(outer.pts) == len(pts)  # an outer wall keeps every point
