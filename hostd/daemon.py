@@ -18,12 +18,14 @@ from hostd.api import PrinterInfo, Snapshot, Temperature, Temps
 from hostd.config import Config
 from hostd.controller import DaemonController
 from hostd.intake import Intake
+from hostd.jobfolder import LOAD_SUFFIX, split_name
 from hostd.joblife import JobLife
 from hostd.jobstate import HubState, Interrupted, PrinterError
 from hostd.jobstore import Job, JobStore
 from hostd.printer import printer_link
-from hostd.printjob import PrintJob
+from hostd.printjob import PrintJob, printer_settings
 from hostd.sources import warm_up
+from hostd.speculate import Speculation
 from hostd.status import StatusHub
 from hostd.watcher import Watcher
 
@@ -69,6 +71,7 @@ class Daemon:
         self.addons = Addons(config, self.store, self.hub)
         self.current: PrintJob | None = None
         self.link: Streamer | None = None
+        self.speculation = Speculation()
         self.controller = DaemonController(
             self.store, self.hub, self.intake, lambda: self.current, self.queue_changed,
             self.emergency_stop,
@@ -98,7 +101,8 @@ class Daemon:
             async with asyncio.TaskGroup() as group:
                 group.create_task(self._until_stopped(), name="signals")
                 group.create_task(self._serve_optional(), name="services")
-                watcher = Watcher(self.config.jobs.folder, self.config.jobs.settle_s, self._take)
+                watcher = Watcher(self.config.jobs.folder, self.config.jobs.settle_s, self._take,
+                                  on_still=self._still)
                 group.create_task(watcher.run(self._stop), name="watcher")
                 group.create_task(self._print_loop(executor), name="printer")
         except* _Stop:
@@ -125,8 +129,26 @@ class Daemon:
         raise _Stop
 
     async def _take(self, path: Path) -> None:
-        await self.intake.take(path)
+        if await self.intake.take(path) is None:
+            self.speculation.forget()  # refused: a plan made ahead of it is not needed
         self.queue_changed()
+
+    def _still(self, path: Path) -> None:
+        """A model has held still for half its settle time: when it will be the next job
+        on an idle printer, begin its whole-model pass now (see :mod:`hostd.speculate`)."""
+        link = self.link
+        if link is None or self.current is not None or self.store.queued():
+            return
+        if self.store.interrupted():
+            return
+        stem, suffix = split_name(path.name)
+        if suffix != ".stl" or any(path.with_name(stem + extra).exists()
+                                   for extra in (".toml", LOAD_SUFFIX)):
+            return  # its own settings or load case: the job's pass reads them
+        settings = printer_settings(self.config, self.config.slicing.to_mapping(),
+                                    link.capable)
+        if self.speculation.begin(path, settings, self.config.printer.bed):
+            log.debug("whole-model pass of %s begun while it settles", path.name)
 
     def queue_changed(self) -> None:
         """Publish what waits and the interrupted jobs, and wake the print loop."""
@@ -201,7 +223,7 @@ class Daemon:
             replay = self.config.runner.replay_lines if self.printer_reset else 0
             self.printer_reset = False
             self.current = PrintJob(job, self.config, self.store, self.hub, self.intake, executor,
-                                    replay=replay)
+                                    replay=replay, speculation=self.speculation)
             self.queue_changed()
             try:
                 await self.current.run(link)

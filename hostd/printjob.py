@@ -8,7 +8,7 @@ import contextlib
 import logging
 import os
 import time
-from collections.abc import Iterator
+from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
 from drivers.streamer import LinkError, Streamer
@@ -25,12 +25,14 @@ from hostd.reentry import resume_line
 from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
+from hostd.speculate import Speculation
 from hostd.status import StatusHub
 from slicer.annotate import annotate_file
 from slicer.arcs import for_printer
 from slicer.errors import ModelError
-from slicer.fea.tailor import Tailoring, tailored_plan
+from slicer.fea.tailor import Tailoring, find_load_case, tailored_plan
 from slicer.gcode import header_lines, summarize
+from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
 log = logging.getLogger("hostd.job")
@@ -51,10 +53,13 @@ class PrintJob:
         intake: Intake,
         executor: concurrent.futures.Executor,
         replay: int = 0,
+        speculation: Speculation | None = None,
     ) -> None:
         """``replay``: commands a resume goes back within its layer (0: the printer kept
-        power, continue at the first command it did not acknowledge)."""
+        power, continue at the first command it did not acknowledge); ``speculation``:
+        where a whole-model pass begun while the file settled may wait."""
         self.job = job
+        self.speculation = speculation
         self.replay = replay
         self.emergency = False  # an emergency stop was ordered: the job fails
         self.life = JobLife(store, hub)
@@ -167,19 +172,21 @@ class PrintJob:
             return await asyncio.to_thread(FileSource, Path(job.path))
         # the printer is known before slicing: arcs if its M115 reported Cap:ARCS:1
         # (gcode.arcs = "auto"), and the line budget of its wire (gcode.baud = 0)
-        printer = self.config.printer
-        baud = self.config.simulator.baud if printer.port == "sim" else printer.baud
-        settings = for_printer(SliceSettings.from_mapping(job.settings), link.capable, baud)
+        settings = printer_settings(self.config, job.settings, link.capable)
         started = time.monotonic()
         # the model is hashed again beside the whole-model pass (hashing leaves the
         # interpreter free), and checked before any layer is sliced
         hashing = asyncio.ensure_future(asyncio.to_thread(sha256_of, Path(job.path)))
         error: ModelError | None = None
+        ahead = await self._made_ahead(job, settings)
         try:
-            plan, tailoring = await asyncio.to_thread(
-                tailored_plan, Path(job.path), settings, self.config.printer.bed,
-                self.config.state.folder / "fea", None, background=True,
-            )
+            if ahead is not None:
+                plan, tailoring = ahead, Tailoring(None, None)
+            else:
+                plan, tailoring = await asyncio.to_thread(
+                    tailored_plan, Path(job.path), settings, self.config.printer.bed,
+                    self.config.state.folder / "fea", None, background=True,
+                )
         except ModelError as exc:  # a file still being written may not parse yet
             error = exc
         finally:
@@ -210,6 +217,19 @@ class PrintJob:
         )
         return SlicedSource(self.schedule, first, self.config.runner.lookahead, self.executor,
                             resume)
+
+    async def _made_ahead(self, job: Job, settings: SliceSettings) -> SlicePlan | None:
+        """The whole-model pass begun while the file settled, if it fits this job."""
+        if self.speculation is None:
+            return None
+        bed = self.config.printer.bed
+        ahead = await self.speculation.take(Path(job.path), settings, bed)
+        if ahead is None or find_load_case(job.path, settings) is not None:
+            return None
+        plan, took = ahead
+        log.info("job %s %s: whole-model pass made while the file settled (%.2f s)",
+                 job.id, job.name, took)
+        return plan
 
     async def _log_late_warnings(self, job: Job) -> None:
         """Log the model's warnings found while slicing (every layer is cut by now)."""
@@ -283,3 +303,13 @@ def _lines(path: Path) -> Iterator[str]:
     with open(path, encoding="utf-8") as handle:
         for line in handle:
             yield line.rstrip("\n")
+
+
+def printer_settings(
+    config: Config, mapping: Mapping[str, object], capable: Iterable[str]
+) -> SliceSettings:
+    """A job's slicing settings for the connected printer: arcs if its M115 reported
+    ``Cap:ARCS:1`` (``gcode.arcs = "auto"``), and the line budget of its wire."""
+    printer = config.printer
+    baud = config.simulator.baud if printer.port == "sim" else printer.baud
+    return for_printer(SliceSettings.from_mapping(dict(mapping)), capable, baud)

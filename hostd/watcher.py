@@ -44,14 +44,18 @@ class Watcher:
     that stalls longer than ``settle_s`` is waited for). Directories and links with
     job names are passed on too, so that the intake can refuse them with a reason.
     The folder is scanned again every ``rescan_s`` seconds in case an event was missed.
+    ``on_still(path)`` is called when a file has held still for half its settle time
+    (again after each change), so that work on it may begin before it is taken.
     """
 
     def __init__(
-        self, folder: Path, settle_s: float, on_settled: OnSettled, rescan_s: float = 10.0
+        self, folder: Path, settle_s: float, on_settled: OnSettled, rescan_s: float = 10.0,
+        on_still: Callable[[Path], None] | None = None,
     ) -> None:
         self.folder = folder
         self.settle_s = settle_s
         self.on_settled = on_settled
+        self.on_still = on_still  # a file held still for half its settle time
         self.rescan_s = rescan_s
         self._pending: dict[Path, _Seen] = {}
         self._held: set[Path] = set()  # settled files a writer still holds open (logged once)
@@ -119,10 +123,12 @@ class Watcher:
                     remaining = self.settle_s - (now - seen.since)
                 if remaining <= 0:
                     due.append(path)
-                else:
-                    wait = remaining if wait is None else min(wait, remaining)
-                    if remaining <= self.settle_s / 2:
-                        self._look_early(path, self._pending[path].signature)
+                    continue
+                half = remaining - self.settle_s / 2
+                if half <= 0:  # held still for half its settle time
+                    self._look_early(path, self._pending[path].signature)
+                step = remaining if half <= 0 else half  # wake at halfway, then when due
+                wait = step if wait is None else min(wait, step)
             due.sort(key=lambda item: (_mtime(self._pending[item]), item.name))  # oldest first
             for path in list(due):
                 if path.is_file() and await self._written(path, self._pending[path].signature):
@@ -160,6 +166,11 @@ class Watcher:
             return  # one look at a time; the signature check at the end decides
         self._looks[path] = (signature, asyncio.ensure_future(
             asyncio.to_thread(open_for_writing, path)))
+        if self.on_still is not None and path.is_file():
+            try:
+                self.on_still(path)
+            except Exception:  # work begun ahead is optional; taking the file is not
+                log.exception("work ahead on %s failed", path.name)
 
     async def _written(self, path: Path, signature: tuple[int, int, int, int] | None) -> bool:
         """True when a process holds ``path`` open for writing.

@@ -1,0 +1,121 @@
+"""The whole-model pass begun while a dropped model settles, taken by its job if nothing changed.
+
+A dropped file is taken once it has held still for ``jobs.settle_s``; the
+printer then waits for the whole-model pass before the first layer. When the
+printer is idle and nothing else waits, that pass can begin halfway through the
+settle time instead, from the file as it is then. The job takes the result only
+if the file is the very one that was read (same device, inode, size and
+modification time: moving it into the job's folder keeps all four) and the
+settings are the same; otherwise the pass is made again, as without this. The
+model's hash is still checked before slicing, so a plan never outlives its bytes.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import os
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+
+log = logging.getLogger("hostd.speculate")
+
+Identity = tuple[int, int, int, int]  # st_dev, st_ino, st_size, st_mtime_ns
+
+
+def identity(path: Path | int) -> Identity | None:
+    """What tells this file's bytes apart without reading them (``path`` or an open
+    descriptor); None when unreadable."""
+    try:
+        info = os.stat(path)
+    except OSError:
+        return None
+    return (info.st_dev, info.st_ino, info.st_size, info.st_mtime_ns)
+
+
+def is_plain(settings: SliceSettings) -> bool:
+    """Whether a job's plan is the file's plan alone: no analysis, no mass to match."""
+    return (settings.infill_field != "stress" and not settings.infill_load
+            and not settings.infill_match_mass_of and settings.infill_target_mass_g <= 0)
+
+
+@dataclass
+class _Pass:
+    key: Identity
+    settings: SliceSettings
+    bed: tuple[float, float, float]
+    future: asyncio.Future[tuple[SlicePlan, float] | None]
+
+
+class Speculation:
+    """At most one whole-model pass made ahead of its job (the latest begun)."""
+
+    def __init__(self) -> None:
+        self._pass: _Pass | None = None
+
+    def begin(self, path: Path, settings: SliceSettings, bed: tuple[float, float, float]) -> bool:
+        """Start the pass of ``path`` in a worker thread (once per file version); True if
+        begun now. Plans with an analysis or a mass to match are not made ahead."""
+        key = identity(path)
+        if key is None or not is_plain(settings):
+            return False
+        held = self._pass
+        if held is not None and (held.key, held.settings, held.bed) == (key, settings, bed):
+            return False
+        try:  # opened now: the intake may move the file before the thread reads it
+            fd = os.open(path, os.O_RDONLY)
+        except OSError:
+            return False
+        future = asyncio.ensure_future(asyncio.to_thread(_whole_model_pass, fd, path.name,
+                                                         key, settings, bed))
+        future.add_done_callback(_quiet)
+        self._pass = _Pass(key, settings, bed, future)
+        return True
+
+    def forget(self) -> None:
+        """Drop the pass held (its thread finishes, its plan is freed)."""
+        self._pass = None
+
+    async def take(
+        self, path: Path, settings: SliceSettings, bed: tuple[float, float, float]
+    ) -> tuple[SlicePlan, float] | None:
+        """The plan made ahead for exactly this file and these settings, with the seconds
+        its pass took; None when there is none (the caller makes the pass itself)."""
+        held, self._pass = self._pass, None
+        if held is None or (held.settings, held.bed) != (settings, bed):
+            return None
+        if identity(path) != held.key:
+            return None
+        return await held.future
+
+
+def _whole_model_pass(
+    fd: int, name: str, key: Identity, settings: SliceSettings,
+    bed: tuple[float, float, float],
+) -> tuple[SlicePlan, float] | None:
+    """The plan of the file open as ``fd`` (closed here) if it still is ``key`` after it
+    was read, else None. Read through the descriptor, the file may be moved meanwhile
+    (a rename keeps its bytes and its identity)."""
+    started = time.monotonic()
+    try:
+        if identity(fd) != key:
+            return None
+        plan = SlicePlan.from_file(f"/proc/self/fd/{fd}", settings, bed)
+        if identity(fd) != key:
+            return None
+    except Exception:  # a file still being written: the job's own pass reports it
+        log.debug("whole-model pass of %s ahead of its job failed", name, exc_info=True)
+        return None
+    finally:
+        os.close(fd)
+    return plan, time.monotonic() - started
+
+
+def _quiet(future: asyncio.Future[tuple[SlicePlan, float] | None]) -> None:
+    """Retrieve an abandoned pass's outcome so that nothing is logged for it."""
+    if not future.cancelled():
+        future.exception()
