@@ -40,8 +40,6 @@ class FixedFleet:
     async def command(self, printer: str, cmd: str, **args: Any) -> None:
         raise ControlError("fixed data")
 
-    def for_printer(self, printer: str) -> Any:
-        raise NotImplementedError
 
 
 async def _loaded(pilot: Any) -> None:
@@ -60,6 +58,23 @@ def test_fleet_screen(snap_compare: Any, monkeypatch: Any) -> None:
     finally:
         monkeypatch.undo()
         time.tzset()
+
+
+def test_fleet_opens_the_printer_screen(snap_compare: Any) -> None:
+    """Enter: the dashboard of the printer on top, from the statuses the fleet heard."""
+
+    async def opened(pilot: Any) -> None:
+        from tui.printer_screen import PrinterScreen
+
+        await _loaded(pilot)
+        await pilot.press("enter")
+        while not isinstance(pilot.app.screen, PrinterScreen):
+            await pilot.pause(0.05)
+        assert pilot.app.screen.printer == "farm-04"  # the first error sorts on top
+        await pilot.pause(0.1)
+
+    assert snap_compare(FleetApp(FixedFleet(), refresh_s=0.05), terminal_size=(80, 24),
+                        run_before=opened)
 
 
 class ThousandPrinters(FixedFleet):
