@@ -15,7 +15,7 @@ from hostd.api import Snapshot
 from tui.fleet_model import COUNTED, FleetModel, PrinterEntry, matches, row_cells
 from tui.fleet_table import FleetTable, header_text
 from tui.printer_screen import PrinterScreen
-from tui.sources import AvailabilityItem, EventItem, Source, StatusItem
+from tui.sources import GONE, AvailabilityItem, EventItem, Source, StatusItem
 
 STYLES = {
     "error": "bold red",
@@ -25,9 +25,6 @@ STYLES = {
     "printing": "green",
     "idle": "dim",
 }
-
-
-GONE = "offline: its connection to the broker was lost"
 
 
 class FleetSource(Source, Protocol):

@@ -15,6 +15,8 @@ from typing import Any, Protocol
 
 from hostd.api import ControlClient, ControlError, Snapshot
 
+GONE = "offline: its connection to the broker was lost"  # a printer's last will, as shown
+
 
 @dataclass(frozen=True)
 class StatusItem:
@@ -181,9 +183,8 @@ class MqttSource:
                 if item.online:
                     continue
                 before = last.get(item.printer, Snapshot())
-                gone = "offline: its connection to the broker was lost"
                 yield StatusItem(item.printer, dataclasses.replace(
-                    before, state="offline", error=gone))
+                    before, state="offline", error=GONE))
                 continue
             if isinstance(item, StatusItem) and item.printer:
                 last[item.printer] = item.snapshot
