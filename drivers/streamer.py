@@ -59,6 +59,8 @@ __all__ = [
 
 log = logging.getLogger("drivers.link")
 
+KILL_REPLY_S = 1.0  # an emergency stop waits this long for the printer's halt report
+
 
 class Streamer:
     """Streams G-code commands to a Marlin-style printer, each executed once, in order.
@@ -100,6 +102,7 @@ class Streamer:
         self._started = asyncio.Event()
         self._wake = asyncio.Event()
         self._progress = asyncio.Event()
+        self._failed = asyncio.Event()  # set when the core reports the link failed or halted
         self._group: asyncio.Task[None] | None = None
         self.profile: Profile | None = None  # the firmware defaults chosen at connect
 
@@ -277,7 +280,13 @@ class Streamer:
         self._wake.set()
 
     async def emergency_stop(self) -> None:
-        """``M112`` at once: out of band with an emergency parser, else as the next line."""
+        """``M112`` at once: out of band with an emergency parser, else as the next line.
+
+        Then up to ``KILL_REPLY_S`` for the printer to report its halt, so that the port
+        is not closed (and what is still on the wire lost) before M112 has arrived; the
+        link is halted either way.
+        """
+        self._failed.clear()
         if "EMERGENCY_PARSER" in self.capable:
             with contextlib.suppress(TransportError):
                 await self._transport.write(b"M112\n")
@@ -285,6 +294,9 @@ class Streamer:
             self.core.emergency("M112")
             await asyncio.sleep(0)
             await self._write_ready()
+        if self.core.alive():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._failed.wait(), KILL_REPLY_S)
         self.core.halt("emergency stop")
         self._dispatch(self.core.take_events())
 
@@ -414,6 +426,7 @@ class Streamer:
                     self.on_error(event.text)
             elif isinstance(event, Failed):
                 self._waiters.fail_all(LinkError(event.reason))
+                self._failed.set()
             elif isinstance(event, Started):
                 self._started.set()
         self._wake.set()

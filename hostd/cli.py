@@ -74,6 +74,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--password", default=None,
                    help="broker password (with --mqtt; default: $HOSTD_MQTT_PASSWORD)")
     p.add_argument("--tls", action="store_true", help="connect to the broker over TLS")
+    p.add_argument("--cafile", metavar="FILE",
+                   help="with --tls: the CA (PEM) of the broker's certificate (default: system's)")
+    p.add_argument("--certfile", metavar="FILE",
+                   help="with --tls: this client's certificate (PEM), with --keyfile")
+    p.add_argument("--keyfile", metavar="FILE", help="with --tls: the key of --certfile (PEM)")
 
     p = sub.add_parser("status", help="one status snapshot from the running daemon")
     p.add_argument("--json", action="store_true", help="print the raw JSON snapshot")

@@ -41,10 +41,14 @@ def free_port() -> int:
 
 @dataclass(frozen=True)
 class TlsFiles:
-    """A self-signed server certificate for 127.0.0.1 (also its own CA)."""
+    """A server certificate for 127.0.0.1: self-signed (its own CA), or signed by ``ca``.
+
+    With ``ca`` the broker also requires each client to present a certificate signed by it.
+    """
 
     cert: Path
     key: Path
+    ca: Path | None = None
 
 
 def make_self_signed(folder: Path) -> TlsFiles:
@@ -60,6 +64,46 @@ def make_self_signed(folder: Path) -> TlsFiles:
         check=True, capture_output=True, timeout=60,
     )
     return TlsFiles(cert, key)
+
+
+@dataclass(frozen=True)
+class CaChain:
+    """A test CA, the broker's certificate it signed, and a client certificate it signed."""
+
+    ca: Path
+    server: TlsFiles
+    client_cert: Path
+    client_key: Path
+
+
+def make_ca_chain(folder: Path) -> CaChain:
+    """A CA, a server certificate for 127.0.0.1 and a client certificate (``openssl``, EC keys)."""
+    openssl = shutil.which("openssl")
+    if openssl is None:
+        pytest.skip("openssl is not installed: cannot make test certificates")
+    folder.mkdir(parents=True, exist_ok=True)
+    ec = ["-newkey", "ec", "-pkeyopt", "ec_paramgen_curve:prime256v1", "-nodes"]
+
+    def run(*args: str) -> None:
+        subprocess.run([openssl, *args], check=True, capture_output=True, timeout=60)
+
+    ca, ca_key = folder / "ca.crt", folder / "ca.key"
+    run("req", "-x509", *ec, "-days", "2", "-subj", "/CN=hostd test CA",
+        "-keyout", str(ca_key), "-out", str(ca))
+    made: dict[str, tuple[Path, Path]] = {}
+    for name, subject, extension in (
+        ("server", "/CN=127.0.0.1", "subjectAltName=IP:127.0.0.1"),
+        ("client", "/CN=fleet view", "extendedKeyUsage=clientAuth"),
+    ):
+        key, request, cert = (folder / f"{name}.{ext}" for ext in ("key", "csr", "crt"))
+        run("req", *ec, "-subj", subject, "-keyout", str(key), "-out", str(request))
+        ext_file = folder / f"{name}.ext"
+        ext_file.write_text(extension + "\n")
+        run("x509", "-req", "-in", str(request), "-CA", str(ca), "-CAkey", str(ca_key),
+            "-CAcreateserial", "-days", "2", "-extfile", str(ext_file), "-out", str(cert))
+        made[name] = (cert, key)
+    server_cert, server_key = made["server"]
+    return CaChain(ca, TlsFiles(server_cert, server_key, ca), *made["client"])
 
 
 @dataclass
@@ -126,6 +170,8 @@ class Broker:
             lines.append("allow_anonymous true")
         if self.tls is not None:
             lines += [f"certfile {self.tls.cert}", f"keyfile {self.tls.key}"]
+            if self.tls.ca is not None:
+                lines += [f"cafile {self.tls.ca}", "require_certificate true"]
         conf = self.folder / "mosquitto.conf"
         conf.write_text("\n".join(lines) + "\n")
         return [binary, "-c", str(conf)]

@@ -132,13 +132,21 @@ def start_daemon(folder: Path, broker: Broker, printer: str, user: str, secret: 
     )
 
 
-def test_enter_opens_the_printer_over_mqtt_and_shows_its_refusal(tmp_path: Path) -> None:
-    from textual.widgets import RichLog
+def test_enter_opens_the_printer_screen_over_mqtt_refusal_emergency_stop_and_back(
+    tmp_path: Path
+) -> None:
+    from conftest import executed_job_lines
 
-    from tui.fleet_printer import FleetPrinterScreen
+    from tui.printer_screen import PrinterScreen
+    from tui.widgets.dialogs import ConfirmScreen
+    from tui.widgets.layer import LayerView
 
     broker = start_broker(tmp_path / "broker", users={"farm": "pw-9"})
     daemon = start_daemon(tmp_path / "d", broker, "farm7", "farm", "pw-9")
+    executed = tmp_path / "d" / "var" / "simulator-executed.log"
+
+    def texts(screen: PrinterScreen) -> list[str]:
+        return [text for _ts, _colour, text in screen.events]
 
     async def scenario() -> None:
         nobody = (HOST, free_port())  # a dead node first: the view goes on to the next
@@ -147,16 +155,37 @@ def test_enter_opens_the_printer_over_mqtt_and_shows_its_refusal(tmp_path: Path)
         async with app.run_test(size=(80, 24)) as pilot:
             await until(lambda: rows(app) == [("farm7", "idle")], timeout=40,
                         what=lambda: (rows(app), app.screen.note, source.connected_to))
+            fleet = app.screen
             await pilot.press("enter")
-            await until(lambda: isinstance(app.screen, FleetPrinterScreen))
+            await until(lambda: isinstance(app.screen, PrinterScreen))
             screen = app.screen
-            await until(lambda: "IDLE" in str(screen.query_one("#state", Static).render()))
+            assert isinstance(screen, PrinterScreen)
+            assert screen.printer == "farm7"
+            assert not screen.own_stream  # fed by the fleet's one connection
+            # the last status the fleet heard is shown at once (an idle daemon is quiet)
+            assert screen.snapshot.state == "idle"
+            assert screen.snapshot.printer.connected
+            bar = str(screen.query_one("#state").render())
+            assert "farm7" in bar
+            assert "IDLE" in bar.upper()
+            assert "no job printing" in str(screen.query_one(LayerView).render())
             await pilot.press("p")  # nothing is printing: the daemon refuses on its event topic
-            log = screen.query_one("#events", RichLog)
-            await until(lambda: any("refused pause: no job is printing" in str(line)
-                                    for line in log.lines))
+            await until(lambda: "refused pause: no job is printing" in texts(screen),
+                        what=lambda: texts(screen))
+            assert "> pause" in texts(screen)
+            await pilot.press("exclamation_mark")
+            await until(lambda: isinstance(app.screen, ConfirmScreen))
+            assert "M112" in str(app.screen.query_one("#question").render())
+            await pilot.press("y")
+            await until(lambda: executed_job_lines(executed)[-1:] == ["M112"],
+                        what=lambda: (texts(screen), executed.read_text()[-200:]))
+            assert "> emergency_stop" in texts(screen)
             await pilot.press("escape")
-            await until(lambda: isinstance(app.screen, FleetScreen))
+            await until(lambda: app.screen is fleet)
+            await until(lambda: fleet.opened is None)
+            await pilot.press("enter", "q")  # q goes back too, and never quits from there
+            await until(lambda: app.screen is fleet)
+            assert app.is_running
 
     try:
         asyncio.run(scenario())

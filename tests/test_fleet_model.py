@@ -75,11 +75,30 @@ def test_broker_lists() -> None:
             parse_brokers(bad)
 
 
-def test_cli_refuses_bad_fleet_options(capsys: pytest.CaptureFixture[str]) -> None:
+def test_cli_refuses_bad_fleet_options(
+    capsys: pytest.CaptureFixture[str], tmp_path: Path
+) -> None:
     assert main(["tui", "--mqtt", "farm:http"]) == 2
     assert "--mqtt: broker 'farm:http'" in capsys.readouterr().err
     assert main(["tui", "--username", "x", "--socket", "/nonexistent"]) == 2
     assert "go with --mqtt" in capsys.readouterr().err
+    assert main(["tui", "--cafile", "ca.crt", "--socket", "/nonexistent"]) == 2
+    assert "go with --mqtt" in capsys.readouterr().err
+    assert main(["tui", "--mqtt", "farm", "--cafile", "ca.crt"]) == 2
+    assert "--cafile, --certfile and --keyfile go with --tls" in capsys.readouterr().err
+    assert main(["tui", "--mqtt", "farm", "--tls", "--certfile", "me.crt"]) == 2
+    assert "needs both --certfile and --keyfile" in capsys.readouterr().err
+    missing = tmp_path / "nothing.crt"
+    assert main(["tui", "--mqtt", "farm", "--tls", "--cafile", str(missing)]) == 2
+    assert f"--tls: CA file {missing}: no such file" in capsys.readouterr().err
+    garbage = tmp_path / "garbage.crt"
+    garbage.write_text("not a certificate\n")
+    assert main(["tui", "--mqtt", "farm", "--tls", "--cafile", str(garbage)]) == 2
+    assert f"CA file {garbage}: not a PEM certificate" in capsys.readouterr().err
+    assert main(["tui", "--mqtt", "farm", "--tls", "--certfile", str(garbage),
+                 "--keyfile", str(garbage)]) == 2
+    assert f"certificate {garbage} with key {garbage}: cannot be loaded" in \
+        capsys.readouterr().err
 
 
 def test_wire_client_reports_a_refusal_and_reads_messages(tmp_path: Path) -> None:
@@ -116,33 +135,41 @@ def test_wire_client_reports_a_refusal_and_reads_messages(tmp_path: Path) -> Non
                    ("hostd/p2/event", b'{"event":"done"}', False)]
 
 
-def test_wire_client_over_tls_checks_the_certificate(tmp_path: Path) -> None:
-    import ssl
+def test_fleet_view_over_tls_with_its_own_ca_and_a_client_certificate(tmp_path: Path) -> None:
+    """``--tls --cafile --certfile --keyfile``: a broker whose CA is not the system's and
+    which admits only clients with a certificate that CA signed (and a password)."""
+    from brokers import make_ca_chain
+    from test_fleet import rows, until
 
-    from brokers import make_self_signed
+    from tui.fleet import FleetApp
+    from tui.sources import MqttSource, tls_context
 
-    files = make_self_signed(tmp_path)
-    broker = start_broker(tmp_path / "broker", users={"fleet": "right"}, tls=files)
-    trusting = ssl.create_default_context(cafile=str(files.cert))
+    chain = make_ca_chain(tmp_path / "pki")
+    broker = start_broker(tmp_path / "broker", users={"fleet": "right"}, tls=chain.server)
+    login = {"username": "fleet", "password": "right"}
+    with_cert = tls_context(str(chain.ca), str(chain.client_cert), str(chain.client_key))
+    status = snapshot(3, 1000.0, "paused", 900.0).to_json().encode()
 
-    async def scenario() -> bytes:
+    async def scenario() -> None:
         with pytest.raises(WireError, match="cannot connect"):  # the system CAs do not know it
-            async with WireClient(HOST, broker.port, client_id="t0", username="fleet",
-                                  password="right", tls=ssl.create_default_context()):
+            async with WireClient(HOST, broker.port, client_id="t0", tls=tls_context(), **login):
                 pass
-        async with WireClient(HOST, broker.port, client_id="t1", username="fleet",
-                              password="right", tls=trusting) as reader:
-            reader.subscribe("hostd/+/event", qos=1)
-            await asyncio.sleep(0.3)
-            async with WireClient(HOST, broker.port, client_id="t2", username="fleet",
-                                  password="right", tls=trusting) as sender:
-                await sender.publish("hostd/p1/event", b'{"event":"paused"}')
+        with pytest.raises(WireError):  # the broker's CA trusted, but no client certificate
+            async with WireClient(HOST, broker.port, client_id="t1",
+                                  tls=tls_context(str(chain.ca)), **login) as bare:
+                bare.subscribe("hostd/+/status")
                 async with asyncio.timeout(10):
-                    async for message in reader.messages():
-                        return message.payload
-        raise AssertionError("unreachable")
+                    async for _message in bare.messages():
+                        pass
+        async with WireClient(HOST, broker.port, client_id="t2", tls=with_cert,
+                              **login) as sender:
+            await sender.publish("hostd/p7/status", status, qos=1, retain=True)
+        app = FleetApp(MqttSource(HOST, broker.port, tls=with_cert, **login), refresh_s=0.05)
+        async with app.run_test(size=(80, 24)):
+            await until(lambda: rows(app) == [("p7", "paused")], what=lambda: rows(app))
 
     try:
-        assert asyncio.run(scenario()) == b'{"event":"paused"}'
+        asyncio.run(scenario())
     finally:
         broker.stop()
+

@@ -40,8 +40,6 @@ class FixedFleet:
     async def command(self, printer: str, cmd: str, **args: Any) -> None:
         raise ControlError("fixed data")
 
-    def for_printer(self, printer: str) -> Any:
-        raise NotImplementedError
 
 
 async def _loaded(pilot: Any) -> None:
@@ -60,6 +58,24 @@ def test_fleet_screen(snap_compare: Any, monkeypatch: Any) -> None:
     finally:
         monkeypatch.undo()
         time.tzset()
+
+
+def test_fleet_opens_the_printer_screen(snap_compare: Any) -> None:
+    """Enter: the dashboard of the printer on top, from the statuses the fleet heard."""
+
+    async def opened(pilot: Any) -> None:
+        from test_fleet import until
+
+        from tui.printer_screen import PrinterScreen
+
+        await _loaded(pilot)
+        await pilot.press("enter")
+        await until(lambda: isinstance(pilot.app.screen, PrinterScreen))
+        assert pilot.app.screen.printer == "farm-04"  # the first error sorts on top
+        await pilot.pause(0.1)
+
+    assert snap_compare(FleetApp(FixedFleet(), refresh_s=0.05), terminal_size=(80, 24),
+                        run_before=opened)
 
 
 class ThousandPrinters(FixedFleet):
@@ -99,5 +115,66 @@ def test_a_thousand_printers_scroll_and_filter_at_80x24() -> None:
             assert "1000 printers" in counts
             assert "125" in counts
             assert "error 125" in counts
+
+    asyncio.run(scenario())
+
+
+class QueuedFleet(FixedFleet):
+    """Items put on a queue by the test, in order; commands recorded."""
+
+    def __init__(self) -> None:
+        self.queue: asyncio.Queue[StatusItem | EventItem | AvailabilityItem] = asyncio.Queue()
+        self.sent: list[tuple[str, str]] = []
+
+    async def _items(self) -> AsyncIterator[StatusItem | EventItem | AvailabilityItem]:
+        while True:
+            yield await self.queue.get()
+
+    async def command(self, printer: str, cmd: str, **args: Any) -> None:
+        self.sent.append((printer, cmd))
+
+
+def test_the_open_printer_gets_its_own_items_its_refusals_and_its_last_will() -> None:
+    from test_fleet import until
+
+    from tui.printer_screen import PrinterScreen
+    from tui.sources import GONE
+
+    async def scenario() -> None:
+        source = QueuedFleet()
+        app = FleetApp(source, refresh_s=0.05)
+        async with app.run_test(size=(80, 24)) as pilot:
+            fleet = app.screen
+            source.queue.put_nowait(StatusItem("a", snapshot(1, NOW, "printing", NOW - 60)))
+            source.queue.put_nowait(StatusItem("b", snapshot(2, NOW, "idle", NOW - 60)))
+            table = fleet.query_one("#fleet", FleetTable)
+            await until(lambda: table.row_count == 2)
+            await pilot.press("enter")  # "a": printing sorts above idle
+            await until(lambda: isinstance(app.screen, PrinterScreen))
+            screen = app.screen
+            assert screen.printer == "a"
+            assert screen.snapshot.state == "printing"
+            await pilot.press("p")
+            assert source.sent == [("a", "pause")]
+            reason = "commands are disabled (mqtt.allow_commands = false)"
+            source.queue.put_nowait(EventItem("b", {"event": "error", "cmd": "cancel",
+                                                    "reason": "not a's", "ts": NOW}))
+            source.queue.put_nowait(EventItem("a", {"event": "error", "cmd": "pause",
+                                                    "reason": reason, "ts": NOW}))
+            source.queue.put_nowait(StatusItem("b", snapshot(2, NOW + 1, "error", NOW - 60)))
+            source.queue.put_nowait(AvailabilityItem("a", False))
+            await until(lambda: screen.snapshot.state == "offline")
+            assert screen.snapshot.error == GONE
+            assert screen.snapshot.job is not None  # its last job stays shown
+            texts = [text for _ts, _colour, text in screen.events]
+            assert f"refused pause: {reason}" in texts
+            assert not any("not a's" in text for text in texts)
+            await pilot.press("escape")
+            assert app.screen is fleet
+            assert fleet.opened is None
+            await pilot.press("enter")  # "b" now sorts first (error), "a" offline next
+            await until(lambda: isinstance(app.screen, PrinterScreen))
+            assert app.screen.printer == "b"
+            assert app.screen.snapshot.state == "error"  # shown at once from the fleet's model
 
     asyncio.run(scenario())

@@ -192,7 +192,7 @@ def test_screen_at_80x24_shows_every_panel_without_wrapping() -> None:
     assert all(args["layer"] == 12 for args in layer_args)
 
 
-def test_keys_pause_resume_confirmed_cancel_filter_and_retune() -> None:
+def test_keys_pause_resume_confirmed_cancel_and_emergency_stop_filter_retune() -> None:
     source = FixedSource(refuse=("resume",))
 
     async def scenario() -> None:
@@ -211,6 +211,14 @@ def test_keys_pause_resume_confirmed_cancel_filter_and_retune() -> None:
             assert all(cmd != "cancel" for cmd, _ in source.calls)
             await pilot.press("c", "y")
             await until(lambda: ("cancel", {}) in source.calls)
+            await pilot.press("exclamation_mark")  # emergency stop: asks first
+            await until(lambda: isinstance(app.screen, ConfirmScreen))
+            assert "M112" in str(app.screen.query_one("#question").render())
+            await pilot.press("n")
+            await pilot.pause()
+            assert all(cmd != "emergency_stop" for cmd, _ in source.calls)
+            await pilot.press("exclamation_mark", "y")
+            await until(lambda: ("emergency_stop", {}) in source.calls)
             await pilot.press("R")
             await until(lambda: ("resume_job", {"job": "5"}) in source.calls)
             await pilot.press("slash", *"layer 3", "enter")

@@ -2,19 +2,20 @@
 
 from __future__ import annotations
 
+import dataclasses
 import time
 from typing import Any, ClassVar, Protocol
 
 from textual.app import App, ComposeResult
 from textual.binding import Binding
-from textual.message import Message
 from textual.screen import Screen
 from textual.widgets import Footer, Input, Static
 
-from tui.fleet_model import COUNTED, FleetModel, matches, row_cells
-from tui.fleet_printer import printer_screen
+from hostd.api import Snapshot
+from tui.fleet_model import COUNTED, FleetModel, PrinterEntry, matches, row_cells
 from tui.fleet_table import FleetTable, header_text
-from tui.sources import AvailabilityItem, EventItem, Source, StatusItem
+from tui.printer_screen import PrinterScreen
+from tui.sources import GONE, AvailabilityItem, EventItem, Source, StatusItem
 
 STYLES = {
     "error": "bold red",
@@ -27,19 +28,17 @@ STYLES = {
 
 
 class FleetSource(Source, Protocol):
-    """A source that follows many printers and can hand out one printer's source."""
+    """A source that follows many printers: status, events and availability of each."""
 
     def fleet_stream(self) -> Any: ...
 
-    def for_printer(self, printer: str) -> Source: ...
 
-
-class OpenPrinter(Message):
-    """The user chose a printer in the fleet table (Enter or a click)."""
-
-    def __init__(self, printer_id: str) -> None:
-        super().__init__()
-        self.printer_id = printer_id
+def shown_snapshot(entry: PrinterEntry) -> Snapshot | None:
+    """The printer's last status as its own screen shows it (``offline`` after its last will)."""
+    snap = entry.snapshot
+    if entry.online is False:
+        return dataclasses.replace(snap or Snapshot(), state="offline", error=GONE)
+    return snap
 
 
 class FleetScreen(Screen[None]):
@@ -75,6 +74,7 @@ class FleetScreen(Screen[None]):
         self._shown: dict[str, tuple[str, ...]] = {}
         self._header_width = 0
         self._texts: dict[str, str] = {}
+        self.opened: PrinterScreen | None = None  # the printer's screen pushed over this one
 
     def compose(self) -> ComposeResult:
         yield Static("waiting for printers...", id="counts")
@@ -107,6 +107,34 @@ class FleetScreen(Screen[None]):
                 model.put_online(item.printer, item.online)
             elif isinstance(item, EventItem):
                 self._event(item)
+            opened = self.opened
+            if opened is not None and item.printer == opened.printer:
+                self._forward(opened, item)
+
+    def _forward(self, opened: PrinterScreen, item: Any) -> None:
+        """Pass one item of the open printer to its screen (a last will as an offline status)."""
+        if opened not in self.app.screen_stack:
+            self.opened = None
+            return
+        if isinstance(item, AvailabilityItem):
+            snap = shown_snapshot(self.model.entries[item.printer])
+            if item.online or snap is None:
+                return
+            item = StatusItem(item.printer, snap)
+        opened.feed(item)
+
+    async def open_printer(self, printer: str) -> None:
+        """Push the printer's own screen, showing at once the last status heard from it."""
+        screen = PrinterScreen(self.source, printer, own_stream=False, back=True)
+        self.opened = screen
+        await self.app.push_screen(screen)
+        entry = self.model.entries.get(printer)
+        snap = shown_snapshot(entry) if entry is not None else None
+        if snap is not None:
+            screen.feed(StatusItem(printer, snap))
+
+    def on_screen_resume(self) -> None:
+        self.opened = None  # back from the printer's screen
 
     def _event(self, item: EventItem) -> None:
         event = item.event
@@ -205,14 +233,15 @@ class FleetScreen(Screen[None]):
             message.input.remove_class("shown")
         self.table.focus()
 
-    def on_fleet_table_chosen(self, message: FleetTable.Chosen) -> None:
-        self.post_message(OpenPrinter(message.printer))
+    async def on_fleet_table_chosen(self, message: FleetTable.Chosen) -> None:
+        await self.open_printer(message.printer)
 
 
 class FleetApp(App[None]):
-    """``hostd tui --mqtt``: the fleet table; Enter opens one printer over MQTT."""
+    """``hostd tui --mqtt``: the fleet table; Enter opens one printer's dashboard over MQTT."""
 
     TITLE = "hostd fleet"
+    ENABLE_COMMAND_PALETTE = False  # its ctrl+p key would crowd the footer out
 
     def __init__(self, source: FleetSource, *, refresh_s: float = 0.25) -> None:
         super().__init__()
@@ -225,7 +254,3 @@ class FleetApp(App[None]):
 
     def on_mount(self) -> None:
         self.push_screen(self.fleet_screen())
-
-    def on_open_printer(self, message: OpenPrinter) -> None:
-        self.push_screen(printer_screen(self.source.for_printer(message.printer_id),
-                                        message.printer_id))

@@ -64,6 +64,9 @@ def describe_event(event: dict[str, Any]) -> tuple[str, str]:
         reason = event.get("reason") or event.get("error") or ""
         return colour, f"{kind}: {name} {reason}".rstrip()
     if kind == "error":
-        return "red", f"error: {event.get('message') or event.get('reason') or ''}".rstrip()
+        reason = event.get("message") or event.get("reason") or ""
+        if event.get("cmd"):  # a command the printer refused (MQTT answers on its event topic)
+            return "red", f"refused {event['cmd']}: {reason}".rstrip()
+        return "red", f"error: {reason}".rstrip()
     details = " ".join(f"{k}={v}" for k, v in event.items() if k not in ("event", "ts", "id"))
     return "white", f"{kind} {details}".rstrip()

@@ -140,10 +140,11 @@ class WireClient:
         body = struct.pack("!H", self._packet_id()) + _text(topic) + bytes([qos])
         self._send(_packet(SUBSCRIBE, 0x02, body))
 
-    async def publish(self, topic: str, payload: bytes, qos: int = 1) -> None:
-        """Send one message (QoS 0 or 1, not retained)."""
+    async def publish(self, topic: str, payload: bytes, qos: int = 1,
+                      retain: bool = False) -> None:
+        """Send one message (QoS 0 or 1; commands are never retained)."""
         body = _text(topic) + (struct.pack("!H", self._packet_id()) if qos else b"") + payload
-        self._send(_packet(PUBLISH, qos << 1, body))
+        self._send(_packet(PUBLISH, qos << 1 | int(retain), body))
         assert self._writer is not None
         await self._writer.drain()
 

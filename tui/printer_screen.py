@@ -57,12 +57,14 @@ class PrinterScreen(Screen[None]):
         Binding("p", "command('pause')", "Pause"),
         Binding("r", "command('resume')", "Resume"),
         Binding("c", "cancel", "Cancel"),
-        Binding("o", "objects", "Objects"),
-        Binding("t", "retune", "Retune"),
+        Binding("o", "objects", "Parts"),
+        Binding("t", "retune", "Tune"),
         Binding("f", "field", "Field"),
         Binding("slash", "filter", "Filter", key_display="/"),
         Binding("question_mark", "help", "Help", key_display="?"),
+        Binding("exclamation_mark", "emergency_stop", "E-stop", key_display="!"),
         Binding("q", "leave", "Quit"),
+        Binding("escape,q", "back", "Back", key_display="q"),
         Binding("R", "resume_job", "Resume interrupted", show=False),
     ]
 
@@ -72,7 +74,7 @@ class PrinterScreen(Screen[None]):
         self.source = source
         self.printer = printer
         self.own_stream = own_stream
-        self.back = back  # q goes back to the screen below instead of quitting
+        self.back = back  # q and Escape go back to the screen below instead of quitting
         self.snapshot = Snapshot(state="offline", error="connecting...")
         self.layer_data: dict[str, Any] | None = None
         self.estimate: dict[str, Any] | None = None
@@ -242,8 +244,27 @@ class PrinterScreen(Screen[None]):
         self.note(f"> {cmd} {' '.join(f'{k}={v}' for k, v in args.items())}".rstrip(), "bold")
         return True
 
+    def check_action(self, action: str, parameters: tuple[object, ...]) -> bool | None:
+        """``q`` quits, or with ``back`` (over the fleet) goes back, as its footer label says."""
+        if action == "leave":
+            return not self.back
+        if action == "back":
+            return self.back
+        return True
+
     async def action_command(self, cmd: str) -> None:
         await self._send(cmd)
+
+    def action_emergency_stop(self) -> None:
+        question = ("[b red]Emergency stop?[/]\n"
+                    f"M112 halts {self.printer or 'the printer'} at once, heaters off.\n"
+                    "The job fails; the printer needs a reset (or power cycle).")
+
+        async def answered(yes: bool | None) -> None:
+            if yes:
+                await self._send("emergency_stop")
+
+        self.app.push_screen(ConfirmScreen(question), answered)
 
     def action_cancel(self) -> None:
         job = self.snapshot.job
@@ -342,8 +363,9 @@ class PrinterScreen(Screen[None]):
         self.app.push_screen(HelpScreen())
 
     def action_leave(self) -> None:
-        """Back to the screen below (the fleet), or quit the dashboard; never the print."""
-        if self.back:
-            self.app.pop_screen()
-        else:
-            self.app.exit()
+        """Quit the dashboard; never the print."""
+        self.app.exit()
+
+    def action_back(self) -> None:
+        """Back to the screen below (the fleet)."""
+        self.app.pop_screen()

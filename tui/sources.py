@@ -6,6 +6,7 @@ import asyncio
 import dataclasses
 import itertools
 import json
+import os
 import random
 import ssl
 from collections.abc import AsyncIterator
@@ -13,6 +14,8 @@ from dataclasses import dataclass
 from typing import Any, Protocol
 
 from hostd.api import ControlClient, ControlError, Snapshot
+
+GONE = "offline: its connection to the broker was lost"  # a printer's last will, as shown
 
 
 @dataclass(frozen=True)
@@ -111,6 +114,31 @@ def parse_brokers(text: str, default_port: int = 1883) -> list[tuple[str, int]]:
     return brokers
 
 
+def tls_context(cafile: str = "", certfile: str = "", keyfile: str = "") -> ssl.SSLContext:
+    """A TLS client context checking the broker's certificate (and host name).
+
+    ``cafile``: the CA (PEM) that signed the broker's certificate, instead of the
+    system's CAs. ``certfile`` and ``keyfile`` (PEM, together): this client's own
+    certificate, for a broker that requires one. ValueError names the file at fault.
+    """
+    if bool(certfile) != bool(keyfile):
+        raise ValueError("a client certificate needs both --certfile and --keyfile")
+    for what, path in (("CA file", cafile), ("certificate", certfile), ("key", keyfile)):
+        if path and not os.path.isfile(path):
+            raise ValueError(f"{what} {path}: no such file")
+    try:
+        context = ssl.create_default_context(cafile=cafile or None)
+    except (ssl.SSLError, OSError) as exc:
+        raise ValueError(f"CA file {cafile}: not a PEM certificate ({exc})") from exc
+    if certfile:
+        try:
+            context.load_cert_chain(certfile, keyfile)
+        except (ssl.SSLError, OSError) as exc:
+            raise ValueError(
+                f"certificate {certfile} with key {keyfile}: cannot be loaded ({exc})") from exc
+    return context
+
+
 class MqttSource:
     """Printers over an MQTT broker (topics ``hostd/<printer>/...``): a fleet or one printer.
 
@@ -127,7 +155,7 @@ class MqttSource:
         username: str = "",
         password: str = "",
         *,
-        tls: bool = False,
+        tls: bool | ssl.SSLContext = False,
         printer: str | None = None,
     ) -> None:
         self.brokers = [(host, port)] if isinstance(host, str) else list(host)
@@ -136,18 +164,16 @@ class MqttSource:
         self.host, self.port = self.brokers[0]
         self.username = username or None
         self.password = password or None
-        self.tls = tls
+        # True: the system's CAs; a context (``tls_context``): its CA and client certificate
+        self.tls: ssl.SSLContext | None = (
+            tls if isinstance(tls, ssl.SSLContext) else ssl.create_default_context() if tls
+            else None)
         self.printer = printer
         names = ",".join(f"{h}:{p}" for h, p in self.brokers)
         self.label = f"mqtt {names}" + (f" · {printer}" if printer else "")
         self.connected_to = ""
         self._client: Any = None
         self._requests = itertools.count(1)
-
-    def for_printer(self, printer: str) -> MqttSource:
-        """A source following one printer of this fleet (its own connection)."""
-        return MqttSource(self.brokers, username=self.username or "",
-                          password=self.password or "", tls=self.tls, printer=printer)
 
     async def stream(self) -> AsyncIterator[StatusItem | EventItem]:
         """Status and events; a printer's last will arrives as an ``offline`` status."""
@@ -157,9 +183,8 @@ class MqttSource:
                 if item.online:
                     continue
                 before = last.get(item.printer, Snapshot())
-                gone = "offline: its connection to the broker was lost"
                 yield StatusItem(item.printer, dataclasses.replace(
-                    before, state="offline", error=gone))
+                    before, state="offline", error=GONE))
                 continue
             if isinstance(item, StatusItem) and item.printer:
                 last[item.printer] = item.snapshot
@@ -176,7 +201,7 @@ class MqttSource:
             client = WireClient(
                 host, port, client_id=f"hostd-tui-{rng.getrandbits(48):012x}",
                 username=self.username, password=self.password,
-                tls=ssl.create_default_context() if self.tls else None,
+                tls=self.tls,
             )
             try:
                 async with client:

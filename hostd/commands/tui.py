@@ -11,9 +11,10 @@ from hostd.commands.target import socket_path
 
 def run(args: argparse.Namespace) -> int:
     """Open the dashboard on one printer's socket, or the fleet view on an MQTT broker."""
-    from tui.sources import MqttSource, SocketSource, parse_brokers
+    from tui.sources import MqttSource, SocketSource, parse_brokers, tls_context
 
-    mqtt_only = args.username or args.password is not None or args.tls
+    files = args.cafile or args.certfile or args.keyfile
+    mqtt_only = args.username or args.password is not None or args.tls or files
     if args.mqtt:
         from tui.fleet import FleetApp
 
@@ -24,11 +25,17 @@ def run(args: argparse.Namespace) -> int:
         password = args.password
         if password is None:
             password = os.environ.get("HOSTD_MQTT_PASSWORD", "")
-        FleetApp(MqttSource(brokers, username=args.username, password=password,
-                            tls=args.tls)).run()
+        if files and not args.tls:
+            raise UsageError("--cafile, --certfile and --keyfile go with --tls")
+        try:
+            tls = tls_context(args.cafile or "", args.certfile or "", args.keyfile or "") \
+                if args.tls else False
+        except ValueError as exc:
+            raise UsageError(f"--tls: {exc}") from exc
+        FleetApp(MqttSource(brokers, username=args.username, password=password, tls=tls)).run()
         return 0
     if mqtt_only:
-        raise UsageError("--username, --password and --tls go with --mqtt HOST[:PORT]")
+        raise UsageError("--username, --password, --tls and its files go with --mqtt HOST[:PORT]")
     from tui.app import Dashboard
 
     Dashboard(SocketSource(str(socket_path(args)))).run()

@@ -31,8 +31,10 @@ HELP = """\
  t  retune infill density and field, temperatures
  f  infill field as a colour map under the layer
  /  filter the event log
+ !  emergency stop: M112 (asks to confirm)
  ?  this help
- q  quit the dashboard (the print goes on)
+ q  quit the dashboard (the print goes on);
+    from the fleet view, q or Esc goes back to it
 
 The layer picture: walls, infill, skin and support in
 their colours; what this layer has printed is bright,
