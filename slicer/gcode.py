@@ -16,7 +16,8 @@ import shapely
 
 from slicer.budget import Moves, budget_moves
 from slicer.layer import FILL, SUPPORT, Path
-from slicer.motion import packed_runs_time, run_time, segment_times
+from slicer.layertime import layer_time
+from slicer.motion import run_time, segment_times
 from slicer.settings import SliceSettings
 
 # points of a path closer than this to the previous one are dropped, mm
@@ -116,13 +117,8 @@ def layer_code(
     travel_a = pts[ends[:-1] - 1]
     travel_b = pts[starts[1:]]
     leaves = _travels_leave(travel_a, travel_b, outline, settings.line_width)
-    accel = settings.acceleration
-    time_s = packed_runs_time(pts, starts, speeds, accel)
-    hop_len = np.hypot(*(travel_b - travel_a).T)
-    zero = np.zeros(len(hop_len))
-    time_s += float(segment_times(hop_len, travel_f, zero, zero, accel).sum())
-    retracts = 1 + int(leaves.sum()) if r > 0 else 0
-    time_s += 2 * retracts * r / settings.retract_speed
+    time_s = layer_time(mv, speeds, travel_f, leaves, r, settings.retract_speed, height,
+                        settings.acceleration)
 
     if index == settings.fan_first_layer or (index == 0 and settings.fan_first_layer > 0):
         lines.append(fan_command(settings, index))

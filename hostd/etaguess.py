@@ -1,0 +1,127 @@
+"""Print time of layers not sliced yet: a geometric guess, calibrated on a few sampled layers.
+
+The guess of a layer, per body, in seconds: its walls (the outline offset inwards
+to the middle of each wall, lengths over the wall speed), its solid fill (skins,
+where the infill domain is not covered by all of the top or bottom layers' domains,
+compared by area, and the thin parts where the walls leave a gap) and its sparse
+infill (domain area times density), over the line width and the fill speed, plus
+a fixed cost per layer and per island (lift, retractions). What the guess misses
+(corners, short lines, acceleration) varies slowly along the model, so the ratio
+of the slicer's estimate to the guess is measured on a few layers spread over
+the print time and interpolated between them.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+import shapely
+
+from slicer.layer import fill_distance
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+
+# fixed costs guessed per layer (lift, a retraction, the travel in) and per island, s
+LAYER_COST_S = 0.3
+ISLAND_COST_S = 0.15
+# layers sliced for their estimate alone, spread over the guessed print time
+SAMPLES = 24
+
+
+@dataclass(frozen=True)
+class Geometry:
+    """What each layer and body holds, (layers, bodies) float64: wall length (mm, every
+    wall), solid and sparse fill area (mm^2), islands."""
+
+    walls: np.ndarray
+    solid: np.ndarray
+    sparse: np.ndarray
+    islands: np.ndarray
+
+    def seconds(self, settings: SliceSettings, layers: slice = slice(None)) -> np.ndarray:
+        """Guessed seconds of ``layers`` with ``settings``, (k, bodies)."""
+        rows = np.arange(len(self.walls))[layers]
+        first = rows == 0
+        wall_v = np.where(first, settings.first_layer_speed, settings.wall_speed)[:, None]
+        fill_v = np.where(first, settings.first_layer_speed, settings.print_speed)[:, None]
+        w = settings.line_width
+        sparse = self.sparse[layers] * max(settings.infill_density, 0.0)
+        islands = self.islands[layers]
+        seconds = self.walls[layers] / wall_v + (self.solid[layers] + sparse) / (w * fill_v)
+        total = np.maximum(islands.sum(axis=1, keepdims=True), 1.0)
+        return seconds + islands * ISLAND_COST_S + LAYER_COST_S * islands / total
+
+
+def measure(plan: SlicePlan, settings: SliceSettings) -> Geometry:
+    """The :class:`Geometry` of every layer of ``plan`` (outlines offset, vectorised)."""
+    n, bodies = plan.layer_count, max(1, plan.body_count)
+    parts, layer_of, body_of = [], [], []
+    for i in range(n):
+        polys, owner = plan.layer_bodies(i)
+        parts.append(polys)
+        layer_of.append(np.full(len(polys), i))
+        body_of.append(np.asarray(owner, dtype=np.int64))
+    empty = np.zeros((n, bodies))
+    if not sum(len(p) for p in parts):
+        return Geometry(empty, empty, empty, empty)
+    polys = np.concatenate(parts)
+    cell = np.concatenate(layer_of) * bodies + np.concatenate(body_of)
+    w = settings.line_width
+
+    def per_cell(values: np.ndarray) -> np.ndarray:
+        return np.bincount(cell, weights=values, minlength=n * bodies).reshape(n, bodies)
+
+    area = shapely.area(polys)
+    walls = np.zeros(len(polys))
+    for k in range(max(0, settings.perimeters)):
+        walls += shapely.length(shapely.buffer(polys, -(k + 0.5) * w, quad_segs=2))
+    domain = shapely.area(shapely.buffer(polys, -fill_distance(settings), quad_segs=2))
+    gap = np.clip(area - domain - walls * w, 0.0, None)
+    fill = per_cell(domain)
+    skin = solid_area(fill, settings.top_layers, settings.bottom_layers)
+    return Geometry(per_cell(walls), skin + per_cell(gap), np.clip(fill - skin, 0.0, None),
+                    per_cell(np.ones(len(polys))))
+
+
+def solid_area(area: np.ndarray, top: int, bottom: int) -> np.ndarray:
+    """Area (mm^2) of each layer and body to be filled solid, (layers, bodies): what the
+    ``top`` layers above or the ``bottom`` below do not all cover (areas only, a guess)."""
+    layers = area.shape[0]
+    padded = np.concatenate([np.zeros((bottom, area.shape[1])), area,
+                             np.zeros((top, area.shape[1]))])
+    covered = area.copy()
+    for k in range(1, top + 1):
+        covered = np.minimum(covered, padded[bottom + k: bottom + k + layers])
+    for k in range(1, bottom + 1):
+        covered = np.minimum(covered, padded[bottom - k: bottom - k + layers])
+    return area - covered
+
+
+def sample_layers(guess: np.ndarray, count: int = SAMPLES) -> np.ndarray:
+    """Layers to slice for calibration, ascending: ``count`` spread evenly over the guessed
+    time ``guess`` (layers,) s, and the layers where the guess jumps by half or more."""
+    n = len(guess)
+    if n == 0:
+        return np.zeros(0, dtype=np.int64)
+    cumulative = np.cumsum(guess)
+    if cumulative[-1] <= 0:
+        return np.zeros(0, dtype=np.int64)
+    marks = (np.arange(count) + 0.5) / count * cumulative[-1]
+    even = np.searchsorted(cumulative, marks)
+    previous = np.concatenate(([0.0], guess[:-1]))
+    jumps = np.flatnonzero(np.abs(guess - previous) > 0.5 * np.maximum(previous, guess))
+    both = np.unique(np.concatenate([even, jumps, jumps - 1]))
+    both = both[(both >= 0) & (both < n) & (guess[np.clip(both, 0, n - 1)] > 0)]
+    return both.astype(np.int64)
+
+
+def calibrated(guess: np.ndarray, anchors: dict[int, float]) -> np.ndarray:
+    """Each layer's guess (layers,) s times the ratio of estimate to guess, interpolated
+    (linearly in the layer number, held beyond the ends) between ``anchors``: layer ->
+    that ratio. Without anchors the guess as it is."""
+    if not anchors:
+        return guess.copy()
+    at = np.array(sorted(anchors))
+    ratio = np.array([anchors[i] for i in at])
+    return guess * np.interp(np.arange(len(guess)), at, ratio)
