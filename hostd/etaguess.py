@@ -25,8 +25,9 @@ from slicer.settings import SliceSettings
 # fixed costs guessed per layer (lift, a retraction, the travel in) and per island, s
 LAYER_COST_S = 0.3
 ISLAND_COST_S = 0.15
-# layers sliced for their estimate alone, spread over the guessed print time
-SAMPLES = 24
+# layers sliced for their estimate alone: this many spread over the guessed print time,
+# as many over the layers
+SAMPLES = 16
 
 
 @dataclass(frozen=True)
@@ -100,20 +101,20 @@ def solid_area(area: np.ndarray, top: int, bottom: int) -> np.ndarray:
 
 def sample_layers(guess: np.ndarray, count: int = SAMPLES) -> np.ndarray:
     """Layers to slice for calibration, ascending: ``count`` spread evenly over the guessed
-    time ``guess`` (layers,) s, and the layers where the guess jumps by half or more."""
+    time ``guess`` (layers,) s, as many spread evenly over the layers, and the layers on
+    either side of a jump of the guess by half or more."""
     n = len(guess)
-    if n == 0:
-        return np.zeros(0, dtype=np.int64)
     cumulative = np.cumsum(guess)
-    if cumulative[-1] <= 0:
+    if n == 0 or cumulative[-1] <= 0:
         return np.zeros(0, dtype=np.int64)
-    marks = (np.arange(count) + 0.5) / count * cumulative[-1]
-    even = np.searchsorted(cumulative, marks)
+    marks = (np.arange(count) + 0.5) / count
+    by_time = np.searchsorted(cumulative, marks * cumulative[-1])
+    by_layer = (marks * n).astype(np.int64)
     previous = np.concatenate(([0.0], guess[:-1]))
     jumps = np.flatnonzero(np.abs(guess - previous) > 0.5 * np.maximum(previous, guess))
-    both = np.unique(np.concatenate([even, jumps, jumps - 1]))
-    both = both[(both >= 0) & (both < n) & (guess[np.clip(both, 0, n - 1)] > 0)]
-    return both.astype(np.int64)
+    chosen = np.unique(np.concatenate([by_time, by_layer, jumps, jumps - 1]))
+    chosen = chosen[(chosen >= 0) & (chosen < n)]
+    return chosen[guess[chosen] > 0].astype(np.int64)
 
 
 def calibrated(guess: np.ndarray, anchors: dict[int, float]) -> np.ndarray:
