@@ -47,7 +47,8 @@ class EtaModel:
         self.done_at: dict[int, float] = {}  # layer -> active seconds when it was done
         self.last_done = first - 1
         self._geometry: Geometry | None = None
-        self._samples: dict[int, tuple[float, int]] = {}  # layer -> (ratio, retunes then)
+        # layer -> (estimate s, retunes made then, bodies left out then)
+        self._samples: dict[int, tuple[float, int, frozenset[int]]] = {}
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._paused_total = 0.0
@@ -111,9 +112,7 @@ class EtaModel:
                 retunes = len(schedule.changes)
                 excluded = schedule.excluded_at(layer)
                 code = schedule.plan_at(layer).layer_code(layer, excluded)
-                mine = self._guess(layer, layer + 1)[0]
-                if mine > 0:
-                    self._samples[layer] = (code.time_s / mine, retunes)
+                self._samples[layer] = (code.time_s, retunes, excluded)
         except Exception:  # the ETA falls back to the slicer's recent layers
             log.debug("layer geometry for the ETA not measured", exc_info=True)
 
@@ -134,12 +133,13 @@ class EtaModel:
         return seconds.sum(axis=1)
 
     def _valid_samples(self) -> dict[int, float]:
-        """The sampled ratios no later retune made stale."""
-        changes = self.schedule.changes
+        """The sampled estimates (s) no later retune or cancel made stale."""
+        schedule = self.schedule
         out = {}
-        for layer, (ratio, retunes) in list(self._samples.items()):
-            if all(first > layer for first, _ in changes[retunes:]):
-                out[layer] = ratio
+        for layer, (seconds, retunes, excluded) in list(self._samples.items()):
+            if all(first > layer for first, _ in schedule.changes[retunes:]) \
+                    and schedule.excluded_at(layer) == excluded:
+                out[layer] = seconds
         return out
 
     def _estimates(self) -> np.ndarray | None:
@@ -161,9 +161,10 @@ class EtaModel:
             out[missing] = recent.mean()
             return out
         guess = self._guess(0, self.layers)
-        anchors = self._valid_samples()
-        sliced = np.flatnonzero(~missing & (guess > 0))
-        anchors.update(zip(sliced.tolist(), (out[sliced] / guess[sliced]).tolist(), strict=True))
+        sampled = self._valid_samples()
+        sliced = np.flatnonzero(~missing)
+        sampled.update(zip(sliced.tolist(), out[sliced].tolist(), strict=True))
+        anchors = {k: (v, float(guess[k])) for k, v in sampled.items()}
         # past the latest retune only layers sliced with it count
         newest = max((f for f, _ in self.schedule.changes), default=0)
         if any(layer >= newest for layer in anchors):

@@ -27,7 +27,7 @@ LAYER_COST_S = 0.3
 ISLAND_COST_S = 0.15
 # layers sliced for their estimate alone: this many spread over the guessed print time,
 # as many over the layers
-SAMPLES = 16
+SAMPLES = 12
 
 
 @dataclass(frozen=True)
@@ -99,11 +99,14 @@ def solid_area(area: np.ndarray, top: int, bottom: int) -> np.ndarray:
     return area - covered
 
 
-def sample_layers(guess: np.ndarray, count: int = SAMPLES) -> np.ndarray:
-    """Layers to slice for calibration, ascending: ``count`` spread evenly over the guessed
-    time ``guess`` (layers,) s, as many spread evenly over the layers, and the layers on
+def sample_layers(guess: np.ndarray, count: int | None = None) -> np.ndarray:
+    """Layers to slice for calibration, ascending, in pairs (a layer and the next, as
+    hatch directions alternate): ``count`` pairs (by default the larger of
+    :data:`SAMPLES` and a twentieth of the layers) spread evenly over the guessed time
+    ``guess`` (layers,) s, as many spread evenly over the layers, and the layers on
     either side of a jump of the guess by half or more."""
     n = len(guess)
+    count = max(SAMPLES, n // 20) if count is None else count
     cumulative = np.cumsum(guess)
     if n == 0 or cumulative[-1] <= 0:
         return np.zeros(0, dtype=np.int64)
@@ -112,17 +115,32 @@ def sample_layers(guess: np.ndarray, count: int = SAMPLES) -> np.ndarray:
     by_layer = (marks * n).astype(np.int64)
     previous = np.concatenate(([0.0], guess[:-1]))
     jumps = np.flatnonzero(np.abs(guess - previous) > 0.5 * np.maximum(previous, guess))
-    chosen = np.unique(np.concatenate([by_time, by_layer, jumps, jumps - 1]))
+    firsts = np.concatenate([by_time, by_layer, jumps - 2, jumps])
+    chosen = np.unique(np.concatenate([firsts, firsts + 1]))
     chosen = chosen[(chosen >= 0) & (chosen < n)]
     return chosen[guess[chosen] > 0].astype(np.int64)
 
 
-def calibrated(guess: np.ndarray, anchors: dict[int, float]) -> np.ndarray:
-    """Each layer's guess (layers,) s times the ratio of estimate to guess, interpolated
+def calibrated(guess: np.ndarray, anchors: dict[int, tuple[float, float]]) -> np.ndarray:
+    """Each layer's guess (layers,) s times the ratio of estimate to guess interpolated
     (linearly in the layer number, held beyond the ends) between ``anchors``: layer ->
-    that ratio. Without anchors the guess as it is."""
+    (its estimate, its guess) s. Two anchors on consecutive layers count as one, between
+    them, with the ratio of their sums (so alternating layers do not bias the ratio).
+    Without anchors the guess as it is."""
     if not anchors:
         return guess.copy()
-    at = np.array(sorted(anchors))
-    ratio = np.array([anchors[i] for i in at])
+    layers = sorted(anchors)
+    at, ratio = [], []
+    k = 0
+    while k < len(layers):
+        group = layers[k:k + 2] if k + 1 < len(layers) and layers[k + 1] == layers[k] + 1 \
+            else layers[k:k + 1]
+        estimate = sum(anchors[i][0] for i in group)
+        guessed = sum(anchors[i][1] for i in group)
+        if guessed > 0:
+            at.append(sum(group) / len(group))
+            ratio.append(estimate / guessed)
+        k += len(group)
+    if not at:
+        return guess.copy()
     return guess * np.interp(np.arange(len(guess)), at, ratio)
