@@ -103,8 +103,9 @@ def sample_layers(guess: np.ndarray, count: int | None = None) -> np.ndarray:
     """Layers to slice for calibration, ascending, in pairs (a layer and the next, as
     hatch directions alternate): ``count`` pairs (by default the larger of
     :data:`SAMPLES` and a twentieth of the layers) spread evenly over the guessed time
-    ``guess`` (layers,) s, as many spread evenly over the layers, and the layers on
-    either side of a jump of the guess by half or more."""
+    ``guess`` (layers,) s, as many over the layers, as many over the guess's relative
+    changes from layer to layer (where the shape changes fast), and the layers on either
+    side of a jump of the guess by half or more."""
     n = len(guess)
     count = max(SAMPLES, n // 20) if count is None else count
     cumulative = np.cumsum(guess)
@@ -114,8 +115,11 @@ def sample_layers(guess: np.ndarray, count: int | None = None) -> np.ndarray:
     by_time = np.searchsorted(cumulative, marks * cumulative[-1])
     by_layer = (marks * n).astype(np.int64)
     previous = np.concatenate(([0.0], guess[:-1]))
-    jumps = np.flatnonzero(np.abs(guess - previous) > 0.5 * np.maximum(previous, guess))
-    firsts = np.concatenate([by_time, by_layer, jumps - 2, jumps])
+    change = np.abs(guess - previous) / np.maximum(np.maximum(previous, guess), 1e-9)
+    jumps = np.flatnonzero(change > 0.5)
+    turning = np.cumsum(change)
+    by_change = np.searchsorted(turning, marks * turning[-1])
+    firsts = np.concatenate([by_time, by_layer, by_change, jumps - 2, jumps])
     chosen = np.unique(np.concatenate([firsts, firsts + 1]))
     chosen = chosen[(chosen >= 0) & (chosen < n)]
     return chosen[guess[chosen] > 0].astype(np.int64)
@@ -124,23 +128,24 @@ def sample_layers(guess: np.ndarray, count: int | None = None) -> np.ndarray:
 def calibrated(guess: np.ndarray, anchors: dict[int, tuple[float, float]]) -> np.ndarray:
     """Each layer's guess (layers,) s times the ratio of estimate to guess interpolated
     (linearly in the layer number, held beyond the ends) between ``anchors``: layer ->
-    (its estimate, its guess) s. Two anchors on consecutive layers count as one, between
-    them, with the ratio of their sums (so alternating layers do not bias the ratio).
+    (its estimate, its guess) s. Anchors on consecutive layers are taken in sliding pairs,
+    between them, with the ratio of their sums (so alternating layers do not bias it).
     Without anchors the guess as it is."""
     if not anchors:
         return guess.copy()
-    layers = sorted(anchors)
-    at, ratio = [], []
-    k = 0
-    while k < len(layers):
-        group = layers[k:k + 2] if k + 1 < len(layers) and layers[k + 1] == layers[k] + 1 \
-            else layers[k:k + 1]
-        estimate = sum(anchors[i][0] for i in group)
-        guessed = sum(anchors[i][1] for i in group)
-        if guessed > 0:
-            at.append(sum(group) / len(group))
-            ratio.append(estimate / guessed)
-        k += len(group)
-    if not at:
+    layers = np.array(sorted(anchors))
+    estimate = np.array([anchors[i][0] for i in layers.tolist()])
+    guessed = np.array([anchors[i][1] for i in layers.tolist()])
+    paired = layers[1:] == layers[:-1] + 1
+    has_pair = np.zeros(len(layers), dtype=bool)
+    has_pair[1:] |= paired
+    has_pair[:-1] |= paired
+    at = np.concatenate([layers[:-1][paired] + 0.5, layers[~has_pair]])
+    top = np.concatenate([(estimate[:-1] + estimate[1:])[paired], estimate[~has_pair]])
+    bottom = np.concatenate([(guessed[:-1] + guessed[1:])[paired], guessed[~has_pair]])
+    ok = bottom > 0
+    if not ok.any():
         return guess.copy()
-    return guess * np.interp(np.arange(len(guess)), at, ratio)
+    order = np.argsort(at[ok])
+    ratio = (top[ok] / bottom[ok])[order]
+    return guess * np.interp(np.arange(len(guess)), at[ok][order], ratio)
