@@ -33,8 +33,9 @@ class EtaModel:
     - The printer's pace: actual seconds per estimated second over the layers
       printed, the latest half (by estimated time) counted twice; time spent
       paused is left out.
-    - ETA = pace x (estimated seconds left + the end block's lift) - the time
-      already spent in the layer being printed (at most its own share).
+    - ETA = pace x (estimated seconds left + the end block's lift + the moves of
+      the last layer done still in the printer's planner) - the time already
+      spent in the layer being printed (at most its own share).
 
     Without estimates (a G-code job) it falls back to the mean layer time.
     """
