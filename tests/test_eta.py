@@ -1,5 +1,5 @@
 """The ETA: the planner's time per layer, refitted on the printer's pace, moved at once by a
-cancel or a retune, paused time left out, a mean for G-code jobs."""
+cancel or a retune (the filament total too), paused time left out, a mean for G-code jobs."""
 
 from __future__ import annotations
 
@@ -10,6 +10,7 @@ import trimesh
 
 from drivers.feedsim import simulate_feed
 from hostd.eta import EtaModel
+from hostd.layerview import estimate
 from hostd.schedule import LayerSchedule
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
@@ -82,10 +83,13 @@ def test_the_eta_follows_the_printer_pace_and_a_cancelled_body(tmp_path) -> None
     # the layers not sliced yet are guessed close to what slicing them gives
     truth = sum(plan.layer_code(i).time_s for i in range(half, plan.layer_count))
     assert remaining / 1.5 == pytest.approx(truth, rel=0.05)
-    # a body cancelled from the next unsliced layer on: the guess drops at once, by about half
+    filament = estimate(schedule, half, half + 2, remaining)["filament_total_mm"]
+    # a body cancelled from the next unsliced layer on: the guess drops at once, by about half,
+    # and so does the filament the job will use in all
     schedule.cancel_body(1, half + 2)
     after = model.remaining(clock)
     assert after < remaining * 0.65
+    assert estimate(schedule, half, half + 2, after)["filament_total_mm"] < filament * 0.85
     # time spent in the layer being printed comes off, up to that layer's share
     assert model.remaining(clock + 1.0) == pytest.approx(after - 1.0)
 
