@@ -47,15 +47,25 @@ def detours(a: np.ndarray, b: np.ndarray, region: shapely.Geometry | None) -> li
 
 
 def _around(a: np.ndarray, b: np.ndarray, rings: list[shapely.Geometry]) -> np.ndarray:
-    """The points round every ring the line ``a -> b`` crosses, in the line's order."""
+    """The points round every ring the line ``a -> b`` crosses, in the line's order; an end
+    inside a ring (a body that close) leaves from, or arrives at, the ring's nearest point."""
     line = shapely.LineString([a, b])
     crossings = []
     for ring in rings:
         meet = shapely.get_coordinates(shapely.intersection(line, ring))
+        inside = [shapely.contains_xy(shapely.Polygon(ring), *end) for end in (a, b)]
+        ends = [shapely.get_coordinates(shapely.line_interpolate_point(
+            ring, shapely.line_locate_point(ring, shapely.Point(end))))[0]
+            for end, within in zip((a, b), inside, strict=True) if within]
+        meet = np.vstack([meet, *ends]) if ends else meet
         if len(meet) < 2:
             continue
         along = np.hypot(*(meet - a).T)
         first, last = meet[np.argmin(along)], meet[np.argmax(along)]
+        if inside[0]:
+            first = ends[0]
+        if inside[1]:
+            last = ends[-1]
         crossings.append((float(along.min()), _walk(ring, first, last)))
     crossings.sort(key=lambda c: c[0])
     if not crossings:

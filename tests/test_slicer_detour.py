@@ -91,3 +91,8 @@ def test_detours_only_where_the_line_meets_the_region() -> None:
     path = shapely.LineString(np.vstack([a[0], around, b[0]]))
     assert not shapely.intersects(path, region)
     assert shapely.length(path) < 10.0 + np.pi * 6.0  # the shorter way round
+    # an end closer to the region than the ring walked (bodies that close)
+    near = np.array([[-5.1, 0.5]])
+    around = detours(near, b[:1], region)[0]
+    path = shapely.LineString(np.vstack([near[0], around, b[0]]))
+    assert not shapely.intersects(path, region)
