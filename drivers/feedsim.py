@@ -64,10 +64,12 @@ def simulate_feed(
     window_bytes: int = 127,
     latency_s: float = 0.001,
     settings: PlannerSettings | None = None,
+    acks: list[float] | None = None,
 ) -> FeedResult:
     """Feed G-code ``lines`` (comments and blanks are not sent) through a wire of ``baud``
     to a simulated Marlin; see the module docstring. ``latency_s`` is added one way to
     every line and every ``ok``; ``baud`` 0 is a wire without limit (the well-fed print).
+    When given, ``acks`` (an empty list) receives the time (s) each line's ``ok`` reached the host.
     Raises ValueError for a baud rate from 1 to 1199.
     """
     if 0 < baud < 1200 or baud < 0:
@@ -79,7 +81,7 @@ def simulate_feed(
     planner = MarlinPlanner(settings)
     motion = Motion(MotionLimits())
     sizes: list[int] = []  # framed bytes of each line sent
-    ok_at: list[float] = []  # when each line's ok reached the host
+    ok_at: list[float] = [] if acks is None else acks  # when each line's ok reached the host
     low = 0  # first line whose bytes still count against the window
     in_window = 0  # bytes of lines low..current-1
     wire_free = 0.0

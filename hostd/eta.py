@@ -2,35 +2,40 @@
 
 from __future__ import annotations
 
+import itertools
 import logging
 import threading
 from typing import Any
 
 import numpy as np
-import shapely
 
-from slicer.gcode import GcodeSummary, filament_grams
+from hostd.etaguess import Geometry, calibrated, measure, sample_layers
+from slicer.gcode import END_LIFT, GcodeSummary, filament_grams
+from slicer.layertime import lift_time
 
 log = logging.getLogger("hostd.eta")
 
-RECENT_LAYERS = 8  # sliced layers that scale the geometry's guess for the unsliced ones
+RECENT_LAYERS = 8  # sliced layers whose mean stands for the others before the geometry
+PLANNER_BLOCKS = 16  # Marlin's BLOCK_BUFFER_SIZE: moves acknowledged but not yet made
 WINDOW_SHARE = 0.5  # the refit weighs the latest half of the printed estimate more
 
 
 class EtaModel:
     """Remaining seconds of a sliced job from acknowledged progress.
 
-    - Each sliced layer has the slicer's estimate (``schedule.estimates``);
-      a layer not sliced yet is guessed from its geometry (infill area over
-      line width and speed, walls over wall speed, both rough) times the ratio
-      of the slicer's estimate to that guess over the latest sliced layers. A
-      cancelled body's area leaves the guess from its first layer on; a retune
-      shows in the next sliced layer's estimate, so both move the ETA within
-      one layer.
-    - The printer's pace: actual seconds per estimated second over the
-      layers printed, the latest half (by estimated time) counted twice.
-    - ETA = pace x estimated seconds left - the time already spent in the
-      layer being printed (at most its own share).
+    - Each sliced layer has the slicer's estimate (``schedule.estimates``, the
+      planner's time for its moves: :mod:`slicer.layertime`). A layer not sliced
+      yet is guessed from the model's geometry with its own settings, less its
+      cancelled bodies (:mod:`hostd.etaguess`), times the ratio of estimate to
+      guess interpolated between the layers sliced so far and a few layers
+      sliced in the background for their estimate alone. A retune or a cancel
+      moves the guess of every layer it touches at once.
+    - The printer's pace: actual seconds per estimated second over the layers
+      printed, the latest half (by estimated time) counted twice; time spent
+      paused is left out.
+    - ETA = pace x (estimated seconds left + the end block's lift + the moves of
+      the last layer done still in the printer's planner) - the time already
+      spent in the layer being printed (at most its own share).
 
     Without estimates (a G-code job) it falls back to the mean layer time.
     """
@@ -40,56 +45,119 @@ class EtaModel:
         self.layers = layers
         self.first = first
         self.started: float | None = None
-        self.done_at: dict[int, float] = {}
+        self.done_at: dict[int, float] = {}  # layer -> active seconds when it was done
         self.last_done = first - 1
-        self._geometry: tuple[np.ndarray, np.ndarray] | None = None  # (n, bodies) guesses
+        self._geometry: Geometry | None = None
+        # layer -> (estimate s, retunes made then, bodies left out then)
+        self._samples: dict[int, tuple[float, int, frozenset[int]]] = {}
         self._thread: threading.Thread | None = None
+        self._stop = threading.Event()
+        self._paused_total = 0.0
+        self._paused_since: float | None = None
 
-    def start(self, now: float) -> None:
-        """The start block is acknowledged: printing begins now."""
-        self.started = now
+    def start(self, now: float, measure_now: bool = True) -> None:
+        """The start block is acknowledged: printing begins now. Measures the geometry
+        and samples a few layers in a background thread: at once, or (``measure_now``
+        False, as the daemon does) once the first layer that laid filament is done, so
+        that this work never delays the first extrusion."""
+        self.started = self._active(now)
+        if measure_now:
+            self._begin_measuring()
 
-    def layer_done(self, layer: int, now: float) -> None:
-        """Every line of ``layer`` is acknowledged at ``now`` (monotonic seconds).
-
-        The first layer done that extruded starts measuring the geometry of every
-        layer: not sooner, so that cutting the whole model never delays the first
-        extrusion.
-        """
-        self.done_at[layer] = now
-        self.last_done = layer
-        if self.schedule is not None and self._thread is None and self._printed(layer):
+    def _begin_measuring(self) -> None:
+        if self.schedule is not None and self._thread is None:
             self._thread = threading.Thread(target=self._measure, name="hostd-eta", daemon=True)
             self._thread.start()
 
+    def stop(self) -> None:
+        """The job is over: the background sampling stops after its current layer."""
+        self._stop.set()
+
+    def wait_measured(self, timeout: float | None = None) -> bool:
+        """Wait until the geometry and the samples are ready (or failed); False on timeout."""
+        thread = self._thread
+        if thread is not None:
+            thread.join(timeout)
+            return not thread.is_alive()
+        return True
+
+    def pause(self, now: float) -> None:
+        """Printing paused at ``now``: time from here to :meth:`resume` is not printing."""
+        if self._paused_since is None:
+            self._paused_since = now
+
+    def resume(self, now: float) -> None:
+        """Printing goes on at ``now``."""
+        if self._paused_since is not None:
+            self._paused_total += max(0.0, now - self._paused_since)
+            self._paused_since = None
+
+    def _active(self, now: float) -> float:
+        """``now`` less the time spent paused."""
+        paused = self._paused_total
+        if self._paused_since is not None:
+            paused += max(0.0, now - self._paused_since)
+        return now - paused
+
+    def layer_done(self, layer: int, now: float) -> None:
+        """Every line of ``layer`` is acknowledged at ``now`` (monotonic seconds)."""
+        self.done_at[layer] = self._active(now)
+        self.last_done = layer
+        if self._thread is None and self._printed(layer):
+            self._begin_measuring()
+
     def _printed(self, layer: int) -> bool:
         """Whether ``layer`` laid filament, by the slicer's estimate (unknown: yes)."""
-        estimate = self.schedule.estimates.get(layer)
+        estimate = self.schedule.estimates.get(layer) if self.schedule is not None else None
         return estimate is None or estimate[1] > 0
 
     def _measure(self) -> None:
-        """Each layer's rough time per body, (layers, bodies) s, from its outline polygons."""
+        """The geometry of every layer, then the estimate of a few sampled layers."""
         try:
-            plan = self.schedule.base_plan
-            settings = self.schedule.base_settings
-            bodies = max(1, plan.body_count)
-            area = np.zeros((self.layers, bodies))
-            walls = np.zeros((self.layers, bodies))
-            for i in range(self.layers):
-                polys, owner = plan.layer_bodies(i)
-                if len(polys):
-                    np.add.at(area[i], owner, shapely.area(polys))
-                    np.add.at(walls[i], owner, shapely.length(polys))
-            solid = solid_area(area, settings.top_layers, settings.bottom_layers)
-            line = settings.line_width * settings.print_speed
-            seconds = ((area - solid) * max(settings.infill_density, 0.05) / line + solid / line
-                       + walls * max(1, settings.perimeters) / settings.wall_speed)
-            self._geometry = (seconds, np.arange(bodies))
+            schedule = self.schedule
+            geometry = measure(schedule.base_plan, schedule.base_settings)
+            self._geometry = geometry
+            guess = geometry.seconds(schedule.base_settings).sum(axis=1)
+            for layer in sample_layers(guess).tolist():
+                if self._stop.is_set():
+                    return
+                if layer in schedule.estimates or layer <= self.last_done:
+                    continue
+                retunes = len(schedule.changes)
+                excluded = schedule.excluded_at(layer)
+                code = schedule.plan_at(layer).layer_code(layer, excluded)
+                self._samples[layer] = (code.time_s, retunes, excluded)
         except Exception:  # the ETA falls back to the slicer's recent layers
             log.debug("layer geometry for the ETA not measured", exc_info=True)
 
+    def _guess(self, lo: int, hi: int) -> np.ndarray:
+        """Guessed seconds of layers ``lo..hi-1`` with their settings, less the cancelled
+        bodies, (hi - lo,); needs the geometry."""
+        geometry = self._geometry
+        assert geometry is not None
+        schedule = self.schedule
+        bounds = sorted({lo, hi, *(f for f, _ in schedule.changes if lo < f < hi)})
+        rows = [geometry.seconds(schedule.settings_at(a), slice(a, b))
+                for a, b in itertools.pairwise(bounds)]
+        seconds = np.concatenate(rows) if rows else np.zeros((0, geometry.walls.shape[1]))
+        bodies = seconds.shape[1]
+        for body, first in list(schedule.cancelled):
+            if 0 <= body < bodies and first < hi:
+                seconds[max(first, lo) - lo:, body] = 0.0
+        return seconds.sum(axis=1)
+
+    def _valid_samples(self) -> dict[int, float]:
+        """The sampled estimates (s) no later retune or cancel made stale."""
+        schedule = self.schedule
+        out = {}
+        for layer, (seconds, retunes, excluded) in list(self._samples.items()):
+            if all(first > layer for first, _ in schedule.changes[retunes:]) \
+                    and schedule.excluded_at(layer) == excluded:
+                out[layer] = seconds
+        return out
+
     def _estimates(self) -> np.ndarray | None:
-        """Estimated seconds of every layer: the slicer's, or the scaled guess, (layers,)."""
+        """Estimated seconds of every layer: the slicer's, or the calibrated guess, (layers,)."""
         if self.schedule is None:
             return None
         known = dict(self.schedule.estimates)
@@ -102,20 +170,20 @@ class EtaModel:
         missing = np.isnan(out)
         if not missing.any():
             return out
-        geometry = self._geometry
-        if geometry is None:
+        if self._geometry is None:
             recent = out[~missing][-RECENT_LAYERS:]
             out[missing] = recent.mean()
             return out
-        guess, bodies = geometry
-        excluded = np.zeros_like(guess, dtype=bool)
-        for body, first in self.schedule.cancelled:
-            if 0 <= body < len(bodies):
-                excluded[first:, body] = True
-        per_layer = np.where(excluded, 0.0, guess).sum(axis=1)
-        sliced = np.flatnonzero(~missing)[-RECENT_LAYERS:]
-        scale = out[sliced].sum() / max(per_layer[sliced].sum(), 1e-9)
-        out[missing] = per_layer[missing] * scale
+        guess = self._guess(0, self.layers)
+        sampled = self._valid_samples()
+        sliced = np.flatnonzero(~missing)
+        sampled.update(zip(sliced.tolist(), out[sliced].tolist(), strict=True))
+        anchors = {k: (v, float(guess[k])) for k, v in sampled.items()}
+        # past the latest retune only layers sliced with it count
+        newest = max((f for f, _ in self.schedule.changes), default=0)
+        if any(layer >= newest for layer in anchors):
+            anchors = {k: v for k, v in anchors.items() if k >= newest}
+        out[missing] = calibrated(guess, anchors)[missing]
         return out
 
     def pace(self, estimates: np.ndarray) -> float | None:
@@ -137,10 +205,28 @@ class EtaModel:
         weight = np.where(cumulative <= WINDOW_SHARE * planned.sum(), 2.0, 1.0)
         return float((weight * actual).sum() / max((weight * planned).sum(), 1e-9))
 
+    def _ending(self) -> float:
+        """Estimated seconds of the end block (its lift)."""
+        plan = self.schedule.base_plan
+        settings = self.schedule.settings_at(self.layers - 1)
+        top = plan.layer_z(self.layers - 1) if self.layers else 0.0
+        return lift_time(min(END_LIFT, plan.bed[2] - top), settings.travel_speed,
+                         settings.acceleration)
+
+    def _backlog(self, estimates: np.ndarray) -> float:
+        """Estimated seconds of the moves of the last layer done still in the printer's
+        planner (its last :data:`PLANNER_BLOCKS` moves, as a share of the layer)."""
+        lines = self.schedule.lines.get(self.last_done, 0)
+        seconds = estimates[self.last_done]
+        if lines <= 0 or np.isnan(seconds):
+            return 0.0
+        return float(seconds) * min(1.0, PLANNER_BLOCKS / lines)
+
     def remaining(self, now: float) -> float | None:
         """Seconds left, or None until a layer has been printed."""
         if self.started is None or self.last_done < self.first:
             return None
+        now = self._active(now)
         estimates = self._estimates()
         current = self.last_done + 1
         since = now - self.done_at.get(self.last_done, now)
@@ -151,23 +237,9 @@ class EtaModel:
         pace = self.pace(estimates)
         if pace is None:
             return None
-        left = np.nansum(estimates[current:]) * pace
+        left = (np.nansum(estimates[current:]) + self._ending() + self._backlog(estimates)) * pace
         in_layer = estimates[current] * pace if current < self.layers else 0.0
         return float(max(0.0, left - min(since, in_layer)))
-
-
-def solid_area(area: np.ndarray, top: int, bottom: int) -> np.ndarray:
-    """Area (mm^2) of each layer and body to be filled solid, (layers, bodies): what the
-    ``top`` layers above or the ``bottom`` below do not all cover (areas only, a guess)."""
-    layers = area.shape[0]
-    padded = np.concatenate([np.zeros((bottom, area.shape[1])), area,
-                             np.zeros((top, area.shape[1]))])
-    covered = area.copy()
-    for k in range(1, top + 1):
-        covered = np.minimum(covered, padded[bottom + k: bottom + k + layers])
-    for k in range(1, bottom + 1):
-        covered = np.minimum(covered, padded[bottom - k: bottom - k + layers])
-    return area - covered
 
 
 def slicer_totals(schedule: Any) -> tuple[GcodeSummary, list[float]] | None:

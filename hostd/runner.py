@@ -142,6 +142,7 @@ class JobRunner:
         if self.state == JobState.PAUSED:
             return
         self._running.clear()
+        self.eta.pause(time.monotonic())
         self._set_state(JobState.PAUSED)
         self.life.publish(Paused(self.job.id, self.job.name, self.completed))
 
@@ -151,6 +152,7 @@ class JobRunner:
             return
         self._set_state(JobState.PRINTING if self._print_started is not None
                         else JobState.HEATING)
+        self.eta.resume(time.monotonic())
         self._running.set()
         self.life.publish(Resumed(self.job.id, self.job.name, self.completed))
 
@@ -184,6 +186,7 @@ class JobRunner:
             await self.link.drain()
             self._check_marks()
         finally:
+            self.eta.stop()
             await self.writer.close()
         self._save(self.output.flush)
 
@@ -256,7 +259,7 @@ class JobRunner:
             mark = marks.popleft()
             if mark.layer == PREAMBLE:
                 self._print_started = time.monotonic()
-                self.eta.start(self._print_started)
+                self.eta.start(self._print_started, measure_now=False)
                 if mark.offset > 0:
                     self._offset = mark.offset  # a resume in layer 0 keeps the start block
                 self._layer_base = self.lines_acked - self.skip

@@ -35,6 +35,7 @@ class LayerSchedule:
         self._lock = threading.Lock()
         # layer -> (the slicer's estimated seconds, filament mm) of each layer sliced here
         self.estimates: dict[int, tuple[float, float]] = {}
+        self.lines: dict[int, int] = {}  # layer -> its command lines (the same layers)
 
     @property
     def layer_count(self) -> int:
@@ -71,6 +72,7 @@ class LayerSchedule:
         """
         code = self.plan_at(layer).layer_code(layer, self.excluded_at(layer))
         self.estimates[layer] = (code.time_s, code.filament_mm)
+        self.lines[layer] = sum(1 for line in code.lines if line[:1] not in ("", ";"))
         lines = list(code.lines)
         if layer > 0 and any(first == layer for first, _changes in self.changes):
             extra = _retune_gcode(self.settings_at(layer - 1), self.settings_at(layer), layer)

@@ -15,8 +15,10 @@ import numpy as np
 import shapely
 
 from slicer.budget import Moves, budget_moves
+from slicer.detour import detours
 from slicer.layer import FILL, SUPPORT, WALL_OUTER, Path
-from slicer.motion import packed_runs_time, run_time, segment_times
+from slicer.layertime import layer_time
+from slicer.motion import run_time, segment_times
 from slicer.settings import SliceSettings
 
 # points of a path closer than this to the previous one are dropped, mm
@@ -76,11 +78,13 @@ def layer_code(
     paths: Sequence[Path],
     outline: shapely.Geometry,
     settings: SliceSettings,
+    avoid: shapely.Geometry | None = None,
 ) -> LayerCode:
     """G-code of one layer: ``;LAYER:index``, then every path with travels between.
 
     ``z`` is the layer's top (nozzle height), ``height`` its thickness, both mm;
-    ``outline`` the layer's solid region: a travel that leaves it retracts.
+    ``outline`` the layer's solid region: a travel that leaves it retracts; a travel
+    that would cross ``avoid`` (a cancelled body's region) goes around it, retracted.
     All extrusion moves of the layer are measured and formatted in one
     vectorised pass; only the few lines between paths are built per path.
     """
@@ -117,13 +121,10 @@ def layer_code(
     travel_a = pts[ends[:-1] - 1]
     travel_b = pts[starts[1:]]
     leaves = _travels_leave(travel_a, travel_b, outline, settings.line_width)
-    accel = settings.acceleration
-    time_s = packed_runs_time(pts, starts, speeds, accel)
-    hop_len = np.hypot(*(travel_b - travel_a).T)
-    zero = np.zeros(len(hop_len))
-    time_s += float(segment_times(hop_len, travel_f, zero, zero, accel).sum())
-    retracts = 1 + int(leaves.sum()) if r > 0 else 0
-    time_s += 2 * retracts * r / settings.retract_speed
+    via = _detours(travel_a, travel_b, avoid, travel_f, settings.acceleration)
+    leaves[list(via)] = True
+    time_s = layer_time(mv, speeds, travel_f, leaves, r, settings.retract_speed, height,
+                        settings.acceleration) + sum(extra for _, extra in via.values())
 
     if index == settings.fan_first_layer or (index == 0 and settings.fan_first_layer > 0):
         lines.append(fan_command(settings, index))
@@ -146,6 +147,8 @@ def layer_code(
             hop = hops[k - 1] and retract
             if hop:
                 lines.append(retract)
+            if via and k - 1 in via:
+                lines.extend(via[k - 1][0])
             lines.append(travels[k - 1])
             if hop:
                 lines.append(prime)
@@ -158,6 +161,20 @@ def layer_code(
             lines.append(f"{g1[a][:3]}F{feeds[k]} {g1[a][3:]}")
             lines.extend(g1[a + 1 : b])
     return LayerCode(lines, filament, time_s, z_line)
+
+
+def _detours(
+    a: np.ndarray, b: np.ndarray, avoid: shapely.Geometry | None, travel_f: float, accel: float
+) -> dict[int, tuple[list[str], float]]:
+    """The travels ``a[k] -> b[k]`` that go around ``avoid``: k -> (the moves before the
+    travel's own line, the seconds the way round adds)."""
+    out = {}
+    for k, points in enumerate(detours(a, b, avoid)):
+        if len(points):
+            way = np.vstack([a[k], points, b[k]])
+            extra = run_time(way, travel_f, accel) - run_time(way[[0, -1]], travel_f, accel)
+            out[k] = (format_moves(f"G0 F{_fpm(travel_f)} ", points), extra)
+    return out
 
 
 def _format_layer_moves(mv: Moves, move: np.ndarray, e: np.ndarray) -> list[str]:

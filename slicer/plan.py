@@ -19,6 +19,7 @@ import numpy as np
 import shapely
 
 from slicer import gcode
+from slicer.detour import avoid_region
 from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.fields.linear import LinearField
@@ -302,7 +303,8 @@ class SlicePlan:
         if self._support is not None and self._support[i] is not None:
             outline = shapely.union(outline, self._support[i])
         code = gcode.layer_code(
-            i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings
+            i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings,
+            self._avoid(i, excluded_bodies),
         )
         if key is not None:
             with self._repeats_lock:
@@ -347,7 +349,20 @@ class SlicePlan:
         parts = [b"%d" % (i % 2), shapely.to_wkb(self.outline(i, excluded))]
         if skin is not None:
             parts.append(shapely.to_wkb(skin))
+        avoid = self._avoid(i, excluded)
+        if avoid is not None:  # travels go around the cancelled bodies
+            parts.append(b"avoid" + shapely.to_wkb(avoid))
         return b"|".join(parts)
+
+    def _avoid(self, i: int, excluded: frozenset[int]) -> shapely.Geometry | None:
+        """The region of layer ``i``'s travels keep out of: its excluded bodies' outlines,
+        grown by :data:`slicer.detour.MARGIN` (None without any)."""
+        if not excluded:
+            return None
+        polys = shapely.get_parts(self._geo.outlines[i])
+        if not len(polys):
+            return None
+        return avoid_region(polys[np.isin(self._geo.bodies(i), list(excluded))])
 
     def _check(self, i: int) -> int:
         i = int(i)
