@@ -11,6 +11,7 @@ import random
 import signal
 from pathlib import Path
 
+from drivers.backoff import Backoff
 from drivers.responses import Response
 from drivers.streamer import HALTED, LinkError, Streamer
 from hostd.addons import Addons
@@ -31,19 +32,10 @@ log = logging.getLogger("hostd.daemon")
 
 STORE_FILE = "jobs.sqlite3"
 SOCKET_FILE = "hostd.sock"
-# reconnecting to the printer: first delay, cap (s), and the random spread of each delay
-RECONNECT_FIRST_S = 1.0
-RECONNECT_MAX_S = 30.0
-RECONNECT_JITTER = 0.25
-
-
-def backoff(delay: float, rng: random.Random) -> tuple[float, float]:
-    """(this wait, next delay): ``delay`` spread by +-25 %, and the delay doubled up to 30 s.
-
-    The spread keeps several hosts that lost one shared link from retrying in step.
-    """
-    wait = delay * rng.uniform(1.0 - RECONNECT_JITTER, 1.0 + RECONNECT_JITTER)
-    return wait, min(delay * 2, RECONNECT_MAX_S)
+# reopening the printer link after it failed: the same jittered exponential policy as the
+# MQTT bridge's and the streamer's port reconnects (1 s doubling to 30 s, each wait drawn
+# from half to all of it)
+RECONNECT = Backoff(initial_s=1.0, maximum_s=30.0)
 
 
 class _Stop(Exception):
@@ -149,19 +141,20 @@ class Daemon:
 
     async def _print_loop(self, executor: concurrent.futures.Executor) -> None:
         """Keep the printer connected and print queued jobs one after another."""
-        delay = RECONNECT_FIRST_S
+        attempt = 0
         rng = random.Random()
         while True:
             try:
                 async with printer_link(self.config, self._printer_booted) as link:
-                    delay = RECONNECT_FIRST_S
+                    attempt = 0
                     self._attach(link)
                     try:
                         await self._serve_queue(link, executor)
                     finally:
                         self.link = None
             except (LinkError, OSError) as exc:
-                wait, delay = backoff(delay, rng)
+                wait = RECONNECT.delay(attempt, rng)
+                attempt += 1
                 log.error("printer link: %s; retrying in %.1f s", exc, wait)
                 self.life.printer_offline(
                     PrinterInfo(self.config.printer.id, self.config.printer.port, False),
