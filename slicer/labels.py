@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import math
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
+
+if TYPE_CHECKING:
+    from slicer.plan import SlicePlan
 
 # one move as this slicer writes it: G0..G3, then F, X, Y, Z, I/J, E in that order
 _MOVE = re.compile(
@@ -18,7 +22,7 @@ _SAMPLED_LAYERS = 24  # layers whose outlines make a body's footprint
 class ObjectLabels:
     """Names, footprints and per-layer brackets of a plan's bodies (``body_<n>``, from 0)."""
 
-    def __init__(self, plan) -> None:
+    def __init__(self, plan: SlicePlan) -> None:
         self.plan = plan
         self.count = plan.body_count
         self.names = [f"body_{b}" for b in range(self.count)]
