@@ -37,8 +37,8 @@ class ObjectLabels:
             for poly, body in zip(polys.tolist(), bodies.tolist(), strict=True):
                 parts[body].append(poly)
         lines = [f"M486 T{self.count}"]
-        for body, polys in enumerate(parts):
-            hull = shapely.convex_hull(shapely.union_all(polys)) if polys else None
+        for body, outlines in enumerate(parts):
+            hull = shapely.convex_hull(shapely.union_all(outlines)) if outlines else None
             if hull is None or hull.is_empty or hull.geom_type != "Polygon":
                 continue
             hull = shapely.simplify(hull, 0.2)
