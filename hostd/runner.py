@@ -15,7 +15,8 @@ from typing import IO, Any, NamedTuple, Protocol
 
 from drivers.linkacks import Ack, AckChannel
 from drivers.protocol import strip_comment
-from drivers.streamer import StreamCancelled
+from drivers.streamer import LinkError, StreamCancelled
+from drivers.transport import TransportError
 from hostd.api import JobStatus
 from hostd.checkpoints import Checkpoint, CheckpointWriter
 from hostd.eta import EtaModel
@@ -191,7 +192,8 @@ class JobRunner:
         if self._cancelled:
             return
         self._cancelled = True
-        await self.link.interrupt_wait()
+        with contextlib.suppress(LinkError, TransportError):  # a lost link stops the job too
+            await self.link.interrupt_wait()
         await self.link.cancel(self.end_gcode, settle=False)
 
     @property
