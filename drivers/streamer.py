@@ -5,11 +5,10 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-import random
 from collections.abc import Awaitable, Callable, Hashable, Iterable, Iterator
 from types import TracebackType
 
-from drivers.backoff import Backoff
+from drivers.backoff import Backoff, reconnect
 from drivers.linkacks import Ack, AckChannel, Tags
 from drivers.linkconfig import (
     CANCELLED,
@@ -388,19 +387,18 @@ class Streamer:
         """The port failed: report, then try to reopen. True if the link is back."""
         self.core.link_lost(reason)
         self._dispatch(self.core.take_events())
-        delays = Backoff(self.config.reconnect_delay_s).delays(random.Random())
-        for _attempt in range(self.config.reconnect_attempts):
-            await asyncio.sleep(next(delays))
-            try:
-                transport = await self._open_again()
-            except TransportError:
-                continue
-            self._transport = transport
+        if self.config.reconnect_attempts > 0:
             with contextlib.suppress(TransportError):
-                # end whatever partial line the printer kept from before the cut
-                await transport.write(b"\n")
-            self.core.reopened(asyncio.get_running_loop().time())
-            return True
+                transport = await reconnect(
+                    self._open_again, Backoff(self.config.reconnect_delay_s),
+                    errors=(TransportError,), attempts=self.config.reconnect_attempts,
+                    wait_first=True)
+                self._transport = transport
+                with contextlib.suppress(TransportError):
+                    # end whatever partial line the printer kept from before the cut
+                    await transport.write(b"\n")
+                self.core.reopened(asyncio.get_running_loop().time())
+                return True
         self.core.fail(f"link lost: {reason}")
         self._dispatch(self.core.take_events())
         return False
