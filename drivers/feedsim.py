@@ -17,7 +17,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from drivers.planner import MarlinPlanner, PlannerSettings, move_block
+from drivers.planner import MarlinPlanner, Move, PlannerSettings, move_block
 from drivers.protocol import strip_comment
 from drivers.simcommands import parse
 from drivers.simmotion import Motion, MotionLimits
@@ -150,7 +150,7 @@ def simulate_feed(
     )
 
 
-def _plan(planner: MarlinPlanner, t: float, delta: tuple[float, ...], speed: float) -> float:
+def _plan(planner: MarlinPlanner, t: float, delta: Move, speed: float) -> float:
     """Queue one move's block at ``t`` or once a slot frees; returns when it was queued."""
     planned = move_block(delta, speed, planner.settings, planner.previous)
     if planned is None:

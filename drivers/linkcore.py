@@ -305,7 +305,8 @@ class LinkCore(Resync, Writing, Watching):
         ``M110`` counts as refused and a refused line is replayed."""
         digits = str(error.line + 1) if error.line is not None else ""
         implied = Response("resend", f"Resend: {digits}",
-                           line=error.line + 1 if digits else None, digits=digits)
+                           line=error.line + 1 if error.line is not None else None,
+                           digits=digits)
         self.on_resend(implied, error, implied=True)
         self._expect_resend_ok = False  # its ok is the one being read
 

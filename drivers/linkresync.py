@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
+from drivers.linkfields import CoreFields
 from drivers.resend import resolve_resend
 from drivers.responses import Response
 
 
-class Resync:
+class Resync(CoreFields):
     """Mixin of :class:`~drivers.linkcore.LinkCore`: resend requests and refusals."""
 
     def init_resync(self) -> None:
@@ -65,7 +66,7 @@ class Resync:
         # two lines agreeing (the Error's Last Line and the Resend's number, as received)
         confirmed = (not implied and error_line is not None and error_line + 1 == number
                      and response.digits == str(number))
-        if confirmed and model.explains(error_line):
+        if confirmed and error_line is not None and model.explains(error_line):
             # the printer took lines at or after the replay's start before their copies
             # arrived (the refusal that started it was spurious, or lines still on the wire
             # got through): those copies are refused, each once, and need no answer
@@ -74,7 +75,7 @@ class Resync:
         if number == model.refused and model.echoes > 0:
             model.echoes -= 1
             self.stats.duplicate_resends += 1
-            if confirmed:
+            if confirmed and error_line is not None:
                 self.window.drop_copy(error_line)
             return
         if number >= self.next_number:
@@ -91,10 +92,12 @@ class Resync:
         lines it holds are refused, one refusal each (echoes, answered by nothing); a copy
         of ``number`` written after them will be taken. The replay skips what is held."""
         model = self.model
+        refused = model.refused
+        assert refused is not None  # a replay is under way (``model.explains``)
         # the copies still to be refused are those of held lines in the window (a copy
         # whose ok was counted for another line is refused too: one more at most)
         out = sum(1 for e in self.window if e.copy and e.number is not None
-                  and model.refused <= e.number < number)
+                  and refused <= e.number < number)
         model.advanced(number, max(0, out - 1) + 1)
         self.window.drop_copy(number - 1)
         self.stats.duplicate_resends += 1
@@ -105,6 +108,7 @@ class Resync:
 
     def _refused_during_renumber(self, error_before: Response | None) -> None:
         renumber = self.renumber
+        assert renumber is not None  # called while renumbering
         if renumber.writes:
             renumber.refusals += 1
         # M110 skips the line-number check, so only a checksum error can refuse it; a

@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from drivers.linkconfig import LONG_COMMANDS
 from drivers.linkevents import Event, LinkState
+from drivers.linkfields import CoreFields
 
 
-class Watching:
+class Watching(CoreFields):
     """Mixin of :class:`~drivers.linkcore.LinkCore`: what time alone decides."""
 
     def tick_interval(self) -> float:

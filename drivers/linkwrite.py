@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from drivers.linkevents import STOPPED, LinkState, Written
+from drivers.linkfields import CoreFields
 from drivers.protocol import frame
 from drivers.window import InFlight
 
@@ -42,7 +43,7 @@ class Control:
     token: int | None = None
 
 
-class Writing:
+class Writing(CoreFields):
     """Mixin of :class:`~drivers.linkcore.LinkCore`: the writer's decisions."""
 
     force_replay = False  # a probe is due: replay past the window, then probe

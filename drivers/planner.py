@@ -26,6 +26,9 @@ import math
 from collections import deque
 from dataclasses import dataclass
 
+# one move: X, Y, Z and E displacements, mm
+Move = tuple[float, float, float, float]
+
 
 @dataclass(frozen=True)
 class PlannerSettings:
@@ -85,7 +88,7 @@ class BufferReport:
 
 
 def move_block(
-    delta: tuple[float, float, float, float], feedrate: float, settings: PlannerSettings,
+    delta: Move, feedrate: float, settings: PlannerSettings,
     previous: tuple[tuple[float, float, float], float] | None,
 ) -> tuple[Block, tuple[tuple[float, float, float], float]] | None:
     """The block of a move by ``delta`` (X, Y, Z, E mm) at ``feedrate`` mm/s, or None if

@@ -157,7 +157,7 @@ def _looks_like_report(raw: str) -> bool:
     return bool(re.match(r"^(?:[TBC]\d?|T\d\d):\s*-?\d", head))
 
 
-def _temperatures(text: str) -> dict:
+def _temperatures(text: str) -> dict[str, tuple[float, float | None]]:
     found: dict[str, tuple[float, float | None]] = {}
     for name, actual, target in _TEMP.findall(text):
         if name in found:
@@ -171,6 +171,6 @@ def _temperatures(text: str) -> dict:
     return found
 
 
-def _power(text: str) -> dict:
+def _power(text: str) -> dict[str, int]:
     found = {name: int(value) for name, value in _POWER.findall(text)}
     return found

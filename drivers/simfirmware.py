@@ -11,13 +11,13 @@ from __future__ import annotations
 import re
 import threading
 import time
-from collections import Counter, deque
+from collections import Counter, defaultdict, deque
 from collections.abc import Callable
 
 from drivers import simcommands
 from drivers.faults import FaultInjector
 from drivers.heater import BED, HOTEND, Heater, format_temperatures
-from drivers.planner import MarlinPlanner, PlannerSettings, move_block
+from drivers.planner import MarlinPlanner, Move, PlannerSettings, move_block
 from drivers.simclock import SimClock
 from drivers.simconfig import SimulatorConfig
 from drivers.simlines import check_line, spurious_replies
@@ -61,7 +61,8 @@ class Firmware:
         self.autoreport_changed = threading.Event()
         self.last_n = 0
         self.stats: Counter[str] = Counter()
-        self.times: Counter[str] = Counter()  # simulated seconds by kind: motion, dwell, home
+        # simulated seconds by kind: motion, dwell, home
+        self.times: defaultdict[str, float] = defaultdict(float)
         self._lock = threading.Lock()
         self._cond = threading.Condition(self._lock)
         self._rx = bytearray()
@@ -320,7 +321,7 @@ class Firmware:
                 step = min(step, self._busy_next - now)
             self.clock.wait(step, self._interrupt)
 
-    def plan_move(self, delta: tuple[float, ...], speed: float) -> None:
+    def plan_move(self, delta: Move, speed: float) -> None:
         """Add a move (X, Y, Z, E mm at ``speed`` mm/s) to the planner, waiting while it is
         full (no planner: the move runs now, from rest to rest)."""
         planned = move_block(delta, speed, self.planner.settings, self.planner.previous)

@@ -8,18 +8,34 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import TypedDict
 
 from drivers.linkconfig import StreamerConfig, StreamStats
 from drivers.linkcore import LinkCore
 from drivers.linkevents import Acked, Event, Failed, Started
 from drivers.protocol import frame
 from drivers.resend import recover
-from drivers.responses import parse_response
+from drivers.responses import Response, parse_response
 from drivers.simconfig import SimulatorConfig
 from drivers.simvirtual import Clock, VirtualPrinter
 
 # commands the link adds on its own
 INTERNAL = ("M110", "M115", "M155", "M105")
+
+
+class _Phase(TypedDict):
+    next: int  # index of the next job line to queue
+    streaming: bool
+    start: float
+    end: float
+
+
+class _SendAndWait(TypedDict):
+    n: int  # the line in flight
+    skip: int  # oks still to come after a Resend
+    error: Response | None
+    start: float
+    done: bool
 
 
 class NoConvergence(RuntimeError):
@@ -74,7 +90,7 @@ def run_core(
     core = LinkCore(link)
     acked: list[str] = []
     written = [0]
-    phase = {"next": 0, "streaming": False, "start": 0.0, "end": 0.0}
+    phase: _Phase = {"next": 0, "streaming": False, "start": 0.0, "end": 0.0}
     handshake, identify = 1, 2
 
     def handle(events: list[Event]) -> None:
@@ -146,7 +162,7 @@ def run_send_and_wait(lines: list[str], sim: SimulatorConfig, *, exec_s: float =
     ``Error`` naming the line before it), ignore other requests and the ``ok`` after them.
     """
     clock = Clock()
-    state = {"n": 0, "skip": 0, "error": None, "start": 0.0, "done": False}
+    state: _SendAndWait = {"n": 0, "skip": 0, "error": None, "start": 0.0, "done": False}
     written = [0]
 
     def send(number: int) -> None:

@@ -6,7 +6,7 @@ import itertools
 import math
 from dataclasses import dataclass
 
-from drivers.planner import PlannerSettings, arc_segments
+from drivers.planner import Move, PlannerSettings, arc_segments
 
 AXES = ("X", "Y", "Z", "E")
 
@@ -59,17 +59,18 @@ class Motion:
         delta = self._advance(params)
         return self._timed(delta)
 
-    def move_delta(self, params: dict[str, float]) -> tuple[tuple[float, ...], float, float]:
+    def move_delta(self, params: dict[str, float]) -> tuple[Move, float, float]:
         """G0/G1 to ``params``; returns the move (X, Y, Z, E mm), its speed (mm/s, the
         feedrate scaled by M220) and its nominal duration (length / speed, s)."""
         delta = self._advance(params)
         length, duration = self._timed(delta)
         speed = length / duration if duration > 0.0 else 0.0
-        return tuple(delta.get(a, 0.0) for a in AXES), speed, duration
+        x, y, z, e = (delta.get(a, 0.0) for a in AXES)
+        return (x, y, z, e), speed, duration
 
     def arc(
         self, params: dict[str, float], clockwise: bool, settings: PlannerSettings
-    ) -> tuple[list[tuple[tuple[float, ...], float]], float, float]:
+    ) -> tuple[list[tuple[Move, float]], float, float]:
         """G2/G3 to ``params`` around start + (I, J) in the XY plane, cut into chords as
         Marlin's ``plan_arc`` does; Z and E are shared out by chord length.
 

@@ -10,6 +10,7 @@ host (the protocol core, or anything else) talks to it through ``write`` and ``o
 
 from __future__ import annotations
 
+import functools
 import heapq
 import itertools
 from collections import deque
@@ -79,7 +80,7 @@ class Lane:
                 arrival += self.delay(len(piece))
             arrival = max(arrival, self._last_arrival)
             self._last_arrival = arrival
-            self.clock.at(arrival, lambda p=piece, e=epoch: self._arrive(p, e))
+            self.clock.at(arrival, functools.partial(self._arrive, piece, epoch))
 
     def _arrive(self, piece: bytes, epoch: int) -> None:
         if epoch == self.epoch:

@@ -5,9 +5,11 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
-from collections.abc import Awaitable, Callable, Iterable
+from collections.abc import Awaitable, Callable, Hashable, Iterable, Iterator
 from types import TracebackType
 
+from drivers.backoff import Backoff, reconnect
+from drivers.linkacks import Ack, AckChannel, Tags
 from drivers.linkconfig import (
     CANCELLED,
     CONNECTING,
@@ -49,6 +51,8 @@ __all__ = [
     "PAUSED",
     "READY",
     "RECONNECTING",
+    "Ack",
+    "AckChannel",
     "LinkError",
     "LinkState",
     "StreamCancelled",
@@ -74,9 +78,11 @@ class Streamer:
                 await link.send(command)
             await link.drain()
 
-    Callbacks (attributes, may be set any time): ``on_ack(number, command)`` for every job
-    line acknowledged, in order; ``on_temperature(response)`` for every temperature report;
-    ``on_error(text)`` for printer errors and link failures.
+    Acknowledgements come through one typed channel: ``with link.acknowledgements() as
+    acks`` attaches an :class:`~drivers.linkacks.AckChannel` that receives an
+    :class:`~drivers.linkacks.Ack` for every job line acknowledged, in order, carrying the
+    ``tag`` given to ``send()``. Callbacks (attributes): ``on_temperature(response)`` for
+    every temperature report; ``on_error(text)`` for printer errors and link failures.
 
     Every protocol decision is the core's (:class:`~drivers.linkcore.LinkCore`); this shell
     runs three named tasks in one ``TaskGroup``: the reader feeds it received lines, the
@@ -93,7 +99,8 @@ class Streamer:
         """``reopen`` opens the port again after it was lost (default: same port and speed)."""
         self.config = config or StreamerConfig()
         self.core = LinkCore(self.config)
-        self.on_ack: Callable[[int, str], None] | None = None
+        self._acks: AckChannel | None = None
+        self._tags = Tags()
         self.on_temperature: Callable[[Response], None] | None = None
         self.on_error: Callable[[str], None] | None = None
         self._transport = transport
@@ -170,6 +177,7 @@ class Streamer:
                 await self._group
             self._group = None
         self._waiters.fail_all(LinkError("link closed"))
+        self._tags.clear()
         self._progress.set()
         await self._transport.close()
         if self.core.alive():
@@ -217,11 +225,30 @@ class Streamer:
                  self.profile.name, self.profile.why, config.rx_buffer, config.bufsize,
                  config.ok_after_resend, f"; firmware defaults applied: {shown}" if shown else "")
 
-    async def send(self, command: str) -> int:
+    @contextlib.contextmanager
+    def acknowledgements(self, channel: AckChannel | None = None) -> Iterator[AckChannel]:
+        """Attach ``channel`` (default: a new one) to receive every job line's :class:`Ack`
+        until the block ends, then close it.
+
+        One listener at a time (a job); acknowledgements with no listener are dropped.
+        """
+        if self._acks is not None:
+            raise RuntimeError("a listener is already attached to the acknowledgements")
+        channel = channel or AckChannel()
+        self._acks = channel
+        try:
+            yield channel
+        finally:
+            self._acks = None
+            channel.close()
+
+    async def send(self, command: str, tag: Hashable | None = None) -> int:
         """Queue one job command; returns its line number once it has been written.
 
-        Waits while the send-ahead window is full or the stream is paused. Raises
-        :class:`StreamCancelled` after ``cancel()``, :class:`LinkError` if the link failed.
+        ``tag`` comes back in the line's :class:`Ack` once the printer acknowledged it
+        (say, the layer and the command's index in it). Waits while the send-ahead window
+        is full or the stream is paused. Raises :class:`StreamCancelled` after
+        ``cancel()``, :class:`LinkError` if the link failed.
         """
         command = command.strip()
         if not command:
@@ -230,6 +257,7 @@ class Streamer:
             raise StreamCancelled("stream cancelled")
         self._check_alive()
         token, future = self._waiters.new()
+        self._tags.queued(token, tag)
         self.core.queue_job(command, token)
         self._wake.set()
         return await future
@@ -244,15 +272,16 @@ class Streamer:
             await self._progress.wait()
         self._check_alive()
 
-    async def pause(self, park: Iterable[str] | None = None) -> None:
+    async def pause(self, park: Iterable[str] | None = None, *, settle: bool = True) -> None:
         """Stop after the lines already written; then send the park G-code (if any).
 
-        Returns once the printer has acknowledged everything sent. ``park`` overrides
-        ``config.park_gcode``.
+        Returns once the printer has acknowledged everything sent (at once with
+        ``settle=False``). ``park`` overrides ``config.park_gcode``.
         """
         self.core.pause(list(self.config.park_gcode if park is None else park))
         self._wake.set()
-        await self.drain()
+        if settle:
+            await self.drain()
 
     async def resume(self, unpark: Iterable[str] | None = None) -> None:
         """Send the unpark G-code, then continue exactly where the stream stopped."""
@@ -261,16 +290,19 @@ class Streamer:
         self.core.resume()
         self._wake.set()
 
-    async def cancel(self, end_gcode: Iterable[str] = ()) -> None:
-        """Refuse further job lines, send ``end_gcode`` after what is in flight, drain.
+    async def cancel(self, end_gcode: Iterable[str] = (), *, settle: bool = True) -> None:
+        """Refuse further job lines, send ``end_gcode`` after what is in flight, drain
+        (not with ``settle=False``).
 
         Pending and later ``send()`` calls raise :class:`StreamCancelled` until
         ``begin_job()`` opens the link to the next job.
         """
         for token in self.core.cancel(list(end_gcode)):
+            self._tags.dropped(token)
             self._waiters.settle(token, error=StreamCancelled("stream cancelled"))
         self._wake.set()
-        await self.drain()
+        if settle:
+            await self.drain()
         if self.core.alive():
             self.core.state = LinkState.CANCELLED
 
@@ -367,18 +399,18 @@ class Streamer:
         """The port failed: report, then try to reopen. True if the link is back."""
         self.core.link_lost(reason)
         self._dispatch(self.core.take_events())
-        for _attempt in range(self.config.reconnect_attempts):
-            await asyncio.sleep(self.config.reconnect_delay_s)
-            try:
-                transport = await self._open_again()
-            except TransportError:
-                continue
-            self._transport = transport
+        if self.config.reconnect_attempts > 0:
             with contextlib.suppress(TransportError):
-                # end whatever partial line the printer kept from before the cut
-                await transport.write(b"\n")
-            self.core.reopened(asyncio.get_running_loop().time())
-            return True
+                transport = await reconnect(
+                    self._open_again, Backoff(self.config.reconnect_delay_s),
+                    errors=(TransportError,), attempts=self.config.reconnect_attempts,
+                    wait_first=True)
+                self._transport = transport
+                with contextlib.suppress(TransportError):
+                    # end whatever partial line the printer kept from before the cut
+                    await transport.write(b"\n")
+                self.core.reopened(asyncio.get_running_loop().time())
+                return True
         self.core.fail(f"link lost: {reason}")
         self._dispatch(self.core.take_events())
         return False
@@ -412,10 +444,13 @@ class Streamer:
             return
         for event in events:
             if isinstance(event, Written):
+                self._tags.written(event.token, event.number)
                 self._waiters.settle(event.token, result=event.number)
             elif isinstance(event, Acked):
-                if event.job and self.on_ack is not None:
-                    self.on_ack(event.number, event.command)
+                if event.job:
+                    tag = self._tags.acked(event.number)
+                    if self._acks is not None:
+                        self._acks.put(Ack(event.number, event.command, tag))
                 if event.token is not None:
                     self._waiters.settle(event.token, result=event.number)
             elif isinstance(event, Temperature):
@@ -425,6 +460,7 @@ class Streamer:
                 if self.on_error is not None:
                     self.on_error(event.text)
             elif isinstance(event, Failed):
+                self._tags.clear()
                 self._waiters.fail_all(LinkError(event.reason))
                 self._failed.set()
             elif isinstance(event, Started):

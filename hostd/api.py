@@ -9,6 +9,12 @@ reply ``{"reply": NAME, "ok": true|false, "id": ..., "error": text|null, ...}``.
 ``{"cmd": "subscribe"}`` turns the connection into a stream of
 ``{"status": SNAPSHOT}`` and ``{"event": EVENT}`` lines.
 
+``{"cmd": "emergency_stop"}`` (also over MQTT): ``M112`` at once, out of band when the
+firmware has an emergency parser. The printer halts; the job printing, if any, fails
+("emergency stop (M112)") and is not resumable; the daemon then opens the link again
+(the board resets). The reply's ``job`` is the failed job's id, or null when idle; it
+is refused ("no printer is connected") while the printer is offline.
+
 Requests for the dashboard (control socket only; over MQTT they are refused):
 
 - ``{"cmd": "layer", "layer": N, "tolerance": MM, "field": [COLS, ROWS]}``: one layer

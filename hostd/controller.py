@@ -73,19 +73,19 @@ class DaemonController:
         job = self._printing()
         if job.runner.paused:
             raise CommandError("already paused")
-        job.runner.pause()
+        await job.runner.pause()
         return {"job": job.job.id}
 
     async def _cmd_resume(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
         if not job.runner.paused:
             raise CommandError("not paused")
-        job.runner.resume()
+        await job.runner.resume()
         return {"job": job.job.id}
 
     async def _cmd_cancel(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
-        job.runner.cancel()
+        await job.runner.cancel()
         return {"job": job.job.id}
 
     async def _cmd_emergency_stop(self, args: dict[str, Any]) -> dict[str, Any]:

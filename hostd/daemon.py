@@ -11,6 +11,7 @@ import random
 import signal
 from pathlib import Path
 
+from drivers.backoff import Backoff, reconnect
 from drivers.responses import Response
 from drivers.streamer import HALTED, LinkError, Streamer
 from hostd.addons import Addons
@@ -33,19 +34,10 @@ log = logging.getLogger("hostd.daemon")
 
 STORE_FILE = "jobs.sqlite3"
 SOCKET_FILE = "hostd.sock"
-# reconnecting to the printer: first delay, cap (s), and the random spread of each delay
-RECONNECT_FIRST_S = 1.0
-RECONNECT_MAX_S = 30.0
-RECONNECT_JITTER = 0.25
-
-
-def backoff(delay: float, rng: random.Random) -> tuple[float, float]:
-    """(this wait, next delay): ``delay`` spread by +-25 %, and the delay doubled up to 30 s.
-
-    The spread keeps several hosts that lost one shared link from retrying in step.
-    """
-    wait = delay * rng.uniform(1.0 - RECONNECT_JITTER, 1.0 + RECONNECT_JITTER)
-    return wait, min(delay * 2, RECONNECT_MAX_S)
+# reopening the printer link after it failed: the same jittered exponential policy as the
+# MQTT bridge's and the streamer's port reconnects (1 s doubling to 30 s, each wait drawn
+# from half to all of it)
+RECONNECT = Backoff(initial_s=1.0, maximum_s=30.0)
 
 
 class _Stop(Exception):
@@ -170,26 +162,36 @@ class Daemon:
         return queue[0] if queue else None
 
     async def _print_loop(self, executor: concurrent.futures.Executor) -> None:
-        """Keep the printer connected and print queued jobs one after another."""
-        delay = RECONNECT_FIRST_S
+        """Keep the printer connected and print queued jobs one after another.
+
+        The link is opened through :func:`drivers.backoff.reconnect` (the one reconnect
+        loop, also the streamer's): at once at start, after a wait once a link failed.
+        """
         rng = random.Random()
+        failed_before = False
         while True:
-            try:
-                async with printer_link(self.config, self._printer_booted) as link:
-                    delay = RECONNECT_FIRST_S
-                    self._attach(link)
-                    try:
-                        await self._serve_queue(link, executor)
-                    finally:
-                        self.link = None
-            except (LinkError, OSError) as exc:
-                wait, delay = backoff(delay, rng)
-                log.error("printer link: %s; retrying in %.1f s", exc, wait)
-                self.life.printer_offline(
-                    PrinterInfo(self.config.printer.id, self.config.printer.port, False),
-                    str(exc))
-                self.queue_changed()
-                await asyncio.sleep(wait)
+            async with contextlib.AsyncExitStack() as stack:
+                link = await reconnect(
+                    lambda: stack.enter_async_context(
+                        printer_link(self.config, self._printer_booted)),
+                    RECONNECT, errors=(LinkError, OSError), wait_first=failed_before,
+                    failed=self._offline, rng=rng)
+                self._attach(link)
+                try:
+                    await self._serve_queue(link, executor)
+                except (LinkError, OSError) as exc:
+                    self._offline(exc, None)
+                    failed_before = True
+                finally:
+                    self.link = None
+
+    def _offline(self, exc: Exception, wait: float | None) -> None:
+        """The link failed or could not be opened: state offline until it is back."""
+        then = "retrying" if wait is None else f"retrying in {wait:.1f} s"
+        log.error("printer link: %s; %s", exc, then)
+        self.life.printer_offline(
+            PrinterInfo(self.config.printer.id, self.config.printer.port, False), str(exc))
+        self.queue_changed()
 
     async def emergency_stop(self) -> bool:
         """``M112`` now; the link then fails and is opened again. False without a printer."""

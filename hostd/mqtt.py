@@ -15,6 +15,7 @@ from typing import Any, Protocol
 
 import aiomqtt
 
+from drivers.backoff import Backoff  # the one reconnect policy (also the printer link's)
 from hostd.api import Snapshot
 from hostd.homeassistant import HA_STATUS_TOPIC, DeviceTopics, discovery_messages
 from hostd.status import CommandError, Controller, StatusHub
@@ -57,20 +58,6 @@ class ExtraPublisher(Protocol):
 
 class MqttSetupError(ValueError):
     """The MQTT settings cannot work (for example an unreadable CA file)."""
-
-
-@dataclass(frozen=True)
-class Backoff:
-    """Jittered exponential reconnect delays, in seconds."""
-
-    initial_s: float = 0.5
-    maximum_s: float = 30.0
-    factor: float = 2.0
-
-    def delay(self, attempt: int, rng: random.Random) -> float:
-        """The wait before reconnect attempt ``attempt`` (0-based): half to all of the ceiling."""
-        ceiling = min(self.maximum_s, self.initial_s * self.factor ** min(attempt, 64))
-        return rng.uniform(ceiling / 2, ceiling)
 
 
 @dataclass(frozen=True)

@@ -107,8 +107,8 @@ class PrintJob:
         try:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
                                     first, write_preamble=not resume, park=self._park(),
-                                    skip=skip)
-            link.on_ack = lambda _number, _command: self.runner.on_ack()
+                                    skip=skip, end_gcode=CANCEL_GCODE)
+            link.begin_job()  # a link cancelled for the job before takes this one's lines
             verb = f"resumed at layer {first}, command {skip}" if resume else "started"
             log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
             self.life.publish(Started(job.id, job.name, self.source.layer_count,
@@ -125,7 +125,6 @@ class PrintJob:
                     self._interrupted(f"stopped: {type(exc).__name__}")
                 raise
             finally:
-                link.on_ack = None
                 self.source.close()
         finally:
             with contextlib.suppress(OSError):  # a full disk fails the flush again
@@ -252,11 +251,11 @@ class PrintJob:
         return park_moves(min(5.0, self.config.printer.bed[2] - top - 1.0))
 
     async def _cancelled(self, link: Streamer, reason: str) -> None:
+        """The link cancelled the job (``M108``, then ``CANCEL_GCODE`` after the lines in
+        flight): wait until the printer took them, and open the link to the next job."""
         with contextlib.suppress(LinkError):
-            await link.interrupt_wait()  # M108: end a heating wait at once
-            for command in CANCEL_GCODE:
-                await link.send(command)
             await link.drain()
+        link.begin_job()
         job = self.store.get(self.job.id)
         self.intake.fail(job, reason, state="cancelled")
 

@@ -4,14 +4,19 @@ from __future__ import annotations
 
 import asyncio
 import collections
+import contextlib
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Hashable, Iterable
+from contextlib import AbstractContextManager
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO, Any, Protocol
+from typing import IO, Any, NamedTuple, Protocol
 
+from drivers.linkacks import Ack, AckChannel
 from drivers.protocol import strip_comment
+from drivers.streamer import LinkError, StreamCancelled
+from drivers.transport import TransportError
 from hostd.api import JobStatus
 from hostd.checkpoints import Checkpoint, CheckpointWriter
 from hostd.eta import EtaModel
@@ -29,11 +34,32 @@ ENDING = -2  # mark of the end block
 
 
 class Link(Protocol):
-    """What the runner needs of the printer connection (a ``drivers.streamer.Streamer``)."""
+    """What the runner needs of the printer connection (a ``drivers.streamer.Streamer``):
+    tagged sends, one channel of acknowledgements, and the link's own pause and cancel."""
 
-    async def send(self, command: str) -> int: ...
+    async def send(self, command: str, tag: Hashable | None = None) -> int: ...
 
     async def drain(self) -> None: ...
+
+    def acknowledgements(self) -> AbstractContextManager[AckChannel]: ...
+
+    async def pause(self, park: Iterable[str] | None = None, *, settle: bool = True) -> None: ...
+
+    async def resume(self, unpark: Iterable[str] | None = None) -> None: ...
+
+    async def cancel(self, end_gcode: Iterable[str] = (), *, settle: bool = True) -> None: ...
+
+    async def interrupt_wait(self) -> None: ...
+
+
+class JobLine(NamedTuple):
+    """The tag of one job line: ``seq`` job lines sent before it in this run, its
+    ``layer`` (or PREAMBLE, ENDING) and its command ``index`` in that layer (counting
+    the commands a resume skips)."""
+
+    seq: int
+    layer: int
+    index: int
 
 
 @dataclass(frozen=True)
@@ -61,13 +87,10 @@ class JobCancelled(Exception):
 
 @dataclass(frozen=True)
 class _Mark:
-    """A point in the stream: once ``sent`` job lines are acknowledged, ``layer`` is complete.
+    """A point in the stream: once the job line tagged ``seq`` is acknowledged, ``layer``
+    is complete (``seq`` -1: at once, nothing of the run was sent before it)."""
 
-    Counted in lines, not line numbers: the streamer renumbers (``M110``) on long jobs,
-    but acknowledges every job line once, in order.
-    """
-
-    sent: int
+    seq: int
     layer: int
     offset: int
 
@@ -75,15 +98,17 @@ class _Mark:
 class JobRunner:
     """Prints one job: preamble, layers ``first..n-1`` and ending, checkpointing as acknowledged.
 
-    Lines go to the printer through ``link`` and, with their comments, to
-    ``output`` (the job's G-code file being written). Acknowledgements come back
-    through :meth:`on_ack`, called by the serial reader: it only counts, and hands
-    the newest checkpoint (last complete layer, lines acknowledged, commands of
-    the next layer acknowledged, bytes of ``output``) to a
-    :class:`~hostd.checkpoints.CheckpointWriter`, which makes it durable in its
-    own thread. ``skip`` commands of layer ``first`` are written to ``output``
-    but not sent (a resume within that layer): in their place go the moves that
-    bring the nozzle back to where they left it, not counted as job lines.
+    Lines go to the printer through ``link``, each tagged with a :class:`JobLine`,
+    and, with their comments, to ``output`` (the job's G-code file being written).
+    Acknowledgements come back through the link's channel with their tags, read by a
+    task of the run (:meth:`on_ack`), which hands the newest checkpoint (last complete
+    layer, lines acknowledged, commands of the next layer acknowledged, bytes of
+    ``output``) to a :class:`~hostd.checkpoints.CheckpointWriter`, which makes it
+    durable in its own thread. ``skip`` commands of layer ``first`` are written to
+    ``output`` but not sent (a resume within that layer): in their place go the moves
+    that bring the nozzle back to where they left it, sent untagged. Pause and cancel
+    are the link's (:meth:`Streamer.pause`, :meth:`Streamer.cancel`): the runner
+    chooses the park moves and the end G-code and keeps the job's state.
     """
 
     def __init__(
@@ -98,7 +123,9 @@ class JobRunner:
         write_preamble: bool,
         park: Park | None = None,
         skip: int = 0,
+        end_gcode: tuple[str, ...] = (),
     ) -> None:
+        """``end_gcode``: sent after the lines in flight when the job is cancelled."""
         self.job = job
         self.source = source
         self.link = link
@@ -117,15 +144,15 @@ class JobRunner:
         self.state = JobState.SLICING
         self.writer: CheckpointWriter | None = None
         self._marks: collections.deque[_Mark] = collections.deque()
-        self._sent = 0  # lines sent by this run (job lines and park moves)
-        self._extra: collections.deque[int] = collections.deque()  # park moves, by count
+        self._seq = 0  # job lines sent by this run: the next line's JobLine.seq
         self.park = park or Park()
-        self._acked = 0  # lines acknowledged in this run (job lines and park moves)
-        self._layer_base = 0  # lines_acked when the layer in progress began, less `skip`
+        self.end_gcode = end_gcode
+        self._layer_lines = 0  # commands of the layer after `completed` acknowledged
         self._offset = job.gcode_bytes if resumed else 0  # file length through `completed`
-        self._running = asyncio.Event()
-        self._running.set()
+        self._parked = False  # the pause in force lifted the nozzle
+        self._commands = asyncio.Lock()  # pause and resume, one at a time
         self._cancelled = False
+        self._last_seq = -1  # JobLine.seq of the newest job line acknowledged
         self.output_error: str | None = None
         self._started = time.monotonic()
         self._print_started: float | None = None
@@ -137,29 +164,39 @@ class JobRunner:
 
     # -- commands -------------------------------------------------------------
 
-    def pause(self) -> None:
-        """Stop sending after the current line; the printer empties its buffer."""
-        if self.state == JobState.PAUSED:
-            return
-        self._running.clear()
-        self.eta.pause(time.monotonic())
-        self._set_state(JobState.PAUSED)
-        self.life.publish(Paused(self.job.id, self.job.name, self.completed))
+    async def pause(self) -> None:
+        """The link stops after the lines written and lifts the nozzle (once printing);
+        returns at once, while the printer empties its buffer."""
+        async with self._commands:
+            if self.state == JobState.PAUSED or self._cancelled:
+                return
+            self._parked = self._print_started is not None and bool(self.park.park)
+            await self.link.pause(self.park.park if self._parked else (), settle=False)
+            self.eta.pause(time.monotonic())
+            self._set_state(JobState.PAUSED)
+            self.life.publish(Paused(self.job.id, self.job.name, self.completed))
 
-    def resume(self) -> None:
-        """Continue sending after a pause."""
-        if self.state != JobState.PAUSED:
-            return
-        self._set_state(JobState.PRINTING if self._print_started is not None
-                        else JobState.HEATING)
-        self.eta.resume(time.monotonic())
-        self._running.set()
-        self.life.publish(Resumed(self.job.id, self.job.name, self.completed))
+    async def resume(self) -> None:
+        """Put the nozzle back (once acknowledged), and the link sends on where it stopped."""
+        async with self._commands:
+            if self.state != JobState.PAUSED or self._cancelled:
+                return
+            await self.link.resume(self.park.unpark if self._parked else ())
+            self._parked = False
+            self.eta.resume(time.monotonic())
+            self._set_state(JobState.PRINTING if self._print_started is not None
+                            else JobState.HEATING)
+            self.life.publish(Resumed(self.job.id, self.job.name, self.completed))
 
-    def cancel(self) -> None:
-        """Stop the job: no further line of it is sent."""
+    async def cancel(self) -> None:
+        """No further line of the job: the link ends any heating wait (``M108``), refuses
+        the job's lines and sends ``end_gcode`` after those in flight."""
+        if self._cancelled:
+            return
         self._cancelled = True
-        self._running.set()
+        with contextlib.suppress(LinkError, TransportError):  # a lost link stops the job too
+            await self.link.interrupt_wait()
+        await self.link.cancel(self.end_gcode, settle=False)
 
     @property
     def paused(self) -> bool:
@@ -170,10 +207,34 @@ class JobRunner:
     async def run(self) -> None:
         """Stream the whole job; returns when every line is acknowledged.
 
-        Raises JobCancelled after :meth:`cancel`; CancelledError propagates (the
-        daemon stopping), leaving the last checkpoint in the store.
+        Raises JobCancelled after :meth:`cancel` (the link then cancelled: the caller
+        drains it and calls ``begin_job()``); CancelledError propagates (the daemon
+        stopping), leaving the last checkpoint in the store.
         """
         self.writer = CheckpointWriter(self.store, self.job.id, self.output, self._writer_error)
+        try:
+            with self.link.acknowledgements() as acks:
+                follower = asyncio.create_task(self._follow(acks), name="runner-acks")
+                try:
+                    await self._stream_all()
+                    await self.link.drain()
+                finally:
+                    follower.cancel()
+                    with contextlib.suppress(asyncio.CancelledError):
+                        await follower
+                    for ack in acks.take():  # delivered while the follower was stopping
+                        self.on_ack(ack)
+            if self._cancelled:
+                raise JobCancelled(f"cancelled after the last layer ({self.completed + 1})")
+            if self.state == JobState.PAUSED:  # paused after the last line: nothing to hold
+                await self.link.resume(())
+            self._check_marks()
+        finally:
+            self.eta.stop()
+            await self.writer.close()
+        self._save(self.output.flush)
+
+    async def _stream_all(self) -> None:
         try:
             self._set_state(JobState.HEATING)
             await self._stream(self.source.preamble(), PREAMBLE, write=self.write_preamble)
@@ -183,12 +244,14 @@ class JobRunner:
                 await self._stream(lines, index, write=True,
                                    skip=self.skip if index == self.first else 0)
             await self._stream(self.source.ending(), ENDING, write=True)
-            await self.link.drain()
-            self._check_marks()
-        finally:
-            self.eta.stop()
-            await self.writer.close()
-        self._save(self.output.flush)
+        except StreamCancelled:
+            self._cancelled = True
+        if self._cancelled:
+            raise JobCancelled(f"cancelled at layer {self.completed + 1}")
+
+    async def _follow(self, acks: AckChannel) -> None:
+        async for ack in acks:
+            self.on_ack(ack)
 
     async def _stream(self, lines: list[str], layer: int, write: bool, skip: int = 0) -> None:
         if write and lines:
@@ -197,6 +260,7 @@ class JobRunner:
             # file at this layer's event (the job tracker) find the whole layer there
             self._save(self.output.flush)
         done: list[str] = []
+        index = 0
         for line in lines:
             command = strip_comment(line)
             if not command:
@@ -204,78 +268,59 @@ class JobRunner:
             if len(done) < skip:
                 done.append(command)  # carried out before the interruption
                 if len(done) == skip:
-                    await self._send_extra(reentry_moves(done))
+                    for move in reentry_moves(done):  # not lines of the job: untagged
+                        await self.link.send(move)
+                index += 1
                 continue
-            if not self._running.is_set():
-                await self._hold()
             if self._cancelled:
-                raise JobCancelled(f"cancelled at layer {self.completed + 1}")
-            await self.link.send(command)
-            self._sent += 1
-        if self._cancelled:
-            raise JobCancelled(f"cancelled at layer {self.completed + 1}")
+                raise StreamCancelled("job cancelled")
+            await self.link.send(command, JobLine(self._seq, layer, index))
+            self._seq += 1
+            index += 1
         offset = self._save(self.output.tell)
-        self._marks.append(_Mark(self._sent, layer, offset if offset is not None else -1))
+        self._marks.append(_Mark(self._seq - 1, layer, offset if offset is not None else -1))
         self._check_marks()
 
-    async def _hold(self) -> None:
-        """While paused: lift the nozzle (once printing), wait, and put it back."""
-        parked = self._print_started is not None
-        if parked:
-            await self._send_extra(self.park.park)
-        await self._running.wait()
-        if parked and not self._cancelled:
-            await self._send_extra(self.park.unpark)
-
-    async def _send_extra(self, commands: tuple[str, ...]) -> None:
-        """Send moves that are not lines of the job (pause, re-entry): acknowledged apart."""
-        for command in commands:
-            await self.link.send(command)
-            self._sent += 1
-            self._extra.append(self._sent)
-
-    def on_ack(self) -> None:
-        """The printer acknowledged the oldest line of this run not yet acknowledged.
-
-        Called by the serial reader: counts, moves the marks on and hands the
-        newest checkpoint to the writer; never waits on a disk or the store.
+    def on_ack(self, ack: Ack) -> None:
+        """The printer acknowledged a line: a job line (tagged :class:`JobLine`) moves the
+        marks on and hands the newest checkpoint to the writer; never waits on a disk or
+        the store. Untagged lines (re-entry, park moves) are not the job's.
         """
-        self._acked += 1
-        if self._extra and self._extra[0] == self._acked:
-            self._extra.popleft()  # a park move, not a line of the job
-        else:
-            self.lines_acked += 1
+        tag = ack.tag
+        if not isinstance(tag, JobLine):
+            return
+        self.lines_acked += 1
+        self._last_seq = tag.seq
         self._check_marks()
+        if tag.layer > self.completed or tag.layer == ENDING:  # the ending follows the last
+            self._layer_lines = tag.index + 1
+        elif tag.layer == PREAMBLE:
+            self._layer_lines = self.skip  # the skipped commands were carried out before
+        else:
+            self._layer_lines = 0
         if self._print_started is not None and self.writer is not None:
             self.writer.submit(Checkpoint(self.completed, self.lines_acked, self._offset,
-                                          self.lines_acked - self._layer_base))
+                                          self._layer_lines))
         now = time.monotonic()
         if now - self._last_publish > 0.25:
             self._publish()
 
     def _check_marks(self) -> None:
         marks = self._marks
-        while marks and marks[0].sent <= self._acked:
+        while marks and marks[0].seq <= self._last_seq:
             mark = marks.popleft()
             if mark.layer == PREAMBLE:
                 self._print_started = time.monotonic()
                 self.eta.start(self._print_started, measure_now=False)
                 if mark.offset > 0:
                     self._offset = mark.offset  # a resume in layer 0 keeps the start block
-                self._layer_base = self.lines_acked - self.skip
                 if self.state == JobState.HEATING:
-                    # the state is recorded by the loop, not inside the reader's callback
-                    asyncio.get_running_loop().call_soon(self._now_printing)
+                    self._set_state(JobState.PRINTING)
             elif mark.layer >= 0:
                 self._layer_complete(mark)
 
-    def _now_printing(self) -> None:
-        if self.state == JobState.HEATING:
-            self._set_state(JobState.PRINTING)
-
     def _layer_complete(self, mark: _Mark) -> None:
         self.completed = mark.layer
-        self._layer_base = self.lines_acked
         if mark.offset >= 0:
             self._offset = mark.offset
         self._layers_timed += 1

@@ -2,14 +2,18 @@
 
 from __future__ import annotations
 
+import os
 import shutil
-from collections.abc import Iterable, Iterator
-from typing import TextIO
+from collections.abc import Callable, Iterable, Iterator
+from typing import TYPE_CHECKING, TextIO
 
 from slicer.gcode import summarize
 from slicer.labels import ObjectLabels, progress_line
 from slicer.settings import SliceSettings
 from slicer.thumbnails import thumbnail_lines
+
+if TYPE_CHECKING:
+    from slicer.plan import SlicePlan
 
 # lines that are there for other hosts and printer screens, not part of any layer's own code
 ANNOTATIONS = ("M73 ", "M486 ", "EXCLUDE_OBJECT_")
@@ -20,12 +24,13 @@ def is_annotation(line: str) -> bool:
     return line.startswith(ANNOTATIONS)
 
 
-def object_labels(plan, settings: SliceSettings) -> ObjectLabels | None:
+def object_labels(plan: SlicePlan, settings: SliceSettings) -> ObjectLabels | None:
     """Labels for a plan of two bodies or more with ``gcode.labels`` on, else None."""
     return ObjectLabels(plan) if settings.gcode_labels and plan.body_count >= 2 else None
 
 
-def header_extras(plan, settings: SliceSettings, labels: ObjectLabels | None) -> list[str]:
+def header_extras(plan: SlicePlan, settings: SliceSettings, labels: ObjectLabels | None
+                  ) -> list[str]:
     """The thumbnails of ``gcode.thumbnails`` and the objects' definitions, for the header."""
     lines = thumbnail_lines(plan, settings.gcode_thumbnails)
     if labels is not None:
@@ -53,7 +58,7 @@ def copy_layers(out: TextIO, body: TextIO, lengths: list[int], times: list[float
 
 def _split(lines: Iterable[str]) -> Iterator[tuple[str, list[str]]]:
     """A program's lines in parts: ("pre", ...), ("layer", ...) each, ("end", ...)."""
-    kind, part = "pre", []
+    kind, part = "pre", list[str]()
     for line in lines:
         if line.startswith(";LAYER:") or (line.startswith(";END") and kind != "end"):
             if part:
@@ -89,7 +94,8 @@ def _end_position(lines: list[str], before: list[str]) -> list[str]:
 
 
 def annotate_program(
-    out: TextIO, read_body, plan, settings: SliceSettings, labels: ObjectLabels | None,
+    out: TextIO, read_body: Callable[[], Iterable[str]], plan: SlicePlan,
+    settings: SliceSettings, labels: ObjectLabels | None,
     times: list[float] | None = None,
 ) -> None:
     """Write a streamed program (``read_body()`` gives its lines, twice) with labels and M73.
@@ -117,7 +123,8 @@ def annotate_program(
 
 
 def annotate_file(
-    out: TextIO, path, plan, settings: SliceSettings, times: list[float] | None = None
+    out: TextIO, path: str | os.PathLike[str], plan: SlicePlan, settings: SliceSettings,
+    times: list[float] | None = None,
 ) -> None:
     """After a header: the extras, then the program streamed to ``path``, annotated
     (``times``: each layer's seconds, when known)."""

@@ -69,7 +69,8 @@ _DESCRIBE: dict[type, str] = {
 }
 
 
-def _reduce(func: Callable[[np.ndarray, np.ndarray], np.ndarray], args: tuple) -> np.ndarray:
+def _reduce(func: Callable[[np.ndarray, np.ndarray], np.ndarray], args: tuple[np.ndarray, ...]
+            ) -> np.ndarray:
     result = args[0]
     for arg in args[1:]:
         result = func(result, arg)

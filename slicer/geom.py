@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Callable
+from typing import TypeAlias
 
 import numpy as np
 import shapely
@@ -11,8 +12,11 @@ from shapely.errors import GEOSException
 # grid that overlays fall back to when exact floating point fails, mm
 GRID = 1e-6
 
+# a shapely geometry, or an object array of them (shapely itself carries no type information)
+Shapes: TypeAlias = shapely.Geometry | np.ndarray
 
-def overlay(op: Callable, a, b):
+
+def overlay(op: Callable[..., Shapes], a: Shapes, b: Shapes) -> Shapes:
     """``op(a, b)`` (a shapely set operation, arrays broadcast); element by element on a
     precision grid where GEOS raises a topology error."""
     try:
@@ -30,17 +34,17 @@ def overlay(op: Callable, a, b):
     return op(fa, fb, grid_size=GRID)
 
 
-def intersection(a, b):
+def intersection(a: Shapes, b: Shapes) -> Shapes:
     """Robust ``shapely.intersection``."""
     return overlay(shapely.intersection, a, b)
 
 
-def difference(a, b):
+def difference(a: Shapes, b: Shapes) -> Shapes:
     """Robust ``shapely.difference``."""
     return overlay(shapely.difference, a, b)
 
 
-def union(a, b):
+def union(a: Shapes, b: Shapes) -> Shapes:
     """Robust ``shapely.union``."""
     return overlay(shapely.union, a, b)
 

@@ -72,7 +72,7 @@ def _low_bits(key: np.ndarray, shift: np.uint64, itype: type) -> np.ndarray:
     if np.dtype(itype).itemsize == 8:
         key &= mask
         return key.view(np.int64)
-    out = key.view(itype)  # 2n slots over the same bytes
+    out: np.ndarray = key.view(itype)  # 2n slots over the same bytes
     for a in range(0, n, _STEP):
         low = key[a : a + _STEP] & mask
         out[a : a + len(low)] = low
@@ -97,7 +97,8 @@ def _same_as_previous(rows: np.ndarray, order: np.ndarray) -> np.ndarray:
     return same
 
 
-def _resort(rows, order, first, same, clash) -> None:
+def _resort(rows: np.ndarray, order: np.ndarray, first: np.ndarray, same: np.ndarray,
+            clash: np.ndarray) -> None:
     """Sort again, by value, the runs of equal hash prefix that hold different rows."""
     starts = np.flatnonzero(first)
     runs = np.unique(np.searchsorted(starts, clash, side="right") - 1)

@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import math
 import re
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
+
+if TYPE_CHECKING:
+    from slicer.plan import SlicePlan
 
 # one move as this slicer writes it: G0..G3, then F, X, Y, Z, I/J, E in that order
 _MOVE = re.compile(
@@ -18,7 +22,7 @@ _SAMPLED_LAYERS = 24  # layers whose outlines make a body's footprint
 class ObjectLabels:
     """Names, footprints and per-layer brackets of a plan's bodies (``body_<n>``, from 0)."""
 
-    def __init__(self, plan) -> None:
+    def __init__(self, plan: SlicePlan) -> None:
         self.plan = plan
         self.count = plan.body_count
         self.names = [f"body_{b}" for b in range(self.count)]
@@ -33,8 +37,8 @@ class ObjectLabels:
             for poly, body in zip(polys.tolist(), bodies.tolist(), strict=True):
                 parts[body].append(poly)
         lines = [f"M486 T{self.count}"]
-        for body, polys in enumerate(parts):
-            hull = shapely.convex_hull(shapely.union_all(polys)) if polys else None
+        for body, outlines in enumerate(parts):
+            hull = shapely.convex_hull(shapely.union_all(outlines)) if outlines else None
             if hull is None or hull.is_empty or hull.geom_type != "Polygon":
                 continue
             hull = shapely.simplify(hull, 0.2)

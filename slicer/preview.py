@@ -3,12 +3,16 @@
 from __future__ import annotations
 
 import os
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
 from PIL import Image, ImageDraw
 
 from slicer.layer import FILL, SKIN, SUPPORT, WALL_INNER, WALL_OUTER
+
+if TYPE_CHECKING:
+    from slicer.plan import SlicePlan
 
 COLOURS = {
     WALL_OUTER: (220, 50, 47),
@@ -23,7 +27,7 @@ _MARGIN_MM = 3.0
 
 
 def render_layer(
-    plan, i: int, path: str | os.PathLike[str], field: bool = False, size: int = 900
+    plan: SlicePlan, i: int, path: str | os.PathLike[str], field: bool = False, size: int = 900
 ) -> None:
     """Write layer ``i`` of ``plan`` as a PNG at ``path``.
 
@@ -74,7 +78,7 @@ def render_layer(
     image.save(path, format="PNG")
 
 
-def _legend(draw: ImageDraw.ImageDraw, plan, i: int) -> None:
+def _legend(draw: ImageDraw.ImageDraw, plan: SlicePlan, i: int) -> None:
     """Layer number, height and the colour key in the top-left corner."""
     draw.text(
         (8, 6), f"layer {i + 1} of {plan.layer_count}  z={plan.layer_z(i):.2f} mm", fill=(0, 0, 0)

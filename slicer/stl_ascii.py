@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import os
 import re
+from collections.abc import Iterator
 
 import numpy as np
 
@@ -21,7 +22,7 @@ _FACET = re.compile(rb"^[ \t]*facet\b", re.M | re.I)
 _NUMBERS = re.compile(rb"^[ \t]+(\S+)[ \t]+(\S+)[ \t]+(\S+)[ \t\r]*$")
 
 
-def _chunks(path: str | os.PathLike[str]):
+def _chunks(path: str | os.PathLike[str]) -> Iterator[tuple[bytes, int]]:
     """(text, line number of its first line) for the file, in pieces cut at line ends."""
     line = 1
     rest = b""
@@ -56,9 +57,10 @@ def read_ascii_corners(path: str | os.PathLike[str]) -> np.ndarray:
         facets += len(_FACET.findall(text))
         if not found:
             continue
-        rows = [_NUMBERS.match(rest) for rest in found]
-        if not all(rows):
-            k = next(i for i, m in enumerate(rows) if m is None)
+        matches = [_NUMBERS.match(rest) for rest in found]
+        rows = [m for m in matches if m is not None]
+        if len(rows) < len(matches):
+            k = next(i for i, m in enumerate(matches) if m is None)
             raise ModelError(f"ASCII STL: the vertex on line {_line_of(text, k, first_line)} "
                              "does not have three coordinates")
         try:

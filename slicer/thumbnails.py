@@ -4,9 +4,13 @@ from __future__ import annotations
 
 import base64
 import io
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
+
+if TYPE_CHECKING:
+    from slicer.plan import SlicePlan
 
 _LAYERS_DRAWN = 48  # layers stacked in the picture (evenly spaced)
 _LINE = 78  # base64 characters per comment line (PrusaSlicer's)
@@ -22,7 +26,7 @@ def parse_sizes(text: str) -> list[tuple[int, int]]:
     return sizes
 
 
-def thumbnail_png(plan, width: int, height: int) -> bytes:
+def thumbnail_png(plan: SlicePlan, width: int, height: int) -> bytes:
     """An isometric picture of the model's layer outlines stacked, ``width`` x ``height`` px.
 
     Transparent background; faces shaded from dark (bottom) to light (top).
@@ -76,7 +80,7 @@ def thumbnail_block(png: bytes, width: int, height: int) -> list[str]:
     return lines
 
 
-def thumbnail_lines(plan, sizes: str) -> list[str]:
+def thumbnail_lines(plan: SlicePlan, sizes: str) -> list[str]:
     """Every thumbnail block for the sizes of ``gcode.thumbnails`` (none for "")."""
     lines: list[str] = []
     for width, height in parse_sizes(sizes):

@@ -1,4 +1,4 @@
-"""Acknowledgements across line renumbering (M110): on_ack for every job line, once, in order."""
+"""Acknowledgements across line renumbering (M110): one Ack per job line, once, in order."""
 
 from __future__ import annotations
 
@@ -17,17 +17,19 @@ CONFIG = StreamerConfig(**{**FAST.__dict__, "renumber_at": RENUMBER_AT})
 
 
 async def _stream(sim: SimulatedPrinter, lines: list[str]) -> tuple[Streamer, list, list]:
-    """Stream ``lines``; returns the closed link, the on_ack calls and the send() numbers."""
-    acks: list[tuple[int, str]] = []
+    """Stream ``lines`` (tagged by index); returns the closed link, the (number, command)
+    of each acknowledgement and the send() numbers."""
     numbers: list[int] = []
     transport = await open_transport(sim.path, 250000)
     async with Streamer(transport, CONFIG) as link:
-        link.on_ack = lambda number, command: acks.append((number, command))
-        await link.connect()
-        for line in lines:
-            numbers.append(await link.send(line))
-        await link.drain()
-    return link, acks, numbers
+        with link.acknowledgements() as channel:
+            await link.connect()
+            for index, line in enumerate(lines):
+                numbers.append(await link.send(line, tag=index))
+            await link.drain()
+            received = channel.take()
+    assert [ack.tag for ack in received] == list(range(len(lines)))
+    return link, [(ack.number, ack.command) for ack in received], numbers
 
 
 def _check(sim: SimulatedPrinter, lines: list[str], link: Streamer, acks: list,
@@ -36,7 +38,7 @@ def _check(sim: SimulatedPrinter, lines: list[str], link: Streamer, acks: list,
     assert job_lines(executed) == lines  # every line executed once, in order
     assert link.stats.renumbers >= 4
     assert executed.count("M110 N0") == 1 + link.stats.renumbers
-    # one on_ack per job line, in order, with its command and the number it was sent as
+    # one Ack per job line, in order, with its command and the number it was sent as
     assert [command for _, command in acks] == lines
     assert [number for number, _ in acks] == numbers
     assert link.acked == len(lines)

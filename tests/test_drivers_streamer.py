@@ -15,7 +15,15 @@ import pytest
 
 from drivers.protocol import checksum
 from drivers.simulator import SimulatedPrinter, SimulatorConfig
-from drivers.streamer import HALTED, LinkError, StreamCancelled, Streamer, StreamerConfig
+from drivers.streamer import (
+    HALTED,
+    Ack,
+    AckChannel,
+    LinkError,
+    StreamCancelled,
+    Streamer,
+    StreamerConfig,
+)
 from drivers.transport import open_transport
 
 INTERNAL = ("M110", "M115", "M155", "M105")
@@ -200,21 +208,33 @@ def test_streams_a_job_exactly_once_in_order_with_handshake():
     assert link.firmware.startswith("Marlin")
 
 
-def test_on_ack_reports_every_job_line_once_in_order():
+def test_acknowledged_tags_are_the_lines_the_printer_executed_in_order_across_resends():
     lines = job(300)
-    acked: list[str] = []
+    tags: list[object] = []
 
-    async def run(sim: SimulatedPrinter) -> None:
+    async def run(sim: SimulatedPrinter) -> Streamer:
         async with Streamer(await open_transport(sim.path, 250000), FAST) as link:
-            link.on_ack = lambda number, command: acked.append(command)
-            await link.connect()
-            for line in lines:
-                await link.send(line)
-            await link.drain()
+            with link.acknowledgements() as channel:
+
+                async def follow() -> None:
+                    async for ack in channel:
+                        assert ack.command == lines[ack.tag]
+                        tags.append(ack.tag)
+
+                follower = asyncio.create_task(follow(), name="follower")
+                await link.connect()
+                for index, line in enumerate(lines):
+                    await link.send(line, tag=index)
+                await link.drain()
+            await follower  # the channel closed: every ack delivered was read
+        return link
 
     with SimulatedPrinter(sim_config(p_corrupt_rx=0.05, seed=3)) as sim:
-        asyncio.run(run(sim))
-    assert acked == lines
+        link = asyncio.run(run(sim))
+        executed = job_lines(list(sim.executed))
+    assert link.stats.resends > 0  # the noise made the printer ask for lines again
+    assert [lines[tag] for tag in tags] == executed
+    assert tags == list(range(len(lines)))
 
 
 def test_at_the_wire_limit_the_receive_buffer_never_overflows():
@@ -346,16 +366,18 @@ def test_a_late_ok_for_a_rewritten_m110_never_acknowledges_a_job_line():
     early: list[str] = []
 
     async def run() -> Streamer:
-        async with Streamer(await open_transport(printer.path, 115200), config) as link:
-            def on_ack(number: int, command: str) -> None:
-                if command not in printer.executed:  # acknowledged before it ran
-                    early.append(command)
+        class Checked(AckChannel):
+            def put(self, ack: Ack) -> None:  # called by the reader as the ok is read
+                if ack.command not in printer.executed:  # acknowledged before it ran
+                    early.append(ack.command)
+                super().put(ack)
 
-            link.on_ack = on_ack
-            await link.connect()
-            for line in lines:
-                await link.send(line)
-            await link.drain()
+        async with Streamer(await open_transport(printer.path, 115200), config) as link:
+            with link.acknowledgements(Checked()):
+                await link.connect()
+                for line in lines:
+                    await link.send(line)
+                await link.drain()
         return link
 
     try:

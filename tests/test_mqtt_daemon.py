@@ -45,7 +45,7 @@ def start_daemon(folder: Path, broker: Broker) -> subprocess.Popen[str]:
     )
 
 
-def test_a_bad_model_fails_with_an_mqtt_event_and_commands_are_answered(
+def test_a_bad_model_fails_with_an_mqtt_event_and_commands_are_answered_emergency_stop_too(
     tmp_path: Path, broker: Broker
 ) -> None:
     daemon = start_daemon(tmp_path, broker)
@@ -59,8 +59,11 @@ def test_a_bad_model_fails_with_an_mqtt_event_and_commands_are_answered(
                 async for message in client.messages:
                     topic = str(message.topic)
                     if topic.endswith("/online") and message.payload == b"online":
-                        # the daemon is up: drop a model that cannot be printed, send a command
+                        # the daemon is up: drop a model that cannot be printed, send commands
+                        # (carried out in order: the pause's refusal follows the stop)
                         (tmp_path / "jobs" / "junk.stl").write_bytes(b"\x00" * 40)
+                        await client.publish(f"hostd/{PRINTER}/cmd", '{"cmd": "emergency_stop"}',
+                                             qos=1)
                         await client.publish(f"hostd/{PRINTER}/cmd", '{"cmd": "pause"}', qos=1)
                     elif topic.endswith("/event"):
                         event = json.loads(message.payload)
@@ -87,6 +90,9 @@ def test_a_bad_model_fails_with_an_mqtt_event_and_commands_are_answered(
     assert "junk" in json.dumps(failed)
     assert (tmp_path / "jobs" / "failed" / "junk.error.txt").exists()
     assert refused["reason"] == "no job is printing"  # the daemon's controller answered
+    # the emergency stop reached the printer: M112 halted it, and the link was opened again
+    assert "emergency stop requested" in output
+    assert "M112" in (tmp_path / "var" / "simulator-executed.log").read_text()
     assert availability == "offline", output
     assert daemon.returncode == 0, output
 

@@ -66,14 +66,13 @@ async def print_job(
             runner = JobRunner(job, source, link, store, hub, output, 0, write_preamble=True)
             original_send = link.send
 
-            async def send(command: str) -> int:
+            async def send(command: str, tag: object = None) -> int:
                 if seen["sliced_at_first_send"] is None and not command.startswith(("M1", "G28")):
                     seen["sliced_at_first_send"] = len(schedule.sliced)
                 seen["ahead"].append(source.ready_ahead)
-                return await original_send(command)
+                return await original_send(command, tag)
 
             link.send = send  # type: ignore[method-assign]
-            link.on_ack = lambda _number, _command: runner.on_ack()
             await runner.run()
             with contextlib.suppress(OSError):
                 output.close()
@@ -211,7 +210,6 @@ def test_a_resume_within_a_layer_sends_the_rest_of_it_after_lifted_moves_back(
                 output = open_output(partial, job.gcode_bytes)
                 runner = JobRunner(job, source, link, store, StatusHub(), output, layer + 1,
                                    write_preamble=False, skip=done)
-                link.on_ack = lambda _number, _command: runner.on_ack()
                 await runner.run()
                 output.close()
         finally:

@@ -18,7 +18,7 @@ from typing import TextIO
 
 from drivers.protocol import Response, strip_comment
 from drivers.simulator import SimulatedPrinter, SimulatorConfig
-from drivers.streamer import LinkError, StreamCancelled, Streamer, StreamerConfig
+from drivers.streamer import AckChannel, LinkError, StreamCancelled, Streamer, StreamerConfig
 from drivers.transport import TransportError, open_transport
 from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
 from slicer.pipeline import LayerWindow
@@ -157,9 +157,10 @@ async def stream(
     async with Streamer(transport, config or StreamerConfig()) as link:
         interrupted = asyncio.Event()
 
-        def on_ack(number: int, command: str) -> None:
-            progress.acked += 1
-            bar.draw(progress)
+        async def follow(acks: AckChannel) -> None:
+            async for _ack in acks:
+                progress.acked += 1
+                bar.draw(progress)
 
         def on_temperature(report: Response) -> None:
             progress.hotend = report.temperatures.get("T") or report.temperatures.get("T0")
@@ -167,24 +168,27 @@ async def stream(
         def on_error(text: str) -> None:
             bar.stream.write(f"\nprinter: {text}\n")
 
-        link.on_ack, link.on_temperature, link.on_error = on_ack, on_temperature, on_error
+        link.on_temperature, link.on_error = on_temperature, on_error
         with contextlib.suppress(NotImplementedError, RuntimeError):
             loop.add_signal_handler(signal.SIGINT, interrupted.set)
         try:
-            await link.connect()
-            sender = asyncio.create_task(_send_all(link, commands), name="print-sender")
-            stop = asyncio.create_task(interrupted.wait(), name="print-interrupt")
-            await asyncio.wait({sender, stop}, return_when=asyncio.FIRST_COMPLETED)
-            if not sender.done():
-                await link.cancel(end_gcode)
-                with contextlib.suppress(StreamCancelled):
-                    await sender
-                bar.draw(progress, final=True)
-                bar.stream.write("cancelled\n")
-                return 130
-            stop.cancel()
-            await sender
-            await link.drain()
+            with link.acknowledgements() as acks:
+                follower = asyncio.create_task(follow(acks), name="print-acks")
+                await link.connect()
+                sender = asyncio.create_task(_send_all(link, commands), name="print-sender")
+                stop = asyncio.create_task(interrupted.wait(), name="print-interrupt")
+                await asyncio.wait({sender, stop}, return_when=asyncio.FIRST_COMPLETED)
+                if not sender.done():
+                    await link.cancel(end_gcode)
+                    with contextlib.suppress(StreamCancelled):
+                        await sender
+                    bar.draw(progress, final=True)
+                    bar.stream.write("cancelled\n")
+                    return 130
+                stop.cancel()
+                await sender
+                await link.drain()
+            await follower  # the channel closed: every acknowledgement counted
         except LinkError as exc:
             bar.draw(progress, final=True)
             bar.stream.write(f"hostd print: link failed: {exc}\n")

@@ -203,7 +203,8 @@ def solve_field(path: Path, case: LoadCase, vertices: np.ndarray, faces: np.ndar
     if optimal:
         values, _ = optimal_density(mesh, case, optimal)
     write_field(path, solution, values)
-    return FieldFile(path, False, float(values.max()), tuple(float(c) for c in mesh.grid.cell),
+    cx, cy, cz = (float(c) for c in mesh.grid.cell)
+    return FieldFile(path, False, float(values.max()), (cx, cy, cz),
                      len(mesh.cells), time.perf_counter() - started)
 
 

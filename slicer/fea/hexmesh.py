@@ -143,7 +143,7 @@ def boundary_faces(mesh: HexMesh) -> Faces:
     padded = np.pad(solid, 1)
     blurred = ndimage.gaussian_filter(padded.astype(float), sigma=1.0)
     gradient = np.stack(np.gradient(blurred, *grid.cell), axis=-1)  # (nx+2, ny+2, nz+2, 3)
-    parts: list[tuple] = []
+    parts: list[tuple[np.ndarray, ...]] = []
     for axis in range(3):
         for side in (0, 1):
             step = np.zeros(3, dtype=np.int64)

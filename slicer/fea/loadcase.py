@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import hashlib
 import math
+import os
 import tomllib
 from dataclasses import dataclass
 from pathlib import Path
@@ -81,14 +82,14 @@ def _region_bytes(region: Region) -> bytes:
     return region.box.astype("<f8").tobytes() + np.asarray(normal, dtype="<f8").tobytes()
 
 
-def load_path_for(model: str | Path) -> Path:
+def load_path_for(model: str | os.PathLike[str]) -> Path:
     """``NAME.load.toml`` beside ``NAME.stl``."""
     model = Path(model)
     return model.with_name(model.stem + LOAD_SUFFIX)
 
 
 def read_load_case(
-    path: str | Path, youngs: float = ABS_YOUNGS_MPA, poisson: float = ABS_POISSON
+    path: str | os.PathLike[str], youngs: float = ABS_YOUNGS_MPA, poisson: float = ABS_POISSON
 ) -> LoadCase:
     """Parse and check the load case file at ``path`` (see :func:`parse_load_case`)."""
     path = Path(path)

@@ -89,6 +89,7 @@ def nodal_loads(mesh: HexMesh, faces: Faces, case: LoadCase) -> np.ndarray:
         if item.vector is not None:
             per_face = area[:, None] / area.sum() * item.vector[None, :]
         else:
+            assert item.mpa is not None  # a load is a force or a pressure
             per_face = -float(item.mpa) * area[:, None] * faces.axis_normal[chosen]
         for corner in range(4):
             for comp in range(3):

@@ -31,7 +31,7 @@ class Tailoring:
 
     field: FieldFile | None
     mass: MassMatch | None
-    running: Future | None = None
+    running: Future[FieldFile] | None = None
 
     def lines(self) -> list[str]:
         """Summary lines, one fact each (an analysis still running is reported so)."""

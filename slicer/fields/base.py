@@ -50,16 +50,17 @@ class InfillField(Protocol):
         ...
 
 
-FIELDS: dict[str, Callable[[SliceSettings], InfillField]] = {}
+FieldFactory = Callable[[SliceSettings], InfillField]
+FIELDS: dict[str, FieldFactory] = {}
 # fields whose module registers them alone, without the whole library's imports (a
 # stress job's first layers should not wait for scipy.spatial and scipy.interpolate)
 _OWN_MODULE = {"stress": "slicer.fields.stress"}
 
 
-def register(name: str) -> Callable[[Callable[[SliceSettings], InfillField]], Callable]:
+def register(name: str) -> Callable[[FieldFactory], FieldFactory]:
     """Class decorator: make a field available as ``infill.field = name``."""
 
-    def decorate(factory: Callable[[SliceSettings], InfillField]) -> Callable:
+    def decorate(factory: FieldFactory) -> FieldFactory:
         FIELDS[name] = factory
         return factory
 

@@ -165,7 +165,9 @@ class GridField:
 
     def __init__(self, settings: SliceSettings) -> None:
         self.settings = settings
-        self._steps: dict[tuple, tuple[float, float]] = {}
+        # (bounds, spacing, width) -> (target spacing, level step)
+        self._steps: dict[tuple[tuple[float, float, float, float], float, float],
+                          tuple[float, float]] = {}
         self._lock = threading.Lock()
 
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:

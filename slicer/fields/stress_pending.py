@@ -5,14 +5,18 @@ from __future__ import annotations
 import threading
 from concurrent.futures import Future
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from slicer.fea.field import FieldFile
 
 # field files still being computed (an analysis running while the first layers print):
 # path -> a future that completes when the file is written
-_PENDING: dict[str, Future] = {}
+_PENDING: dict[str, Future[FieldFile]] = {}
 _PENDING_LOCK = threading.Lock()
 
 
-def announce(path: str | Path, future: Future) -> None:
+def announce(path: str | Path, future: Future[FieldFile]) -> None:
     """Say that the field file ``path`` is being computed by ``future``: a stress field
     naming it is built at once and waits for it only when first sampled."""
     with _PENDING_LOCK:
@@ -20,13 +24,13 @@ def announce(path: str | Path, future: Future) -> None:
     future.add_done_callback(lambda _f: _forget(str(path), future))
 
 
-def _forget(path: str, future: Future) -> None:
+def _forget(path: str, future: Future[FieldFile]) -> None:
     with _PENDING_LOCK:
         if _PENDING.get(path) is future and not future.exception():
             del _PENDING[path]
 
 
-def pending(path: str | Path) -> Future | None:
+def pending(path: str | Path) -> Future[FieldFile] | None:
     """The computation of ``path`` if one was announced and the file is not there yet
     (a failed computation stays, so every field naming it reports its error)."""
     with _PENDING_LOCK:
