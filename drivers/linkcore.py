@@ -29,6 +29,12 @@ _GARBLED_N = re.compile(r'unknown command:\s*"?[^\d\s"](\d+) ', re.IGNORECASE)
 MAX_LATE_OKS = 8
 
 
+def _is_probe_line(held: tuple[str, bool] | None, internal: bool = False) -> bool:
+    """True for a history entry that is an ``M105`` (the link's own, with ``internal``)."""
+    return held is not None and held[0].split(" ", 1)[0] == "M105" \
+        and (held[1] or not internal)
+
+
 class LinkCore(Resync, Writing, Watching):
     """Everything the link knows and decides, as plain data; see the module docstring."""
 
@@ -204,13 +210,51 @@ class LinkCore(Resync, Writing, Watching):
                     self.window.limit = self.window.max_lines
         # oks are counted in order; an advanced ok's N is not trusted to name the line it
         # acknowledges (firmwares print the last line received or the one executed)
-        done = self.window.ack_probe() if response.has_temperatures else self.window.ack_one()
+        if self.renumber is not None:
+            # the M110 numbers itself apart (a reset's M110 reuses the last line's number)
+            done = self.window.ack_probe() if response.has_temperatures else self.window.ack_one()
+        else:
+            done = self._ack_by_count(response.has_temperatures)
         if any(e.probe and e.number == self.next_number - 1 for e in done):
             self.fenced = True  # (a firmware that answers M105 without temperatures too)
         if done and self.replay_next is None:
             self.window.grow()
         for entry in done:
             self.acknowledged(entry)
+
+    def _ack_by_count(self, probe_answer: bool) -> list[InFlight]:
+        """A plain ``ok`` is the line's after the last one acknowledged; an ``ok T:`` the
+        first ``M105`` from there (with the probes right behind it, whose answers then
+        acknowledge nothing more).
+
+        Marlin takes numbered lines strictly in sequence and answers each with one ok, so
+        the oks name consecutive lines whatever copies were written. A line dropped from
+        the window as refused may have been taken after all (the refusal that started a
+        replay was spurious, or a refusal was taken for a copy's): its ok is still its
+        own, never a later line's. Copies of lines done are dropped from the window (the
+        printer refuses or drains them: no ok of theirs comes). When the count is off (an
+        ok lost or an extra one read) the window's order decides, as before; a probe's
+        answer sets the count right.
+        """
+        history = self.history
+        number = self.last_acked_number + 1
+        if probe_answer:
+            while number < self.next_number and not _is_probe_line(history.get(number)):
+                number += 1
+            if number >= self.next_number:
+                return self.window.ack_probe()
+            while number + 1 < self.next_number \
+                    and _is_probe_line(history.get(number + 1), internal=True):
+                number += 1
+        held = history.get(number)
+        if held is None or number >= self.next_number:
+            return self.window.ack_probe() if probe_answer else self.window.ack_one()
+        done = self.window.ack_upto(number)
+        if not any(e.number == number for e in done):
+            command, internal = held
+            done.append(InFlight(number, command, 0, internal=internal,
+                                 probe=internal and _is_probe_line(held)))
+        return done
 
     def acknowledged(self, entry: InFlight) -> None:
         """Record one line as done, in the numbering it was written under.

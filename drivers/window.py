@@ -100,6 +100,17 @@ class SendWindow:
                 break
         return done
 
+    def ack_upto(self, number: int) -> list[InFlight]:
+        """The printer took every line up to ``number``: their entries are done, copies of
+        them written later too (the printer refuses or drains those: no ``ok`` of theirs
+        comes); lines of higher numbers stay, in order."""
+        done = [e for e in self._entries if e.number is None or e.number <= number]
+        if done:
+            self._entries = deque(e for e in self._entries
+                                  if e.number is not None and e.number > number)
+            self._bytes -= sum(e.nbytes for e in done)
+        return done
+
     def ack_probe(self) -> list[InFlight]:
         """An ``ok T:...`` (the answer to an ``M105``): that line and every line before it
         are done.
