@@ -65,6 +65,7 @@ class LinkCore(Resync, Writing, Watching):
         self.probes_unanswered = 0
         self.reconnected_at = 0.0
         self._events: list[Event] = []
+        self._plain_oks: dict[str, Response] = {}  # parsed once: plain and advanced oks
         self._expect_resend_ok = False
         self._last_error: Response | None = None  # a line error just before this line
         self._emitted_through = 0
@@ -108,7 +109,15 @@ class LinkCore(Resync, Writing, Watching):
         """One line received from the printer (without its line ending)."""
         self.last_rx = now
         self.probes_unanswered = 0
-        self.handle(recover(parse_response(text)), now)
+        response = self._plain_oks.get(text)
+        if response is None:
+            response = recover(parse_response(text))
+            if response.kind == "ok" and not response.has_temperatures \
+                    and len(self._plain_oks) < 16:
+                self._plain_oks[text] = response  # the same few texts, line after line
+        self.handle(response, now)
+        if not self._events:
+            return []
         return self.take_events()
 
     def fail(self, reason: str) -> None:
