@@ -141,6 +141,9 @@ class VirtualPrinter:
         self._serve()
 
     def _host_bytes(self, data: bytes) -> None:
+        if not self._host_partial and data.find(b"\n") == len(data) - 1:
+            self.on_line(data[:-1].decode("ascii", "replace"))  # one whole line: the usual
+            return
         self._host_partial += data
         while True:
             end = self._host_partial.find(b"\n")
