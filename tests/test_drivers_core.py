@@ -250,7 +250,7 @@ def test_the_core_does_no_io_and_reads_no_clock():
 
     root = Path(__file__).resolve().parent.parent / "drivers"
     forbidden = {"asyncio", "serial", "threading", "time", "os", "select", "socket"}
-    for name in ("linkcore", "linkwrite", "linkresync", "linkwatch", "linkmodel",
+    for name in ("linkcore", "linkacks", "linkwrite", "linkresync", "linkwatch", "linkmodel",
                  "linkevents", "linkconfig", "linkprofile", "window", "resend", "responses",
                  "protocol"):
         tree = ast.parse((root / f"{name}.py").read_text(encoding="utf-8"))
