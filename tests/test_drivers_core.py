@@ -102,6 +102,35 @@ def test_a_refusal_of_a_line_the_printer_took_is_answered_once_and_never_feeds_i
     assert (later or [n for n in early if n > held])[0] == held + 1
 
 
+def test_the_ok_of_a_line_taken_after_a_spurious_refusal_is_its_own_not_a_copys():
+    # the printer takes 3, refuses it spuriously (Last Line 3 / Resend 4), takes 4, refuses
+    # that spuriously too, and only then sends 4's ok: that ok is line 4's, although 4 was
+    # dropped from the window and its copy taken for the refused one. Counted for the copy
+    # of 5 before the printer ran 5, a board reset then would renumber past 5 and skip it
+    core = _connected_core()
+    for i in range(20):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    assert _write_all(core, 0.01) == [1, 2, 3, 4]
+    core.feed("ok", 0.02)
+    core.feed("ok", 0.02)
+    assert _write_all(core, 0.02) == [5, 6]
+    core.feed(f"Error:{ERR_CHECKSUM}3", 0.03)
+    core.feed("Resend: 4", 0.03)
+    core.feed("ok", 0.03)
+    replay = _write_all(core, 0.03)
+    assert replay[:1] == [4]
+    acked = [e.number for e in core.feed("ok", 0.04) if isinstance(e, Acked)]  # 3 ran
+    assert acked == [3]
+    replay += _write_all(core, 0.04)
+    assert 5 in replay
+    core.feed(f"Error:{ERR_CHECKSUM}4", 0.05)
+    core.feed("Resend: 5", 0.05)
+    core.feed("ok", 0.05)
+    acked = [e.number for e in core.feed("ok", 0.06) if isinstance(e, Acked)]  # 4 ran
+    assert acked == [4]
+    assert core.last_acked_number == 4
+
+
 class SpuriousRefusals(VirtualPrinter):
     """Refuses, in Marlin's form, lines it has just taken (``at``): the transcript's case."""
 
