@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import math
 import random
 import threading
 from collections import Counter
@@ -16,12 +17,19 @@ class FaultInjector:
     one kind never shifts the draws of another.
     """
 
-    def __init__(self, config: SimulatorConfig) -> None:
+    def __init__(self, config: SimulatorConfig, threaded: bool = True) -> None:
+        """``threaded=False``: one thread only draws (the virtual-clock printer), no lock."""
         self._p = {kind: float(getattr(config, f"p_{kind}")) for kind in FAULT_KINDS}
         self._rng = {kind: random.Random(f"{config.seed}:{kind}") for kind in FAULT_KINDS}
         self._lock = threading.Lock()
         self.fired: Counter[str] = Counter()
         self.chances: Counter[str] = Counter()
+        if not threaded:
+            # one thread draws (the virtual-clock printer): no lock, and each kind draws
+            # the number of chances until it next fires (geometric, the same odds as one
+            # draw per chance), so a chance costs a countdown; ``chances`` stays empty
+            self.fires = self._fires_counted  # type: ignore[method-assign]
+            self._left = {kind: self._gap(kind) for kind in FAULT_KINDS}
 
     def fires(self, kind: str) -> bool:
         """One chance for ``kind``: True with its configured probability."""
@@ -34,6 +42,25 @@ class FaultInjector:
             if hit:
                 self.fired[kind] += 1
             return hit
+
+    def _gap(self, kind: str) -> int:
+        """Chances that pass before ``kind`` fires next (-1: never)."""
+        p = self._p[kind]
+        if p <= 0.0:
+            return -1
+        if p >= 1.0:
+            return 0
+        return int(math.log(1.0 - self._rng[kind].random()) / math.log1p(-p))
+
+    def _fires_counted(self, kind: str) -> bool:
+        left = self._left[kind]
+        if left:
+            if left > 0:
+                self._left[kind] = left - 1
+            return False
+        self.fired[kind] += 1
+        self._left[kind] = self._gap(kind)
+        return True
 
     def randint(self, kind: str, low: int, high: int) -> int:
         """A number in ``low..high`` from ``kind``'s generator (to shape a fault)."""

@@ -14,6 +14,7 @@ from collections import deque
 from drivers.linkconfig import StreamerConfig, StreamStats
 from drivers.linkevents import Acked, Event, Failed, LinkState, Report, Started, Temperature
 from drivers.linkmodel import PrinterModel
+from drivers.linkoks import Acknowledging
 from drivers.linkresync import Resync
 from drivers.linkwatch import Watching
 from drivers.linkwrite import Control, Renumber, Writing
@@ -29,7 +30,7 @@ _GARBLED_N = re.compile(r'unknown command:\s*"?[^\d\s"](\d+) ', re.IGNORECASE)
 MAX_LATE_OKS = 8
 
 
-class LinkCore(Resync, Writing, Watching):
+class LinkCore(Acknowledging, Resync, Writing, Watching):
     """Everything the link knows and decides, as plain data; see the module docstring."""
 
     def __init__(self, config: StreamerConfig | None = None) -> None:
@@ -59,6 +60,8 @@ class LinkCore(Resync, Writing, Watching):
         self.probes_unanswered = 0
         self.reconnected_at = 0.0
         self._events: list[Event] = []
+        self._plain_oks: dict[str, Response] = {}  # parsed once: plain and advanced oks
+        self._oks_lost = False  # the port was cut: oks are counted in the window's order
         self._expect_resend_ok = False
         self._last_error: Response | None = None  # a line error just before this line
         self._emitted_through = 0
@@ -102,7 +105,15 @@ class LinkCore(Resync, Writing, Watching):
         """One line received from the printer (without its line ending)."""
         self.last_rx = now
         self.probes_unanswered = 0
-        self.handle(recover(parse_response(text)), now)
+        response = self._plain_oks.get(text)
+        if response is None:
+            response = recover(parse_response(text))
+            if response.kind == "ok" and not response.has_temperatures \
+                    and len(self._plain_oks) < 16:
+                self._plain_oks[text] = response  # the same few texts, line after line
+        self.handle(response, now)
+        if not self._events:
+            return []
         return self.take_events()
 
     def fail(self, reason: str) -> None:
@@ -189,74 +200,6 @@ class LinkCore(Resync, Writing, Watching):
         else:
             self.on_reset()
 
-    def _on_ok(self, response: Response) -> None:
-        if response.has_temperatures:
-            self._late_oks = 0  # a probe's answer: any late ok came before it
-        elif self._late_oks:
-            self._late_oks -= 1
-            return
-        if response.queue_free is not None:
-            self.advanced_ok = True
-            if self.config.learn_bufsize and response.queue_free + 1 > self.window.max_lines:
-                grown = self.window.limit >= self.window.max_lines
-                self.window.max_lines = response.queue_free + 1
-                if grown:
-                    self.window.limit = self.window.max_lines
-        # oks are counted in order; an advanced ok's N is not trusted to name the line it
-        # acknowledges (firmwares print the last line received or the one executed)
-        done = self.window.ack_probe() if response.has_temperatures else self.window.ack_one()
-        if any(e.probe and e.number == self.next_number - 1 for e in done):
-            self.fenced = True  # (a firmware that answers M105 without temperatures too)
-        if done and self.replay_next is None:
-            self.window.grow()
-        for entry in done:
-            self.acknowledged(entry)
-
-    def acknowledged(self, entry: InFlight) -> None:
-        """Record one line as done, in the numbering it was written under.
-
-        An ``M110`` that completes a renumbering is recorded like any line, in the old
-        numbering, and only then starts the new one, so that the records kept by line number
-        (``last_acked_number``, ``_emitted_through``) end as the new numbering sets them.
-        """
-        number = entry.number
-        repeated = number is not None and number <= self._emitted_through
-        if number is not None and not repeated:
-            self._catch_up(number)
-        if number is not None:
-            self.last_acked_number = max(self.last_acked_number, number)
-            self.model.holds(number)
-            if not repeated:
-                self._emitted_through = number
-        token = entry.token
-        if number is not None:
-            # a line replayed after a refusal or reset is a new entry: its waiter is by number
-            token = self._waiters.pop(number, token)
-        job = not entry.internal and not repeated  # not again when replayed after a refusal
-        if job:
-            self.acked += 1
-        if job or token is not None:
-            self._events.append(Acked(number if number is not None else -1, entry.command,
-                                      job, token))
-        if self._completes_renumber(entry):
-            self._finish_renumber()
-
-    def _catch_up(self, number: int) -> None:
-        """Line ``number`` is done, so is every line before it (the printer runs them in
-        order): acknowledge those not yet acknowledged (their own oks were counted for
-        copies written again, or for lines the printer refused)."""
-        for earlier in range(self._emitted_through + 1, number):
-            held = self.history.get(earlier)
-            if held is None:
-                continue
-            command, internal = held
-            token = self._waiters.pop(earlier, None)
-            if not internal:
-                self.acked += 1
-            if not internal or token is not None:
-                self._events.append(Acked(earlier, command, not internal, token))
-        self._emitted_through = max(self._emitted_through, number - 1)
-
     def _completes_renumber(self, entry: InFlight) -> bool:
         renumber = self.renumber
         return (renumber is not None and renumber.sent and entry.number == renumber.line
@@ -282,6 +225,7 @@ class LinkCore(Resync, Writing, Watching):
             self._emitted_through = value
             self.forget_requests()  # requests counted against the old numbers
         self.last_acked_number = value
+        self._oks_lost = False  # the count restarts from the M110
         self.model.renumbered(value)
         # an M110 written again after silence may have its first ok still to come, before
         # any ok of the lines that follow: those oks are not counted for them
@@ -371,6 +315,7 @@ class LinkCore(Resync, Writing, Watching):
         """The port is open again: wait for ``start`` or ``start_timeout_s``."""
         self.stats.reconnects += 1
         self.reconnected_at = self.last_rx = now
+        self._oks_lost = True
         self.forget_in_flight()
         self.model.lost()
         self.state = LinkState.RECONNECTING

@@ -48,6 +48,7 @@ class Writing(CoreFields):
 
     force_replay = False  # a probe is due: replay past the window, then probe
     fenced = False  # a probe written after every other line has been answered
+    _framed: tuple[int, str, bytes] | None = None  # the next job line, framed
 
     def queue_job(self, command: str, token: int) -> None:
         """A job command to write after those already queued; ``Written`` tells its number."""
@@ -90,6 +91,10 @@ class Writing(CoreFields):
         if self.control:
             return self._next_control_line()
         if self.pending and not self.paused and not self.cancelled:
+            framed = self._framed
+            if framed is not None and framed[0] == self.next_number \
+                    and framed[1] is self.pending[0][0] and self.window.full_for(len(framed[2])):
+                return None  # the next job line, framed already, still waits for room
             if self.next_number >= self.config.renumber_at:
                 if len(self.window):
                     # drain first, outside the renumbering: until the M110 is written the
@@ -106,9 +111,14 @@ class Writing(CoreFields):
                 self.renumber = Renumber(self.next_number, 0, keep_history=False)
                 return self._next_renumber_line(now)
             command, token = self.pending[0]
-            data = frame(self.next_number, command)
+            framed = self._framed
+            if framed is not None and framed[0] == self.next_number and framed[1] is command:
+                data = framed[2]
+            else:
+                data = frame(self.next_number, command)
+                self._framed = (self.next_number, command, data)
             if not self.window.has_room(len(data)):
-                return None
+                return None  # framed once: the line waits for room as it is
             self.pending.popleft()
             number = self._assign(command)
             self._events.append(Written(token, number))

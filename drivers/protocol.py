@@ -7,18 +7,23 @@ from drivers.responses import Response, parse_response
 __all__ = ["Response", "checksum", "frame", "parse_response", "strip_comment"]
 
 
-def checksum(text: str) -> int:
-    """XOR of every byte of ``text`` (the part of a line before ``*``), 0..255."""
+def xor_bytes(data: bytes) -> int:
+    """XOR of every byte of ``data``, 0..255."""
     value = 0
-    for byte in text.encode("ascii", "replace"):
+    for byte in data:
         value ^= byte
     return value
 
 
+def checksum(text: str) -> int:
+    """XOR of every byte of ``text`` (the part of a line before ``*``), 0..255."""
+    return xor_bytes(text.encode("ascii", "replace"))
+
+
 def frame(number: int, command: str) -> bytes:
     """One numbered, checksummed line as sent on the wire: ``N<n> <cmd>*<cs>\\n``."""
-    body = f"N{number} {command}"
-    return f"{body}*{checksum(body)}\n".encode("ascii", "replace")
+    body = f"N{number} {command}".encode("ascii", "replace")
+    return b"%s*%d\n" % (body, xor_bytes(body))
 
 
 def strip_comment(line: str) -> str:

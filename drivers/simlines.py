@@ -6,6 +6,8 @@ import re
 from collections.abc import Callable
 from dataclasses import dataclass
 
+from drivers.protocol import xor_bytes
+
 ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
 ERR_CHECKSUM = "checksum mismatch, Last Line: "
 ERR_NO_CHECKSUM = "No Checksum with line number, Last Line: "
@@ -51,19 +53,22 @@ def check_line(raw: bytes, last_n: int) -> LineCheck:
     is_m110 = "M110" in text
     number: int | None = None
     if text.startswith("N"):
-        number = strtol(text[1:])
+        space = text.find(" ")
+        digits = text[1:space] if space > 1 else ""
+        fast = digits.isdigit() and digits.isascii()  # "N<digits> ...": no regex needed
+        number = int(digits) if fast else strtol(text[1:])
         if number != last_n + 1 and not is_m110:
             return LineCheck(ERR_LINE_NO, "", number, last_n)
         star = text.rfind("*")
         if star < 0:
             return LineCheck(ERR_NO_CHECKSUM, "", number, last_n)
-        cs = 0
-        for byte in text[:star].encode("latin-1"):
-            cs ^= byte
-        if strtol(text[star + 1 :]) != cs:
+        if strtol(text[star + 1 :]) != xor_bytes(text[:star].encode("latin-1")):
             return LineCheck(ERR_CHECKSUM, "", number, last_n)
         last_n = number
-        command = _LEADING_N.sub("", text[:star]).strip()
+        if fast and space < star:
+            command = text[space:star].strip()
+        else:
+            command = _LEADING_N.sub("", text[:star]).strip()
     else:
         command = text.split("*", 1)[0].strip()
     if is_m110:

@@ -10,7 +10,6 @@ host (the protocol core, or anything else) talks to it through ``write`` and ``o
 
 from __future__ import annotations
 
-import functools
 import heapq
 import itertools
 from collections import deque
@@ -30,20 +29,21 @@ class Clock:
 
     def __init__(self) -> None:
         self.now = 0.0
-        self._queue: list[tuple[float, int, Callable[[], None]]] = []
+        self._queue: list[tuple[float, int, Callable[..., None], tuple[object, ...]]] = []
         self._seq = itertools.count()
 
-    def at(self, when: float, action: Callable[[], None]) -> None:
-        """Run ``action`` at virtual time ``when`` (not before now)."""
-        heapq.heappush(self._queue, (max(when, self.now), next(self._seq), action))
+    def at(self, when: float, action: Callable[..., None], *args: object) -> None:
+        """Run ``action(*args)`` at virtual time ``when`` (not before now)."""
+        now = self.now
+        heapq.heappush(self._queue, (when if when > now else now, next(self._seq), action, args))
 
     def step(self) -> bool:
         """Run the next action; False when none is left."""
         if not self._queue:
             return False
-        when, _, action = heapq.heappop(self._queue)
+        when, _, action, args = heapq.heappop(self._queue)
         self.now = when
-        action()
+        action(*args)
         return True
 
     def next_time(self) -> float | None:
@@ -72,15 +72,18 @@ class Lane:
     def send(self, pieces: list[bytes]) -> None:
         """Put ``pieces`` (one write, maybe split) on the wire now."""
         epoch = self.epoch
+        clock = self.clock
+        rate = self.rate
         for piece in pieces:
-            start = max(self._free_at, self.clock.now)
-            self._free_at = start + (len(piece) / self.rate if self.rate else 0.0)
-            arrival = self._free_at + self.latency
+            start = self._free_at if self._free_at > clock.now else clock.now
+            self._free_at = free = start + (len(piece) / rate if rate else 0.0)
+            arrival = free + self.latency
             if self.delay is not None:
                 arrival += self.delay(len(piece))
-            arrival = max(arrival, self._last_arrival)
+            if arrival < self._last_arrival:
+                arrival = self._last_arrival
             self._last_arrival = arrival
-            self.clock.at(arrival, functools.partial(self._arrive, piece, epoch))
+            clock.at(arrival, self._arrive, piece, epoch)
 
     def _arrive(self, piece: bytes, epoch: int) -> None:
         if epoch == self.epoch:
@@ -101,7 +104,7 @@ class VirtualPrinter:
         self.clock = clock
         self.on_line = on_line
         self.exec_s = exec_s
-        self.faults = FaultInjector(config)
+        self.faults = FaultInjector(config, threaded=False)
         rate = config.bytes_per_second
         self.to_printer = Lane(clock, rate, config.latency_s, self._receive)
         self.to_host = Lane(clock, rate, config.latency_s, self._host_bytes)
@@ -138,6 +141,9 @@ class VirtualPrinter:
         self._serve()
 
     def _host_bytes(self, data: bytes) -> None:
+        if not self._host_partial and data.find(b"\n") == len(data) - 1:
+            self.on_line(data[:-1].decode("ascii", "replace"))  # one whole line: the usual
+            return
         self._host_partial += data
         while True:
             end = self._host_partial.find(b"\n")
@@ -207,11 +213,10 @@ class VirtualPrinter:
         delay = self.exec_s
         if self.faults.fires("busy"):
             for k in range(self.faults.randint("busy", 1, 5)):
-                self.clock.at(self.clock.now + k * self.config.keepalive_s,
-                              lambda: self.emit(BUSY))
+                self.clock.at(self.clock.now + k * self.config.keepalive_s, self.emit, BUSY)
                 delay += self.config.keepalive_s
         boot = self._boot_id
-        self.clock.at(self.clock.now + delay, lambda: self._finish(boot))
+        self.clock.at(self.clock.now + delay, self._finish, boot)
 
     def _finish(self, boot: int) -> None:
         if boot != self._boot_id:
@@ -251,8 +256,16 @@ class VirtualPrinter:
         self._running = False
         self.last_n = 0
         self._booting_until = self.clock.now + self.config.boot_delay_s
-        self.clock.at(self._booting_until, lambda: self.emit("start"))
+        self.clock.at(self._booting_until, self.emit, "start")
 
 
 def _known(code: str) -> bool:
-    return len(code) > 1 and code[0] in "GMT" and code[1:].isdigit()
+    known = _KNOWN.get(code)
+    if known is None:
+        known = len(code) > 1 and code[0] in "GMT" and code[1:].isdigit()
+        if len(_KNOWN) < 4096:
+            _KNOWN[code] = known
+    return known
+
+
+_KNOWN: dict[str, bool] = {}  # command word -> whether it runs

@@ -4,11 +4,9 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import logging
 from collections.abc import Awaitable, Callable, Hashable, Iterable, Iterator
 from types import TracebackType
 
-from drivers.backoff import Backoff, reconnect
 from drivers.linkacks import Ack, AckChannel, Tags
 from drivers.linkconfig import (
     CANCELLED,
@@ -25,6 +23,7 @@ from drivers.linkconfig import (
     StreamerConfig,
     StreamStats,
 )
+from drivers.linkconnect import Connecting
 from drivers.linkcore import LinkCore
 from drivers.linkevents import (
     Acked,
@@ -36,7 +35,7 @@ from drivers.linkevents import (
     Temperature,
     Written,
 )
-from drivers.linkprofile import Profile, profile_for, tuned
+from drivers.linkprofile import Profile
 from drivers.linkwaiters import Waiters
 from drivers.protocol import Response
 from drivers.transport import Transport, TransportError
@@ -61,12 +60,10 @@ __all__ = [
     "StreamerConfig",
 ]
 
-log = logging.getLogger("drivers.link")
-
 KILL_REPLY_S = 1.0  # an emergency stop waits this long for the printer's halt report
 
 
-class Streamer:
+class Streamer(Connecting):
     """Streams G-code commands to a Marlin-style printer, each executed once, in order.
 
     Use as an async context manager around a :class:`~drivers.transport.Transport` (closed
@@ -86,7 +83,8 @@ class Streamer:
 
     Every protocol decision is the core's (:class:`~drivers.linkcore.LinkCore`); this shell
     runs three named tasks in one ``TaskGroup``: the reader feeds it received lines, the
-    writer writes what it hands out, the watchdog lets time pass.
+    writer writes what it hands out, the watchdog lets time pass. Connecting, the firmware's
+    defaults and reconnecting after a lost port are in :class:`~drivers.linkconnect.Connecting`.
     """
 
     def __init__(
@@ -184,46 +182,6 @@ class Streamer:
             self.core.state = LinkState.DISCONNECTED
 
     # -- public API -----------------------------------------------------------------------
-
-    async def connect(self) -> None:
-        """Wait for ``start`` (or a timeout), then ``M110 N0``, ``M115`` and auto-report.
-
-        Raises :class:`LinkError` if the printer does not answer in ``connect_timeout_s``.
-        """
-        self._start_tasks()
-        loop = asyncio.get_running_loop()
-        self.core.begin_connect(loop.time())
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._started.wait(), self.config.start_timeout_s)
-        with contextlib.suppress(TransportError):
-            await self._transport.write(b"\n")  # end any noise the printer has buffered
-        try:
-            async with asyncio.timeout(self.config.connect_timeout_s):
-                token, waiter = self._waiters.new()
-                self.core.begin_handshake(0, keep_history=False, token=token)
-                self._wake.set()
-                await waiter
-                await self._control_line("M115")
-                self._tune()
-                if "AUTOREPORT_TEMP" in self.capable and self.config.temperature_interval_s > 0:
-                    seconds = max(1, round(self.config.temperature_interval_s))
-                    await self._control_line(f"M155 S{seconds}")
-        except TimeoutError as exc:
-            self.core.fail("printer did not answer the connection handshake")
-            self._dispatch(self.core.take_events())
-            raise LinkError(self.core.error) from exc
-        self.core.connected(loop.time())
-
-    def _tune(self) -> None:
-        """Settings for the firmware just identified (``M115``), logged."""
-        self.profile = profile_for(self.firmware, self.capabilities)
-        config, changes = tuned(self.config, self.profile)
-        self.config = config
-        self.core.retune(config)
-        shown = ", ".join(f"{key}={value}" for key, value in sorted(changes.items()))
-        log.info("printer link: %s (%s); rx_buffer=%d bufsize=%d ok_after_resend=%s%s",
-                 self.profile.name, self.profile.why, config.rx_buffer, config.bufsize,
-                 config.ok_after_resend, f"; firmware defaults applied: {shown}" if shown else "")
 
     @contextlib.contextmanager
     def acknowledgements(self, channel: AckChannel | None = None) -> Iterator[AckChannel]:
@@ -394,34 +352,6 @@ class Streamer:
             self._dispatch(self.core.tick(loop.time()))
             self._wake.set()
             self._progress.set()
-
-    async def _link_lost(self, reason: str) -> bool:
-        """The port failed: report, then try to reopen. True if the link is back."""
-        self.core.link_lost(reason)
-        self._dispatch(self.core.take_events())
-        if self.config.reconnect_attempts > 0:
-            with contextlib.suppress(TransportError):
-                transport = await reconnect(
-                    self._open_again, Backoff(self.config.reconnect_delay_s),
-                    errors=(TransportError,), attempts=self.config.reconnect_attempts,
-                    wait_first=True)
-                self._transport = transport
-                with contextlib.suppress(TransportError):
-                    # end whatever partial line the printer kept from before the cut
-                    await transport.write(b"\n")
-                self.core.reopened(asyncio.get_running_loop().time())
-                return True
-        self.core.fail(f"link lost: {reason}")
-        self._dispatch(self.core.take_events())
-        return False
-
-    async def _open_again(self) -> Transport:
-        if self._reopen is not None:
-            return await self._reopen()
-        from drivers.transport import open_transport
-
-        baud = int(getattr(getattr(self._transport, "_port", None), "baudrate", 250000))
-        return await open_transport(self._transport.name, baud)
 
     # -- waiters and events -------------------------------------------------------------------
 

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 from collections import deque
 from collections.abc import Iterator
 from dataclasses import dataclass, field
@@ -63,6 +64,12 @@ class SendWindow:
         lines = min(self.max_lines, self.limit)
         return self._bytes + nbytes <= self.max_bytes and len(self._entries) < lines
 
+    def full_for(self, nbytes: int) -> bool:
+        """True if a line of ``nbytes`` must wait (the opposite of :meth:`has_room`)."""
+        entries = self._entries
+        return bool(entries) and (self._bytes + nbytes > self.max_bytes
+                                  or len(entries) >= min(self.max_lines, self.limit))
+
     def shrink(self) -> None:
         """A refusal: halve the line limit (at least one line stays allowed)."""
         self.limit = max(1, min(self.limit, self.max_lines) // 2)
@@ -99,6 +106,24 @@ class SendWindow:
             done.append(entry)
             if entry.number == number:
                 break
+        return done
+
+    def ack_upto(self, number: int) -> list[InFlight]:
+        """The printer took every line up to ``number``: their entries are done, copies of
+        them written later too (the printer refuses or drains those: no ``ok`` of theirs
+        comes); lines of higher numbers stay, in order."""
+        entries = self._entries
+        if entries and entries[0].number == number and all(
+                e.number is not None and e.number > number
+                for e in itertools.islice(entries, 1, None)):
+            entry = entries.popleft()  # the usual case: the oldest line, and nothing else
+            self._bytes -= entry.nbytes
+            return [entry]
+        done = [e for e in entries if e.number is None or e.number <= number]
+        if done:
+            self._entries = deque(e for e in self._entries
+                                  if e.number is not None and e.number > number)
+            self._bytes -= sum(e.nbytes for e in done)
         return done
 
     def ack_probe(self) -> list[InFlight]:

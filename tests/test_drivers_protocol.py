@@ -311,6 +311,18 @@ def test_window_of_stale_probes_resyncs_on_one_answer():
     assert window.numbers() == [7]
 
 
+def test_window_ack_upto_takes_the_line_and_stale_copies_but_keeps_later_lines():
+    window = SendWindow(127, 8)
+    for number, copy in [(5, True), (7, False), (6, True), (4, True), (8, False)]:
+        window.push(InFlight(number, f"G1 X{number}", 10, copy=copy))
+    assert [e.number for e in window.ack_upto(6)] == [5, 6, 4]
+    assert window.numbers() == [7, 8]
+    assert window.bytes_in_flight == 20
+    assert [e.number for e in window.ack_upto(7)] == [7]  # the usual case: the head alone
+    assert window.ack_upto(7) == []
+    assert window.numbers() == [8]
+
+
 def test_window_drop_from_and_ack_through():
     window = SendWindow(127, 8)
     for n in range(1, 6):

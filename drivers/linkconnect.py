@@ -1,0 +1,121 @@
+"""The streamer's connection half: handshake, firmware defaults, reopening a lost port."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+from collections.abc import Awaitable, Callable
+
+from drivers.backoff import Backoff, reconnect
+from drivers.linkconfig import LinkError, StreamerConfig
+from drivers.linkcore import LinkCore
+from drivers.linkevents import Event
+from drivers.linkprofile import Profile, profile_for, tuned
+from drivers.linkwaiters import Waiters
+from drivers.transport import Transport, TransportError
+
+log = logging.getLogger("drivers.link")
+
+
+class Connecting:
+    """Mixin of :class:`~drivers.streamer.Streamer`: connecting and reconnecting."""
+
+    # the streamer's fields and methods this mixin uses (annotations only)
+    config: StreamerConfig
+    core: LinkCore
+    profile: Profile | None
+    _transport: Transport
+    _reopen: Callable[[], Awaitable[Transport]] | None
+    _waiters: Waiters
+    _started: asyncio.Event
+    _wake: asyncio.Event
+
+    @property
+    def firmware(self) -> str:
+        raise NotImplementedError
+
+    @property
+    def capabilities(self) -> dict[str, str]:
+        raise NotImplementedError
+
+    @property
+    def capable(self) -> frozenset[str]:
+        raise NotImplementedError
+
+    def _start_tasks(self) -> None:
+        raise NotImplementedError
+
+    async def _control_line(self, command: str, internal: bool = True) -> int:
+        raise NotImplementedError
+
+    def _dispatch(self, events: list[Event]) -> None:
+        raise NotImplementedError
+
+    async def connect(self) -> None:
+        """Wait for ``start`` (or a timeout), then ``M110 N0``, ``M115`` and auto-report.
+
+        Raises :class:`LinkError` if the printer does not answer in ``connect_timeout_s``.
+        """
+        self._start_tasks()
+        loop = asyncio.get_running_loop()
+        self.core.begin_connect(loop.time())
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(self._started.wait(), self.config.start_timeout_s)
+        with contextlib.suppress(TransportError):
+            await self._transport.write(b"\n")  # end any noise the printer has buffered
+        try:
+            async with asyncio.timeout(self.config.connect_timeout_s):
+                token, waiter = self._waiters.new()
+                self.core.begin_handshake(0, keep_history=False, token=token)
+                self._wake.set()
+                await waiter
+                await self._control_line("M115")
+                self._tune()
+                if "AUTOREPORT_TEMP" in self.capable and self.config.temperature_interval_s > 0:
+                    seconds = max(1, round(self.config.temperature_interval_s))
+                    await self._control_line(f"M155 S{seconds}")
+        except TimeoutError as exc:
+            self.core.fail("printer did not answer the connection handshake")
+            self._dispatch(self.core.take_events())
+            raise LinkError(self.core.error) from exc
+        self.core.connected(loop.time())
+
+    def _tune(self) -> None:
+        """Settings for the firmware just identified (``M115``), logged."""
+        profile = self.profile = profile_for(self.firmware, self.capabilities)
+        config, changes = tuned(self.config, profile)
+        self.config = config
+        self.core.retune(config)
+        shown = ", ".join(f"{key}={value}" for key, value in sorted(changes.items()))
+        log.info("printer link: %s (%s); rx_buffer=%d bufsize=%d ok_after_resend=%s%s",
+                 profile.name, profile.why, config.rx_buffer, config.bufsize,
+                 config.ok_after_resend, f"; firmware defaults applied: {shown}" if shown else "")
+
+    async def _link_lost(self, reason: str) -> bool:
+        """The port failed: report, then try to reopen. True if the link is back."""
+        self.core.link_lost(reason)
+        self._dispatch(self.core.take_events())
+        if self.config.reconnect_attempts > 0:
+            with contextlib.suppress(TransportError):
+                transport = await reconnect(
+                    self._open_again, Backoff(self.config.reconnect_delay_s),
+                    errors=(TransportError,), attempts=self.config.reconnect_attempts,
+                    wait_first=True)
+                self._transport = transport
+                with contextlib.suppress(TransportError):
+                    # end whatever partial line the printer kept from before the cut
+                    await transport.write(b"\n")
+                self.core.reopened(asyncio.get_running_loop().time())
+                return True
+        self.core.fail(f"link lost: {reason}")
+        self._dispatch(self.core.take_events())
+        return False
+
+    async def _open_again(self) -> Transport:
+        if self._reopen is not None:
+            return await self._reopen()
+        from drivers.transport import open_transport
+
+        baud = int(getattr(getattr(self._transport, "_port", None), "baudrate", 250000))
+        return await open_transport(self._transport.name, baud)

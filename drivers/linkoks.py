@@ -1,0 +1,146 @@
+"""The protocol core's acknowledgements: which lines an ``ok`` completes, reported once."""
+
+from __future__ import annotations
+
+from drivers.linkevents import Acked
+from drivers.linkfields import CoreFields
+from drivers.responses import Response
+from drivers.window import InFlight
+
+
+def _is_probe_line(held: tuple[str, bool] | None, internal: bool = False) -> bool:
+    """True for a history entry that is an ``M105`` (the link's own, with ``internal``)."""
+    return held is not None and held[0].split(" ", 1)[0] == "M105" \
+        and (held[1] or not internal)
+
+
+class Acknowledging(CoreFields):
+    """Mixin of :class:`~drivers.linkcore.LinkCore`: oks counted, lines acknowledged."""
+
+    # the core's own fields and methods this mixin uses (set in ``LinkCore.__init__``)
+    acked: int
+    advanced_ok: bool
+    _oks_lost: bool
+    _late_oks: int
+    _emitted_through: int
+    _waiters: dict[int, int]
+
+    def _completes_renumber(self, entry: InFlight) -> bool:
+        raise NotImplementedError
+
+    def _finish_renumber(self) -> None:
+        raise NotImplementedError
+
+    def _on_ok(self, response: Response) -> None:
+        if response.has_temperatures:
+            self._late_oks = 0  # a probe's answer: any late ok came before it
+        elif self._late_oks:
+            self._late_oks -= 1
+            return
+        if response.queue_free is not None:
+            self.advanced_ok = True
+            if self.config.learn_bufsize and response.queue_free + 1 > self.window.max_lines:
+                grown = self.window.limit >= self.window.max_lines
+                self.window.max_lines = response.queue_free + 1
+                if grown:
+                    self.window.limit = self.window.max_lines
+        # oks are counted in order; an advanced ok's N is not trusted to name the line it
+        # acknowledges (firmwares print the last line received or the one executed)
+        if self.renumber is not None:
+            # the M110 numbers itself apart (a reset's M110 reuses the last line's number)
+            done = self.window.ack_probe() if response.has_temperatures else self.window.ack_one()
+        else:
+            done = self._ack_by_count(response.has_temperatures)
+        if any(e.probe and e.number == self.next_number - 1 for e in done):
+            self.fenced = True  # (a firmware that answers M105 without temperatures too)
+        if done and self.replay_next is None:
+            self.window.grow()
+        for entry in done:
+            self.acknowledged(entry)
+
+    def _ack_by_count(self, probe_answer: bool) -> list[InFlight]:
+        """A plain ``ok`` is the line's after the last one acknowledged; an ``ok T:`` the
+        first ``M105`` from there (with the probes right behind it, whose answers then
+        acknowledge nothing more).
+
+        Marlin takes numbered lines strictly in sequence and answers each with one ok, so
+        the oks name consecutive lines whatever copies were written. A line dropped from
+        the window as refused may have been taken after all (the refusal that started a
+        replay was spurious, or a refusal was taken for a copy's): its ok is still its
+        own, never a later line's. Copies of lines done are dropped from the window (the
+        printer refuses or drains them: no ok of theirs comes). When the count is off (an
+        ok lost or an extra one read) the window's order decides, as before; a probe's
+        answer sets the count right.
+        """
+        history = self.history
+        number = self.last_acked_number + 1
+        if self._oks_lost:
+            # the port was cut: oks of lines run meanwhile are lost, so the count is behind
+            # by an unknown number; the window's order decides (refusals naming the last
+            # line held drop the copies of those lines) until it meets the count again
+            done = self.window.ack_probe() if probe_answer else self.window.ack_one()
+            if any(e.number is not None and e.number >= number for e in done):
+                self._oks_lost = False
+            return done
+        if probe_answer:
+            while number < self.next_number and not _is_probe_line(history.get(number)):
+                number += 1
+            if number >= self.next_number:
+                return self.window.ack_probe()
+            while number + 1 < self.next_number \
+                    and _is_probe_line(history.get(number + 1), internal=True):
+                number += 1
+        held = history.get(number)
+        if held is None or number >= self.next_number:
+            return self.window.ack_probe() if probe_answer else self.window.ack_one()
+        done = self.window.ack_upto(number)
+        if not any(e.number == number for e in done):
+            command, internal = held
+            done.append(InFlight(number, command, 0, internal=internal,
+                                 probe=internal and _is_probe_line(held)))
+        return done
+
+    def acknowledged(self, entry: InFlight) -> None:
+        """Record one line as done, in the numbering it was written under.
+
+        An ``M110`` that completes a renumbering is recorded like any line, in the old
+        numbering, and only then starts the new one, so that the records kept by line number
+        (``last_acked_number``, ``_emitted_through``) end as the new numbering sets them.
+        """
+        number = entry.number
+        repeated = number is not None and number <= self._emitted_through
+        if number is not None and not repeated:
+            self._catch_up(number)
+        if number is not None:
+            self.last_acked_number = max(self.last_acked_number, number)
+            self.model.holds(number)
+            if not repeated:
+                self._emitted_through = number
+        token = entry.token
+        if number is not None:
+            # a line replayed after a refusal or reset is a new entry: its waiter is by number
+            token = self._waiters.pop(number, token)
+        job = not entry.internal and not repeated  # not again when replayed after a refusal
+        if job:
+            self.acked += 1
+        if job or token is not None:
+            self._events.append(Acked(number if number is not None else -1, entry.command,
+                                      job, token))
+        if self._completes_renumber(entry):
+            self._finish_renumber()
+
+    def _catch_up(self, number: int) -> None:
+        """Line ``number`` is done, so is every line before it (the printer runs them in
+        order): acknowledge those not yet acknowledged (their own oks were counted for
+        copies written again, or for lines the printer refused)."""
+        for earlier in range(self._emitted_through + 1, number):
+            held = self.history.get(earlier)
+            if held is None:
+                continue
+            command, internal = held
+            token = self._waiters.pop(earlier, None)
+            if not internal:
+                self.acked += 1
+            if not internal or token is not None:
+                self._events.append(Acked(earlier, command, not internal, token))
+        self._emitted_through = max(self._emitted_through, number - 1)
