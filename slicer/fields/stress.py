@@ -25,6 +25,7 @@ log = logging.getLogger("slicer.stress")
 SLAB_CELL = 2.0  # line widths between the nodes the samples are first interpolated to
 SLAB_NODES = 40_000  # at most this many such nodes per layer
 FLOOR = 0.05  # least modulation, as a fraction of the peak, so unloaded areas keep sparse lines
+PLANES_KEPT = 8  # lattice planes kept (layers being sliced at once, and a few more)
 AXIS_SAMPLES = 1024  # stations along the long axis where variant B reads the field
 
 
@@ -43,6 +44,7 @@ class StressField(GridField):
 
     name = "stress"
     gap = 6.0
+    cell_fraction = 0.5
 
     def __init__(self, settings: SliceSettings) -> None:
         super().__init__(settings)
@@ -53,6 +55,7 @@ class StressField(GridField):
         self._data: StressData | None = None
         self.peak = 1.0
         self.profile: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._planes: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
         if self._pending is None:
             self._load()
 
@@ -80,10 +83,13 @@ class StressField(GridField):
     def stress(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Interpolated field from the file at points (n,) mm on this layer -> (n,) float64.
 
-        The samples are interpolated once per call onto a slab of nodes every
-        ``SLAB_CELL`` line widths over the model's footprint at mid-layer height,
-        and the points read from that slab bilinearly: the scattered 3D
-        interpolation then costs thousands of look-ups, not one per grid node.
+        Samples on a lattice (the built-in analysis' field) are read bilinearly
+        from the lattice's plane at mid-layer height (interpolated between the two
+        lattice planes about it, once per layer and cached). Scattered samples are
+        interpolated once per call onto a slab of nodes every ``SLAB_CELL`` line
+        widths over the model's footprint at mid-layer height, and the points read
+        from that slab bilinearly: the scattered 3D interpolation then costs
+        thousands of look-ups, not one per grid node.
         """
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
@@ -96,6 +102,12 @@ class StressField(GridField):
             return np.interp(frame[axis], stations, values)
         mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0)
         xmin, ymin, xmax, ymax = ctx.bounds
+        if self.data.on_lattice:  # the analysis' own lattice: its plane at this height
+            from slicer.fields.stress_data import bilinear
+
+            xs, ys, plane = self._plane(mid_z + corner[2])
+            return bilinear(xs, ys, plane, x.ravel() - xmin + corner[0],
+                            y.ravel() - ymin + corner[1]).reshape(x.shape)
         cell = SLAB_CELL * self.settings.line_width
         cell = max(cell, math.sqrt((xmax - xmin + cell) * (ymax - ymin + cell) / SLAB_NODES))
         xs = np.arange(xmin - cell, xmax + 2.0 * cell, cell)
@@ -111,6 +123,19 @@ class StressField(GridField):
             (np.clip(y.ravel(), ys[0], ys[-1]), np.clip(x.ravel(), xs[0], xs[-1]))
         )
         return read(points).reshape(x.shape)
+
+    def _plane(self, z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The lattice's plane at height ``z`` (data frame), cached: a layer's field is
+        sampled several times (its grid, the pictures) from the same plane."""
+        with self._loaded:
+            known = self._planes.get(z)
+        if known is None:
+            known = self.data.plane(z)
+            with self._loaded:
+                self._planes[z] = known
+                while len(self._planes) > PLANES_KEPT:
+                    self._planes.pop(next(iter(self._planes)))
+        return known
 
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64."""

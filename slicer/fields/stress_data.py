@@ -53,6 +53,26 @@ class StressData:
         """The samples' least (x, y, z), mm: lined up with the model's lower corner."""
         return self.points.min(axis=0)
 
+    @property
+    def on_lattice(self) -> bool:
+        """True when the samples fill a regular lattice (read by :meth:`plane`)."""
+        return self._lattice is not None
+
+    def plane(self, z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The lattice's field on the plane at height ``z`` mm (data frame), linear
+        between the two lattice planes about it and clamped at the lattice's bottom
+        and top: (x nodes (nx,), y nodes (ny,), values (nx, ny)) float64. Only for
+        samples on a lattice (:attr:`on_lattice`); a flat field's own grid."""
+        assert self._lattice is not None
+        axes, grid = self._lattice.grid, self._lattice.values
+        if self.flat:
+            return axes[0], axes[1], grid
+        zs = axes[2]
+        z = min(max(float(z), float(zs[0])), float(zs[-1]))
+        k = int(min(max(np.searchsorted(zs, z, side="right") - 1, 0), len(zs) - 2))
+        t = (z - zs[k]) / (zs[k + 1] - zs[k])
+        return axes[0], axes[1], (1.0 - t) * grid[:, :, k] + t * grid[:, :, k + 1]
+
     def at(self, x: np.ndarray, y: np.ndarray, z: float) -> np.ndarray:
         """Interpolated values at points ``x``, ``y`` (n,) float64 mm and height ``z`` mm
         in the data's own frame -> (n,) float64."""
@@ -74,6 +94,23 @@ class StressData:
         if missing.any():
             values[missing] = self._nearest(query[missing])
         return values
+
+
+def bilinear(
+    xs: np.ndarray, ys: np.ndarray, values: np.ndarray, x: np.ndarray, y: np.ndarray
+) -> np.ndarray:
+    """Bilinear interpolation of ``values`` (nx, ny) on the nodes ``xs`` (nx,), ``ys``
+    (ny,) (increasing, mm) at points ``x``, ``y`` (n,) -> (n,) float64, clamped at the
+    grid's edges."""
+    x = np.clip(np.ravel(np.asarray(x, dtype=float)), xs[0], xs[-1])
+    y = np.clip(np.ravel(np.asarray(y, dtype=float)), ys[0], ys[-1])
+    i = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2)
+    j = np.clip(np.searchsorted(ys, y, side="right") - 1, 0, len(ys) - 2)
+    tx = (x - xs[i]) / (xs[i + 1] - xs[i])
+    ty = (y - ys[j]) / (ys[j + 1] - ys[j])
+    low = values[i, j] + tx * (values[i + 1, j] - values[i, j])
+    high = values[i, j + 1] + tx * (values[i + 1, j + 1] - values[i, j + 1])
+    return low + ty * (high - low)
 
 
 def _lattice(coords: np.ndarray, values: np.ndarray) -> RegularGridInterpolator | None:
