@@ -68,6 +68,7 @@ class PrintJob:
         self.source: LayerSource | None = None
         self.warned: list[str] = []  # the model's warnings logged so far
         self.tailoring: Tailoring | None = None  # the analysis and equal mass, for the summary
+        self.analysis_file = ""  # the field file an analysis beside the print is writing
         stem, _suffix = split_name(job.name)
         self.home = Path(job.path).parent
         self.partial = self.home / f"{stem}.gcode.part"
@@ -103,6 +104,7 @@ class PrintJob:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
                                     first, write_preamble=not resume, park=self._park(),
                                     skip=skip)
+            self.runner.waiting = self._waiting
             link.on_ack = lambda _number, _command: self.runner.on_ack()
             verb = f"resumed at layer {first}, command {skip}" if resume else "started"
             log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
@@ -194,6 +196,7 @@ class PrintJob:
         elif error is not None:
             raise error
         self.tailoring = tailoring
+        self.analysis_file = plan.settings.infill_file if tailoring.running is not None else ""
         for line in tailoring.lines():
             log.info("job %s %s: %s", job.id, job.name, line)
         settings = plan.settings
@@ -210,6 +213,16 @@ class PrintJob:
         )
         return SlicedSource(self.schedule, first, self.config.runner.lookahead, self.executor,
                             resume)
+
+    def _waiting(self) -> str | None:
+        """``"analysis"`` while a layer waits for the stress analysis running beside the
+        first layers (the status snapshot's ``job.waiting_for``), else None."""
+        if self.analysis_file:
+            from slicer.fields.stress_pending import waited_for
+
+            if waited_for(self.analysis_file):
+                return "analysis"
+        return None
 
     async def _log_late_warnings(self, job: Job) -> None:
         """Log the model's warnings found while slicing (every layer is cut by now)."""

@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
+import shutil
+import threading
+import time
+from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
@@ -12,9 +17,10 @@ import trimesh
 from slicer_helpers import extrusions, write_mesh
 
 from slicer.fea.tailor import tailored_plan
-from slicer.fields.stress import axis_profile
+from slicer.fields.stress import StressField, axis_profile
 from slicer.fields.stress_data import load_stress
 from slicer.fields.stress_mass import extruded_grams
+from slicer.fields.stress_pending import announce, waited_for
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
@@ -77,6 +83,41 @@ def test_variant_b_reads_the_field_along_the_long_axis_only(cache: Path) -> None
     xmin, ymin = plan.bounds[:2]
     across = field.stress(np.full(5, xmin + 50.0), ymin + np.linspace(10, 20, 5), ctx)
     assert np.ptp(across) == pytest.approx(0.0, abs=1e-9)  # constant across the specimen
+
+
+def test_the_lattice_is_read_as_interpolated_in_3d_and_a_layer_waits_for_it(
+    cache: Path, tmp_path: Path
+) -> None:
+    settings = SliceSettings.from_mapping({"infill.stress": "A"})
+    plan, tailoring = tailored_plan(DOGBONE, settings, BED, cache)
+    assert tailoring.field is not None
+    data = load_stress(tailoring.field.path)
+    field, ctx = plan.infill_field, plan.layer_context(7)
+    xmin, ymin = plan.bounds[:2]
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(0.0, 100.0, 200), rng.uniform(0.0, 30.0, 200)
+    mid = ctx.z - 0.5 * plan.settings.layer_height
+    corner = data.lower_corner
+    expected = data.at(x + corner[0], y + corner[1], mid + corner[2])  # trilinear, scipy
+    assert np.allclose(field.stress(x + xmin, y + ymin, ctx), expected, rtol=1e-9, atol=1e-9)
+    # a field file still being computed: the layer sampling it waits, and says so
+    path = tmp_path / "stress-pending.npz"
+    running: Future = Future()
+    announce(path, running)
+    waiter = StressField(dataclasses.replace(plan.settings, infill_file=str(path)))
+    got: list[np.ndarray] = []
+    worker = threading.Thread(target=lambda: got.append(waiter.stress(x + xmin, y + ymin, ctx)))
+    worker.start()
+    deadline = time.monotonic() + 30.0
+    while not waited_for(path) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert waited_for(path)
+    assert not got
+    shutil.copyfile(tailoring.field.path, path)
+    running.set_result(None)
+    worker.join(30.0)
+    assert not waited_for(path)
+    assert np.allclose(got[0], expected, rtol=1e-9, atol=1e-9)
 
 
 def bar_files(folder: Path) -> Path:

@@ -12,7 +12,7 @@ import numpy as np
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre
 from slicer.fields.grid import GridField
-from slicer.fields.stress_pending import pending
+from slicer.fields.stress_pending import pending, waiting
 from slicer.settings import SettingsError, SliceSettings
 
 if TYPE_CHECKING:
@@ -72,7 +72,7 @@ class StressField(GridField):
         """The field's samples; waits for an analysis still running (see :func:`pending`)."""
         if self._data is None and self._pending is not None and not self._pending.done():
             log.info("a layer waits for the stress analysis of %s", self.settings.infill_file)
-            with self._loaded:
+            with waiting(self.settings.infill_file), self._loaded:
                 if self._data is None:
                     assert self._pending is not None
                     self._pending.result()  # raises the analysis' own error
