@@ -60,7 +60,7 @@ class StressField(GridField):
             self._load()
 
     def _load(self) -> None:
-        from slicer.fields.stress_data import load_stress  # scipy.interpolate: when sampled
+        from slicer.fields.stress_data import load_stress  # when first sampled
 
         data = load_stress(self.settings.infill_file)
         self.peak = float(np.max(np.abs(data.values))) or 1.0

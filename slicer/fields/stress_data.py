@@ -3,13 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from scipy.interpolate import (
-    LinearNDInterpolator,
-    NearestNDInterpolator,
-    RegularGridInterpolator,
-)
 
 from slicer.settings import SettingsError
 
@@ -40,9 +36,12 @@ class StressData:
         self.flat = float(np.ptp(points[:, 2])) <= 1e-9
         coords = points[:, :2] if self.flat else points
         self._lattice = _lattice(coords, values)
-        self._nearest = NearestNDInterpolator(coords, values)
-        self._linear: LinearNDInterpolator | None = None
-        if self._lattice is None:
+        self._nearest: Any = None
+        self._linear: Any = None
+        if self._lattice is None:  # scattered samples (scipy.interpolate: only for them)
+            from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+
+            self._nearest = NearestNDInterpolator(coords, values)
             try:
                 self._linear = LinearNDInterpolator(coords, values)
             except Exception:
@@ -64,7 +63,7 @@ class StressData:
         and top: (x nodes (nx,), y nodes (ny,), values (nx, ny)) float64. Only for
         samples on a lattice (:attr:`on_lattice`); a flat field's own grid."""
         assert self._lattice is not None
-        axes, grid = self._lattice.grid, self._lattice.values
+        axes, grid = self._lattice
         if self.flat:
             return axes[0], axes[1], grid
         zs = axes[2]
@@ -78,17 +77,14 @@ class StressData:
         in the data's own frame -> (n,) float64."""
         x = np.ravel(np.asarray(x, dtype=float))
         y = np.ravel(np.asarray(y, dtype=float))
+        if self._lattice is not None:  # trilinear: bilinear on the plane at z
+            xs, ys, plane = self.plane(z)
+            return bilinear(xs, ys, plane, x, y)
         query = (
             np.column_stack((x, y))
             if self.flat
             else np.column_stack((x, y, np.full(x.shape, float(z))))
         )
-        if self._lattice is not None:
-            axes = self._lattice.grid
-            clamped = np.column_stack(
-                [np.clip(query[:, k], axis[0], axis[-1]) for k, axis in enumerate(axes)]
-            )
-            return self._lattice(clamped)
         values = self._linear(query) if self._linear is not None else np.full(x.shape, np.nan)
         missing = ~np.isfinite(values)
         if missing.any():
@@ -113,8 +109,11 @@ def bilinear(
     return low + ty * (high - low)
 
 
-def _lattice(coords: np.ndarray, values: np.ndarray) -> RegularGridInterpolator | None:
-    """A lattice interpolator when ``coords`` (n, d) fill every node of a regular grid."""
+def _lattice(
+    coords: np.ndarray, values: np.ndarray
+) -> tuple[tuple[np.ndarray, ...], np.ndarray] | None:
+    """The lattice's node coordinates per axis (d arrays, increasing) and its values
+    (shape of the lattice) when ``coords`` (n, d) fill every node of a regular grid."""
     axes = [np.unique(coords[:, k]) for k in range(coords.shape[1])]
     shape = tuple(len(axis) for axis in axes)
     if any(n < 2 for n in shape) or int(np.prod(shape)) != coords.shape[0]:
@@ -124,7 +123,7 @@ def _lattice(coords: np.ndarray, values: np.ndarray) -> RegularGridInterpolator 
     grid[index] = values
     if np.isnan(grid).any():  # repeated points leave holes: not a lattice
         return None
-    return RegularGridInterpolator(tuple(axes), grid)
+    return tuple(axes), grid
 
 
 def load_stress(path: str | Path) -> StressData:
