@@ -19,6 +19,7 @@ from slicer_helpers import extrusions, write_mesh
 from slicer.fea.tailor import tailored_plan
 from slicer.fields.stress import StressField, axis_profile
 from slicer.fields.stress_data import load_stress
+from slicer.fields.stress_lines import DensityLines
 from slicer.fields.stress_mass import extruded_grams
 from slicer.fields.stress_pending import announce, waited_for
 from slicer.plan import SlicePlan
@@ -118,6 +119,27 @@ def test_the_lattice_is_read_as_interpolated_in_3d_and_a_layer_waits_for_it(
     worker.join(30.0)
     assert not waited_for(path)
     assert np.allclose(got[0], expected, rtol=1e-9, atol=1e-9)
+
+
+def test_the_optimal_density_sets_the_line_density_itself() -> None:
+    # a density of 0.25 from x 0 to 20, rising to 1 at x 30, 1 beyond
+    xs, ys = np.linspace(0.0, 100.0, 101), np.linspace(0.0, 30.0, 31)
+    rho = np.interp(xs, [0.0, 20.0, 30.0, 100.0], [0.25, 0.25, 1.0, 1.0])[:, None] * np.ones(31)
+    g = np.array([np.sin(np.pi / 4), np.cos(np.pi / 4)])
+    lines = DensityLines(xs, ys, rho, g, np.array([50.0, 15.0]))
+    for x, want in ((10.0, 0.25), (25.0, 0.625), (80.0, 1.0)):  # H grows by rho per mm
+        a, b = np.array([x, 15.0]) - 1.0 * g, np.array([x, 15.0]) + 1.0 * g
+        rise = lines(np.array([b[0], a[0]]), np.array([b[1], a[1]]))
+        assert (rise[0] - rise[1]) / 2.0 == pytest.approx(want, rel=0.02)
+    # along a line (across g) H does not change where rho does not change across it
+    n = np.array([-g[1], g[0]])
+    ends = np.array([[80.0, 15.0] - 3.0 * n, [80.0, 15.0] + 3.0 * n])
+    values = lines(ends[:, 0], ends[:, 1])
+    assert values[0] == pytest.approx(values[1], abs=1e-9)
+    # Eq. 14 with the same density (rho * H_lin, H_lin = -17.7 mm at x 25) turns back
+    # where rho rises: its lines are thinnest on the ramp instead of denser
+    h_lin = (xs[:, None] - 50.0) * g[0] + (ys[None, :] - 15.0) * g[1]
+    assert np.gradient(rho * h_lin, xs, axis=0)[25, 15] < 0.0
 
 
 def bar_files(folder: Path) -> Path:

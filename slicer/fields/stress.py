@@ -5,7 +5,7 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
@@ -17,6 +17,7 @@ from slicer.settings import SettingsError, SliceSettings
 
 if TYPE_CHECKING:
     from slicer.fields.stress_data import StressData
+    from slicer.fields.stress_lines import DensityLines
 
 KEY = "infill.file"
 
@@ -55,7 +56,7 @@ class StressField(GridField):
         self._data: StressData | None = None
         self.peak = 1.0
         self.profile: tuple[int, np.ndarray, np.ndarray] | None = None
-        self._planes: dict[float, tuple[np.ndarray, np.ndarray, np.ndarray]] = {}
+        self._planes: dict[object, Any] = {}  # lattice planes and lines, by layer
         if self._pending is None:
             self._load()
 
@@ -141,6 +142,8 @@ class StressField(GridField):
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64."""
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
+        if self.settings.infill_stress == "optimal" and self.data.on_lattice:
+            return self._density_lines(ctx)(x, y).reshape(x.shape)
         stress = self.stress(x, y, ctx)  # loads the field first: peak is known after it
         sigma = np.maximum(np.abs(stress) / self.peak, FLOOR)
         cx, cy = centre(ctx.bounds)
@@ -148,6 +151,34 @@ class StressField(GridField):
         mirror = -1.0 if ctx.index % 2 else 1.0
         linear = (x - cx) * math.sin(t) + (y - cy) * math.cos(t) * mirror
         return (sigma.reshape(x.shape) * linear).reshape(x.shape)
+
+
+    def _density_lines(self, ctx: LayerContext) -> DensityLines:
+        """The optimised density's lines on this layer (:class:`DensityLines`): across
+        Eq. 13's direction, as dense as the density, in the bed frame; cached by
+        height and direction (odd and even layers mirror it)."""
+        from slicer.fields.stress_lines import DensityLines
+
+        corner = self.data.lower_corner
+        mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0) + corner[2]
+        mirror = -1.0 if ctx.index % 2 else 1.0
+        key = ("lines", mid_z, mirror, ctx.bounds)
+        with self._loaded:
+            known = self._planes.get(key)
+        if known is None:
+            xs, ys, plane = self._plane(mid_z)
+            xmin, ymin = ctx.bounds[:2]
+            shift = np.array([xmin - corner[0], ymin - corner[1]])  # data frame -> bed
+            t = math.radians(self.settings.infill_angle)
+            rho = np.maximum(np.abs(plane) / self.peak, FLOOR)
+            known = DensityLines(xs + shift[0], ys + shift[1], rho,
+                                 np.array([math.sin(t), math.cos(t) * mirror]),
+                                 np.array(centre(ctx.bounds)))
+            with self._loaded:
+                self._planes[key] = known
+                while len(self._planes) > PLANES_KEPT:
+                    self._planes.pop(next(iter(self._planes)))
+        return known
 
 
 def axis_profile(data: StressData) -> tuple[int, np.ndarray, np.ndarray]:
