@@ -40,7 +40,10 @@ class StressField(GridField):
     ``infill.density``. The file's samples are in the model's own frame: their
     lower corner is lined up with the placed model's. Contours crowd where the
     stress is high (down to one line width) and thin out where it is low (up to
-    six times the mean spacing).
+    six times the mean spacing). With ``infill.stress = "optimal"`` the file holds
+    an optimised density and the field is that density integrated across Eq. 13's
+    lines instead (:class:`slicer.fields.stress_lines.DensityLines`), so the line
+    density follows the density itself.
     """
 
     name = "stress"
