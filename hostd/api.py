@@ -119,6 +119,12 @@ class JobStatus:
     elapsed_s: float = 0.0
     eta_s: float | None = None
     layers_ready_ahead: int = 0
+    # what the next layer waits for, when printing stops for it: "analysis" (the
+    # stress analysis still running); None when nothing is waited for
+    waiting_for: str | None = None
+
+
+_JOB_KEYS = frozenset(JobStatus.__dataclass_fields__)
 
 
 @dataclass(frozen=True)
@@ -166,7 +172,7 @@ class Snapshot:
                 hotend=Temperature(**(temps.get("hotend") or {})),
                 bed=Temperature(**(temps.get("bed") or {})),
             ),
-            job=JobStatus(**job) if job else None,
+            job=JobStatus(**{k: v for k, v in job.items() if k in _JOB_KEYS}) if job else None,
             queue=tuple(data.get("queue") or ()),
             interrupted=tuple(InterruptedJob(**item) for item in data.get("interrupted") or ()),
             error=data.get("error"),

@@ -73,6 +73,7 @@ class PrintJob:
         self.source: LayerSource | None = None
         self.warned: list[str] = []  # the model's warnings logged so far
         self.tailoring: Tailoring | None = None  # the analysis and equal mass, for the summary
+        self.analysis_file = ""  # the field file an analysis beside the print is writing
         stem, _suffix = split_name(job.name)
         self.home = Path(job.path).parent
         self.partial = self.home / f"{stem}.gcode.part"
@@ -108,6 +109,7 @@ class PrintJob:
             self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
                                     first, write_preamble=not resume, park=self._park(),
                                     skip=skip, end_gcode=CANCEL_GCODE)
+            self.runner.waiting = self._waiting
             link.begin_job()  # a link cancelled for the job before takes this one's lines
             verb = f"resumed at layer {first}, command {skip}" if resume else "started"
             log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
@@ -200,6 +202,7 @@ class PrintJob:
         elif error is not None:
             raise error
         self.tailoring = tailoring
+        self.analysis_file = plan.settings.infill_file if tailoring.running is not None else ""
         for line in tailoring.lines():
             log.info("job %s %s: %s", job.id, job.name, line)
         settings = plan.settings
@@ -229,6 +232,16 @@ class PrintJob:
         log.info("job %s %s: whole-model pass made while the file settled (%.2f s)",
                  job.id, job.name, took)
         return plan
+
+    def _waiting(self) -> str | None:
+        """``"analysis"`` while a layer waits for the stress analysis running beside the
+        first layers (the status snapshot's ``job.waiting_for``), else None."""
+        if self.analysis_file:
+            from slicer.fields.stress_pending import waited_for
+
+            if waited_for(self.analysis_file):
+                return "analysis"
+        return None
 
     async def _log_late_warnings(self, job: Job) -> None:
         """Log the model's warnings found while slicing (every layer is cut by now)."""

@@ -31,6 +31,7 @@ log = logging.getLogger("hostd.runner")
 
 PREAMBLE = -1  # mark of the start (or resume) block, before layer 0
 ENDING = -2  # mark of the end block
+WAIT_POLL_S = 0.5  # while a layer is not ready, how often what it waits for is looked at
 
 
 class Link(Protocol):
@@ -160,6 +161,8 @@ class JobRunner:
         self._last_layer_at = 0.0
         self._last_publish = 0.0
         self.streaming_layer = first
+        # what a layer not ready yet waits for (None: nothing named), see JobStatus
+        self.waiting: Callable[[], str | None] = lambda: None
         self.eta = EtaModel(getattr(source, "schedule", None), self.layers, first)
 
     # -- commands -------------------------------------------------------------
@@ -240,7 +243,7 @@ class JobRunner:
             await self._stream(self.source.preamble(), PREAMBLE, write=self.write_preamble)
             for index in range(self.first, self.layers):
                 self.streaming_layer = index
-                lines = await self.source.layer(index)
+                lines = await self._layer(index)
                 await self._stream(lines, index, write=True,
                                    skip=self.skip if index == self.first else 0)
             await self._stream(self.source.ending(), ENDING, write=True)
@@ -252,6 +255,23 @@ class JobRunner:
     async def _follow(self, acks: AckChannel) -> None:
         async for ack in acks:
             self.on_ack(ack)
+
+    async def _layer(self, index: int) -> list[str]:
+        """Layer ``index``'s lines; while it is not ready, the status is refreshed when
+        what it waits for changes (``waiting_for``: a stress analysis still running)."""
+        task = asyncio.ensure_future(self.source.layer(index))
+        shown = None
+        try:
+            while not task.done():
+                await asyncio.wait({task}, timeout=WAIT_POLL_S)
+                now = None if task.done() else self.waiting()
+                if now != shown:
+                    shown = now
+                    self._publish()
+        except asyncio.CancelledError:
+            task.cancel()
+            raise
+        return task.result()
 
     async def _stream(self, lines: list[str], layer: int, write: bool, skip: int = 0) -> None:
         if write and lines:
@@ -383,6 +403,7 @@ class JobRunner:
             elapsed_s=round(time.monotonic() - self._started, 1),
             eta_s=eta,
             layers_ready_ahead=self.source.ready_ahead,
+            waiting_for=self.waiting(),
         )
 
     def _publish(self) -> JobStatus:

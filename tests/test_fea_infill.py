@@ -2,7 +2,12 @@
 
 from __future__ import annotations
 
+import dataclasses
 import itertools
+import shutil
+import threading
+import time
+from concurrent.futures import Future
 from pathlib import Path
 
 import numpy as np
@@ -12,9 +17,11 @@ import trimesh
 from slicer_helpers import extrusions, write_mesh
 
 from slicer.fea.tailor import tailored_plan
-from slicer.fields.stress import axis_profile
+from slicer.fields.stress import StressField, axis_profile
 from slicer.fields.stress_data import load_stress
+from slicer.fields.stress_lines import DensityLines
 from slicer.fields.stress_mass import extruded_grams
+from slicer.fields.stress_pending import announce, waited_for
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
@@ -77,6 +84,62 @@ def test_variant_b_reads_the_field_along_the_long_axis_only(cache: Path) -> None
     xmin, ymin = plan.bounds[:2]
     across = field.stress(np.full(5, xmin + 50.0), ymin + np.linspace(10, 20, 5), ctx)
     assert np.ptp(across) == pytest.approx(0.0, abs=1e-9)  # constant across the specimen
+
+
+def test_the_lattice_is_read_as_interpolated_in_3d_and_a_layer_waits_for_it(
+    cache: Path, tmp_path: Path
+) -> None:
+    settings = SliceSettings.from_mapping({"infill.stress": "A"})
+    plan, tailoring = tailored_plan(DOGBONE, settings, BED, cache)
+    assert tailoring.field is not None
+    data = load_stress(tailoring.field.path)
+    field, ctx = plan.infill_field, plan.layer_context(7)
+    xmin, ymin = plan.bounds[:2]
+    rng = np.random.default_rng(3)
+    x, y = rng.uniform(0.0, 100.0, 200), rng.uniform(0.0, 30.0, 200)
+    mid = ctx.z - 0.5 * plan.settings.layer_height
+    corner = data.lower_corner
+    expected = data.at(x + corner[0], y + corner[1], mid + corner[2])  # trilinear, scipy
+    assert np.allclose(field.stress(x + xmin, y + ymin, ctx), expected, rtol=1e-9, atol=1e-9)
+    # a field file still being computed: the layer sampling it waits, and says so
+    path = tmp_path / "stress-pending.npz"
+    running: Future = Future()
+    announce(path, running)
+    waiter = StressField(dataclasses.replace(plan.settings, infill_file=str(path)))
+    got: list[np.ndarray] = []
+    worker = threading.Thread(target=lambda: got.append(waiter.stress(x + xmin, y + ymin, ctx)))
+    worker.start()
+    deadline = time.monotonic() + 30.0
+    while not waited_for(path) and time.monotonic() < deadline:
+        time.sleep(0.01)
+    assert waited_for(path)
+    assert not got
+    shutil.copyfile(tailoring.field.path, path)
+    running.set_result(None)
+    worker.join(30.0)
+    assert not waited_for(path)
+    assert np.allclose(got[0], expected, rtol=1e-9, atol=1e-9)
+
+
+def test_the_optimal_density_sets_the_line_density_itself() -> None:
+    # a density of 0.25 from x 0 to 20, rising to 1 at x 30, 1 beyond
+    xs, ys = np.linspace(0.0, 100.0, 101), np.linspace(0.0, 30.0, 31)
+    rho = np.interp(xs, [0.0, 20.0, 30.0, 100.0], [0.25, 0.25, 1.0, 1.0])[:, None] * np.ones(31)
+    g = np.array([np.sin(np.pi / 4), np.cos(np.pi / 4)])
+    lines = DensityLines(xs, ys, rho, g, np.array([50.0, 15.0]))
+    for x, want in ((10.0, 0.25), (25.0, 0.625), (80.0, 1.0)):  # H grows by rho per mm
+        a, b = np.array([x, 15.0]) - 1.0 * g, np.array([x, 15.0]) + 1.0 * g
+        rise = lines(np.array([b[0], a[0]]), np.array([b[1], a[1]]))
+        assert (rise[0] - rise[1]) / 2.0 == pytest.approx(want, rel=0.02)
+    # along a line (across g) H does not change where rho does not change across it
+    n = np.array([-g[1], g[0]])
+    ends = np.array([[80.0, 15.0] - 3.0 * n, [80.0, 15.0] + 3.0 * n])
+    values = lines(ends[:, 0], ends[:, 1])
+    assert values[0] == pytest.approx(values[1], abs=1e-9)
+    # Eq. 14 with the same density (rho * H_lin, H_lin = -17.7 mm at x 25) turns back
+    # where rho rises: its lines are thinnest on the ramp instead of denser
+    h_lin = (xs[:, None] - 50.0) * g[0] + (ys[None, :] - 15.0) * g[1]
+    assert np.gradient(rho * h_lin, xs, axis=0)[25, 15] < 0.0
 
 
 def bar_files(folder: Path) -> Path:

@@ -7,6 +7,7 @@ import concurrent.futures
 import contextlib
 import itertools
 import threading
+import time
 from pathlib import Path
 
 from conftest import DATA
@@ -21,10 +22,23 @@ from hostd.runner import JobRunner, open_output
 from hostd.schedule import LayerSchedule
 from hostd.sources import SlicedSource
 from hostd.status import StatusHub
+from slicer.fields.stress_pending import waited_for, waiting
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
 MODEL = DATA / "dogbone_100x30x5.stl"
+FIELD_FILE = "analysis-being-computed.npz"  # a field file a layer waits for (never written)
+WAITING_LAYER = 2
+
+
+def wait_until(condition, timeout: float) -> bool:
+    """Poll ``condition`` until true (True) or ``timeout`` s pass (False)."""
+    deadline = time.monotonic() + timeout
+    while not condition():
+        if time.monotonic() > deadline:
+            return False
+        time.sleep(0.02)
+    return True
 
 
 class CountingSchedule(LayerSchedule):
@@ -33,9 +47,18 @@ class CountingSchedule(LayerSchedule):
     def __init__(self, *args, **kwargs) -> None:
         super().__init__(*args, **kwargs)
         self.sliced: list[int] = []
+        self.hub: StatusHub | None = None
+        self.shown_waiting = False
         self._count_lock = threading.Lock()
 
     def layer_gcode(self, layer: int) -> list[str]:
+        if layer == WAITING_LAYER and self.hub is not None:
+            # this layer waits for a field file being computed, as a stress layer waits
+            # for its analysis: the status must say so while it waits
+            with waiting(FIELD_FILE):
+                self.shown_waiting = wait_until(
+                    lambda: self.hub.current.job is not None
+                    and self.hub.current.job.waiting_for == "analysis", 30.0)
         lines = super().layer_gcode(layer)
         with self._count_lock:
             self.sliced.append(layer)
@@ -64,6 +87,8 @@ async def print_job(
             source = SlicedSource(schedule, 0, depth, executor, resume=False)
             output = open_output(output_path or tmp_path / "out.gcode.part", 0)
             runner = JobRunner(job, source, link, store, hub, output, 0, write_preamble=True)
+            schedule.hub = hub
+            runner.waiting = lambda: "analysis" if waited_for(FIELD_FILE) else None
             original_send = link.send
 
             async def send(command: str, tag: object = None) -> int:
@@ -87,6 +112,7 @@ async def print_job(
     seen["executed"] = list(printer.executed)
     seen["plan"] = plan
     seen["hub"] = hub.current
+    seen["shown_waiting"] = schedule.shown_waiting
     seen["output_error"] = runner.output_error
     store.close()
     return seen
@@ -141,6 +167,9 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
     assert job.gcode_bytes <= len(text.encode())
     assert seen["hub"].job.progress == 1.0
     assert seen["hub"].state == "printing"
+    # while a layer waited for the analysis the status said so, and no longer after
+    assert seen["shown_waiting"]
+    assert seen["hub"].job.waiting_for is None
 
 
 def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> None:

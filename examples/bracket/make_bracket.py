@@ -7,11 +7,12 @@ Run: python make_bracket.py
 
 from __future__ import annotations
 
-import struct
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from slicer.stl_binary import write_stl
 
 LENGTH, WIDTH, THICKNESS = 80.0, 16.0, 6.0
 
@@ -31,19 +32,7 @@ def bracket() -> tuple[np.ndarray, np.ndarray]:
     return corners, faces
 
 
-def write_stl(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
-    """A binary STL of the mesh at ``path``."""
-    tri = vertices[faces].astype("<f4")
-    out = bytearray(b"bracket 80 x 16 x 6 mm".ljust(80, b" "))
-    out += struct.pack("<I", len(tri))
-    for t in tri:
-        normal = np.cross(t[1] - t[0], t[2] - t[0])
-        normal = normal / (np.linalg.norm(normal) or 1.0)
-        out += normal.astype("<f4").tobytes() + t.tobytes() + b"\0\0"
-    path.write_bytes(bytes(out))
-
-
 if __name__ == "__main__":
     target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).with_name("bracket.stl")
-    write_stl(target, *bracket())
+    write_stl(target, *bracket(), "bracket 80 x 16 x 6 mm")
     print(f"wrote {target}")

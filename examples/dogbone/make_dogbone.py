@@ -9,11 +9,12 @@ section (the paper gives no shape for them). Run: python make_dogbone.py
 
 from __future__ import annotations
 
-import struct
 import sys
 from pathlib import Path
 
 import numpy as np
+
+from slicer.stl_binary import write_stl
 
 LENGTH, WIDTH, THICKNESS, GAGE_WIDTH = 100.0, 30.0, 5.0, 10.0
 END = 25.0  # full-width end, mm
@@ -58,19 +59,7 @@ def dogbone() -> tuple[np.ndarray, np.ndarray]:
     return vertices, np.asarray(faces, dtype=np.int64)
 
 
-def write_stl(path: Path, vertices: np.ndarray, faces: np.ndarray) -> None:
-    """A binary STL of the mesh at ``path``."""
-    tri = vertices[faces].astype("<f4")
-    out = bytearray(b"dogbone 100 x 30 x 5 mm".ljust(80, b" "))
-    out += struct.pack("<I", len(tri))
-    for t in tri:
-        normal = np.cross(t[1] - t[0], t[2] - t[0])
-        normal = normal / (np.linalg.norm(normal) or 1.0)
-        out += normal.astype("<f4").tobytes() + t.tobytes() + b"\0\0"
-    path.write_bytes(bytes(out))
-
-
 if __name__ == "__main__":
     target = Path(sys.argv[1]) if len(sys.argv) > 1 else Path(__file__).with_name("dogbone.stl")
-    write_stl(target, *dogbone())
+    write_stl(target, *dogbone(), "dogbone 100 x 30 x 5 mm")
     print(f"wrote {target}")

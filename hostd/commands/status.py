@@ -43,6 +43,7 @@ def format_summary(snapshot: Snapshot) -> str:
             f"job {job.name} ({job.id}): layer {job.layer + 1} of {job.layers}, {job.progress:.1%},"
             f" elapsed {_seconds(job.elapsed_s)}, ETA {_seconds(job.eta_s)},"
             f" {job.layers_ready_ahead} layers ready ahead"
+            + (f"; waiting for the stress {job.waiting_for}" if job.waiting_for else "")
         )
     if snapshot.queue:
         lines.append(f"queue ({len(snapshot.queue)}): " + ", ".join(snapshot.queue))

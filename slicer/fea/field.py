@@ -124,14 +124,18 @@ def check_case(
     return case
 
 
-def field_key(model_bytes: bytes, case: LoadCase, size: float, optimal: float = 0.0) -> str:
-    """The cache key of an analysis: the model's bytes, the load case, material and size
-    (and, for an optimised density, its mean)."""
+def field_key(vertices: np.ndarray, faces: np.ndarray, case: LoadCase, size: float,
+              optimal: float = 0.0) -> str:
+    """The cache key of an analysis: the model's mesh as read (``vertices`` (v, 3),
+    ``faces`` (f, 3)), the load case, material and size (and, for an optimised
+    density, its mean)."""
     digest = hashlib.sha256()
     if optimal:
         digest.update(f"optimal {optimal!r} {ITERATIONS}".encode())
     digest.update(FIELD_VERSION.encode())
-    digest.update(hashlib.sha256(model_bytes).digest())
+    mesh = hashlib.sha256(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
+    mesh.update(np.ascontiguousarray(faces, dtype="<i8").tobytes())
+    digest.update(mesh.digest())
     digest.update(case.key().encode())
     digest.update(repr(float(size)).encode())
     return digest.hexdigest()[:32]
@@ -181,7 +185,8 @@ def field_path(
     vertices, faces = read_stl(model)
     size = size or default_cell(mesh_volume(vertices, faces))
     kind = "optimal" if optimal else "stress"
-    path = Path(cache_dir) / f"{kind}-{field_key(model.read_bytes(), case, size, optimal)}.npz"
+    key = field_key(vertices, faces, case, size, optimal)  # the file is read once, here
+    path = Path(cache_dir) / f"{kind}-{key}.npz"
     return path, case, vertices, faces, size
 
 

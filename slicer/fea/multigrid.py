@@ -22,14 +22,20 @@ def assemble(mesh: HexMesh, ke: np.ndarray, scale: np.ndarray) -> sp.csr_matrix:
     scaled by ``scale`` (e,), assembled a chunk of elements at a time."""
     n = 3 * len(mesh.points)
     dofs = mesh.dofs.astype(np.int32)
-    total = sp.csr_matrix((n, n))
+    parts: list[sp.coo_matrix] = []
     for start in range(0, len(dofs), CHUNK):
         part = dofs[start:start + CHUNK]
         rows = np.repeat(part, 24, axis=1).ravel()
         cols = np.tile(part, (1, 24)).ravel()
         data = (scale[start:start + CHUNK, None, None] * ke[None]).ravel()
-        total = total + sp.csr_matrix((data, (rows, cols)), shape=(n, n))
-    return total
+        # each chunk summed on its own (a chunk's elements share most entries), then
+        # all chunks summed once: adding them one by one would copy the sum each time
+        parts.append(sp.csr_matrix((data, (rows, cols)), shape=(n, n)).tocoo())
+    rows = np.concatenate([p.row for p in parts])
+    cols = np.concatenate([p.col for p in parts])
+    data = np.concatenate([p.data for p in parts])
+    del parts
+    return sp.csr_matrix((data, (rows, cols)), shape=(n, n))
 
 
 def _prolongation(positions: np.ndarray, bodies: np.ndarray) -> tuple[sp.csr_matrix, np.ndarray,

@@ -5,18 +5,19 @@ from __future__ import annotations
 import logging
 import math
 import threading
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre
 from slicer.fields.grid import GridField
-from slicer.fields.stress_pending import pending
+from slicer.fields.stress_pending import pending, waiting
 from slicer.settings import SettingsError, SliceSettings
 
 if TYPE_CHECKING:
     from slicer.fields.stress_data import StressData
+    from slicer.fields.stress_lines import DensityLines
 
 KEY = "infill.file"
 
@@ -25,6 +26,7 @@ log = logging.getLogger("slicer.stress")
 SLAB_CELL = 2.0  # line widths between the nodes the samples are first interpolated to
 SLAB_NODES = 40_000  # at most this many such nodes per layer
 FLOOR = 0.05  # least modulation, as a fraction of the peak, so unloaded areas keep sparse lines
+PLANES_KEPT = 8  # lattice planes kept (layers being sliced at once, and a few more)
 AXIS_SAMPLES = 1024  # stations along the long axis where variant B reads the field
 
 
@@ -38,11 +40,15 @@ class StressField(GridField):
     ``infill.density``. The file's samples are in the model's own frame: their
     lower corner is lined up with the placed model's. Contours crowd where the
     stress is high (down to one line width) and thin out where it is low (up to
-    six times the mean spacing).
+    six times the mean spacing). With ``infill.stress = "optimal"`` the file holds
+    an optimised density and the field is that density integrated across Eq. 13's
+    lines instead (:class:`slicer.fields.stress_lines.DensityLines`), so the line
+    density follows the density itself.
     """
 
     name = "stress"
     gap = 6.0
+    cell_fraction = 0.5
 
     def __init__(self, settings: SliceSettings) -> None:
         super().__init__(settings)
@@ -53,11 +59,12 @@ class StressField(GridField):
         self._data: StressData | None = None
         self.peak = 1.0
         self.profile: tuple[int, np.ndarray, np.ndarray] | None = None
+        self._planes: dict[object, Any] = {}  # lattice planes and lines, by layer
         if self._pending is None:
             self._load()
 
     def _load(self) -> None:
-        from slicer.fields.stress_data import load_stress  # scipy.interpolate: when sampled
+        from slicer.fields.stress_data import load_stress  # when first sampled
 
         data = load_stress(self.settings.infill_file)
         self.peak = float(np.max(np.abs(data.values))) or 1.0
@@ -69,7 +76,7 @@ class StressField(GridField):
         """The field's samples; waits for an analysis still running (see :func:`pending`)."""
         if self._data is None and self._pending is not None and not self._pending.done():
             log.info("a layer waits for the stress analysis of %s", self.settings.infill_file)
-            with self._loaded:
+            with waiting(self.settings.infill_file), self._loaded:
                 if self._data is None:
                     assert self._pending is not None
                     self._pending.result()  # raises the analysis' own error
@@ -80,10 +87,13 @@ class StressField(GridField):
     def stress(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Interpolated field from the file at points (n,) mm on this layer -> (n,) float64.
 
-        The samples are interpolated once per call onto a slab of nodes every
-        ``SLAB_CELL`` line widths over the model's footprint at mid-layer height,
-        and the points read from that slab bilinearly: the scattered 3D
-        interpolation then costs thousands of look-ups, not one per grid node.
+        Samples on a lattice (the built-in analysis' field) are read bilinearly
+        from the lattice's plane at mid-layer height (interpolated between the two
+        lattice planes about it, once per layer and cached). Scattered samples are
+        interpolated once per call onto a slab of nodes every ``SLAB_CELL`` line
+        widths over the model's footprint at mid-layer height, and the points read
+        from that slab bilinearly: the scattered 3D interpolation then costs
+        thousands of look-ups, not one per grid node.
         """
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
@@ -96,6 +106,12 @@ class StressField(GridField):
             return np.interp(frame[axis], stations, values)
         mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0)
         xmin, ymin, xmax, ymax = ctx.bounds
+        if self.data.on_lattice:  # the analysis' own lattice: its plane at this height
+            from slicer.fields.stress_data import bilinear
+
+            xs, ys, plane = self._plane(mid_z + corner[2])
+            return bilinear(xs, ys, plane, x.ravel() - xmin + corner[0],
+                            y.ravel() - ymin + corner[1]).reshape(x.shape)
         cell = SLAB_CELL * self.settings.line_width
         cell = max(cell, math.sqrt((xmax - xmin + cell) * (ymax - ymin + cell) / SLAB_NODES))
         xs = np.arange(xmin - cell, xmax + 2.0 * cell, cell)
@@ -112,10 +128,25 @@ class StressField(GridField):
         )
         return read(points).reshape(x.shape)
 
+    def _plane(self, z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The lattice's plane at height ``z`` (data frame), cached: a layer's field is
+        sampled several times (its grid, the pictures) from the same plane."""
+        with self._loaded:
+            known = self._planes.get(z)
+        if known is None:
+            known = self.data.plane(z)
+            with self._loaded:
+                self._planes[z] = known
+                while len(self._planes) > PLANES_KEPT:
+                    self._planes.pop(next(iter(self._planes)))
+        return known
+
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64."""
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
+        if self.settings.infill_stress == "optimal" and self.data.on_lattice:
+            return self._density_lines(ctx)(x, y).reshape(x.shape)
         stress = self.stress(x, y, ctx)  # loads the field first: peak is known after it
         sigma = np.maximum(np.abs(stress) / self.peak, FLOOR)
         cx, cy = centre(ctx.bounds)
@@ -123,6 +154,34 @@ class StressField(GridField):
         mirror = -1.0 if ctx.index % 2 else 1.0
         linear = (x - cx) * math.sin(t) + (y - cy) * math.cos(t) * mirror
         return (sigma.reshape(x.shape) * linear).reshape(x.shape)
+
+
+    def _density_lines(self, ctx: LayerContext) -> DensityLines:
+        """The optimised density's lines on this layer (:class:`DensityLines`): across
+        Eq. 13's direction, as dense as the density, in the bed frame; cached by
+        height and direction (odd and even layers mirror it)."""
+        from slicer.fields.stress_lines import DensityLines
+
+        corner = self.data.lower_corner
+        mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0) + corner[2]
+        mirror = -1.0 if ctx.index % 2 else 1.0
+        key = ("lines", mid_z, mirror, ctx.bounds)
+        with self._loaded:
+            known = self._planes.get(key)
+        if known is None:
+            xs, ys, plane = self._plane(mid_z)
+            xmin, ymin = ctx.bounds[:2]
+            shift = np.array([xmin - corner[0], ymin - corner[1]])  # data frame -> bed
+            t = math.radians(self.settings.infill_angle)
+            rho = np.maximum(np.abs(plane) / self.peak, FLOOR)
+            known = DensityLines(xs + shift[0], ys + shift[1], rho,
+                                 np.array([math.sin(t), math.cos(t) * mirror]),
+                                 np.array(centre(ctx.bounds)))
+            with self._loaded:
+                self._planes[key] = known
+                while len(self._planes) > PLANES_KEPT:
+                    self._planes.pop(next(iter(self._planes)))
+        return known
 
 
 def axis_profile(data: StressData) -> tuple[int, np.ndarray, np.ndarray]:

@@ -3,13 +3,9 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
-from scipy.interpolate import (
-    LinearNDInterpolator,
-    NearestNDInterpolator,
-    RegularGridInterpolator,
-)
 
 from slicer.settings import SettingsError
 
@@ -40,9 +36,12 @@ class StressData:
         self.flat = float(np.ptp(points[:, 2])) <= 1e-9
         coords = points[:, :2] if self.flat else points
         self._lattice = _lattice(coords, values)
-        self._nearest = NearestNDInterpolator(coords, values)
-        self._linear: LinearNDInterpolator | None = None
-        if self._lattice is None:
+        self._nearest: Any = None
+        self._linear: Any = None
+        if self._lattice is None:  # scattered samples (scipy.interpolate: only for them)
+            from scipy.interpolate import LinearNDInterpolator, NearestNDInterpolator
+
+            self._nearest = NearestNDInterpolator(coords, values)
             try:
                 self._linear = LinearNDInterpolator(coords, values)
             except Exception:
@@ -53,22 +52,40 @@ class StressData:
         """The samples' least (x, y, z), mm: lined up with the model's lower corner."""
         return self.points.min(axis=0)
 
+    @property
+    def on_lattice(self) -> bool:
+        """True when the samples fill a regular lattice (read by :meth:`plane`)."""
+        return self._lattice is not None
+
+    def plane(self, z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The lattice's field on the plane at height ``z`` mm (data frame), linear
+        between the two lattice planes about it and clamped at the lattice's bottom
+        and top: (x nodes (nx,), y nodes (ny,), values (nx, ny)) float64. Only for
+        samples on a lattice (:attr:`on_lattice`); a flat field's own grid."""
+        assert self._lattice is not None
+        axes, grid = self._lattice
+        if self.flat:
+            return axes[0], axes[1], grid
+        zs = axes[2]
+        z = min(max(float(z), float(zs[0])), float(zs[-1]))
+        below = int(np.searchsorted(zs, z, side="right")) - 1
+        k = min(max(below, 0), len(zs) - 2)
+        t = (z - zs[k]) / (zs[k + 1] - zs[k])
+        return axes[0], axes[1], (1.0 - t) * grid[:, :, k] + t * grid[:, :, k + 1]
+
     def at(self, x: np.ndarray, y: np.ndarray, z: float) -> np.ndarray:
         """Interpolated values at points ``x``, ``y`` (n,) float64 mm and height ``z`` mm
         in the data's own frame -> (n,) float64."""
         x = np.ravel(np.asarray(x, dtype=float))
         y = np.ravel(np.asarray(y, dtype=float))
+        if self._lattice is not None:  # trilinear: bilinear on the plane at z
+            xs, ys, plane = self.plane(z)
+            return bilinear(xs, ys, plane, x, y)
         query = (
             np.column_stack((x, y))
             if self.flat
             else np.column_stack((x, y, np.full(x.shape, float(z))))
         )
-        if self._lattice is not None:
-            axes = self._lattice.grid
-            clamped = np.column_stack(
-                [np.clip(query[:, k], axis[0], axis[-1]) for k, axis in enumerate(axes)]
-            )
-            return self._lattice(clamped)
         values = self._linear(query) if self._linear is not None else np.full(x.shape, np.nan)
         missing = ~np.isfinite(values)
         if missing.any():
@@ -76,8 +93,28 @@ class StressData:
         return values
 
 
-def _lattice(coords: np.ndarray, values: np.ndarray) -> RegularGridInterpolator | None:
-    """A lattice interpolator when ``coords`` (n, d) fill every node of a regular grid."""
+def bilinear(
+    xs: np.ndarray, ys: np.ndarray, values: np.ndarray, x: np.ndarray, y: np.ndarray
+) -> np.ndarray:
+    """Bilinear interpolation of ``values`` (nx, ny) on the nodes ``xs`` (nx,), ``ys``
+    (ny,) (increasing, mm) at points ``x``, ``y`` (n,) -> (n,) float64, clamped at the
+    grid's edges."""
+    x = np.clip(np.ravel(np.asarray(x, dtype=float)), xs[0], xs[-1])
+    y = np.clip(np.ravel(np.asarray(y, dtype=float)), ys[0], ys[-1])
+    i = np.clip(np.searchsorted(xs, x, side="right") - 1, 0, len(xs) - 2)
+    j = np.clip(np.searchsorted(ys, y, side="right") - 1, 0, len(ys) - 2)
+    tx = (x - xs[i]) / (xs[i + 1] - xs[i])
+    ty = (y - ys[j]) / (ys[j + 1] - ys[j])
+    low = values[i, j] + tx * (values[i + 1, j] - values[i, j])
+    high = values[i, j + 1] + tx * (values[i + 1, j + 1] - values[i, j + 1])
+    return low + ty * (high - low)
+
+
+def _lattice(
+    coords: np.ndarray, values: np.ndarray
+) -> tuple[tuple[np.ndarray, ...], np.ndarray] | None:
+    """The lattice's node coordinates per axis (d arrays, increasing) and its values
+    (shape of the lattice) when ``coords`` (n, d) fill every node of a regular grid."""
     axes = [np.unique(coords[:, k]) for k in range(coords.shape[1])]
     shape = tuple(len(axis) for axis in axes)
     if any(n < 2 for n in shape) or int(np.prod(shape)) != coords.shape[0]:
@@ -87,7 +124,7 @@ def _lattice(coords: np.ndarray, values: np.ndarray) -> RegularGridInterpolator 
     grid[index] = values
     if np.isnan(grid).any():  # repeated points leave holes: not a lattice
         return None
-    return RegularGridInterpolator(tuple(axes), grid)
+    return tuple(axes), grid
 
 
 def load_stress(path: str | Path) -> StressData:

@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import os
 import threading
+from collections.abc import Iterator
 from concurrent.futures import Future
+from contextlib import contextmanager
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -14,6 +17,8 @@ if TYPE_CHECKING:
 # path -> a future that completes when the file is written
 _PENDING: dict[str, Future[FieldFile]] = {}
 _PENDING_LOCK = threading.Lock()
+# field files a layer is waiting for right now: path -> layers waiting
+_WAITING: dict[str, int] = {}
 
 
 def announce(path: str | Path, future: Future[FieldFile]) -> None:
@@ -38,3 +43,25 @@ def pending(path: str | Path) -> Future[FieldFile] | None:
     if future is None or (future.done() and Path(path).is_file()):
         return None
     return future
+
+
+@contextmanager
+def waiting(path: str | os.PathLike[str]) -> Iterator[None]:
+    """Mark, for as long as the block runs, that a layer waits for the field file
+    ``path`` (see :func:`waited_for`)."""
+    key = str(path)
+    with _PENDING_LOCK:
+        _WAITING[key] = _WAITING.get(key, 0) + 1
+    try:
+        yield
+    finally:
+        with _PENDING_LOCK:
+            left = _WAITING.pop(key) - 1
+            if left:
+                _WAITING[key] = left
+
+
+def waited_for(path: str | os.PathLike[str]) -> bool:
+    """True while some layer is waiting for the field file ``path`` to be computed."""
+    with _PENDING_LOCK:
+        return str(path) in _WAITING

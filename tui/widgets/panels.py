@@ -81,7 +81,8 @@ class JobPanel(Widget):
             line((job.name, "bold"), (f"  job {job.id}", "dim")),
             line(layer, "  ", (bar(job.progress, bar_width), "green"), pct),
             line("elapsed ", (duration(job.elapsed_s), "bold"), "  ETA ",
-                 (duration(job.eta_s), "bold"), "  ahead ", (str(job.layers_ready_ahead), "bold")),
+                 (duration(job.eta_s), "bold"), "  ahead ", (str(job.layers_ready_ahead), "bold"),
+                 (f"  waiting for the {job.waiting_for}" if job.waiting_for else "", "yellow")),
             line("filament ", ("≈" if total else "", "dim"),
                  (metres(used).removesuffix(" m"), "bold"), " of ", (metres(total), "bold")),
         )
