@@ -58,9 +58,9 @@ def _reference(outlines: np.ndarray, top: int, bottom: int) -> list[shapely.Geom
             for j in nbrs[1:]:
                 cover = cover.intersection(fill[j])
             skin = skin.union(fill[i].difference(cover))
-        # what is narrower than 2 _OPEN is no skin
-        core = skin.buffer(-_OPEN, quad_segs=6).buffer(2 * _OPEN, quad_segs=6)
-        out.append(skin.intersection(core))
+        # a part narrower than 2 _OPEN everywhere is no skin
+        parts = [p for p in shapely.get_parts(skin) if not p.buffer(-_OPEN).is_empty]
+        out.append(shapely.union_all(parts) if parts else shapely.Polygon())
     return out
 
 
