@@ -22,13 +22,13 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer import geom, order
+from slicer import geom, loops, order
 from slicer.fields.base import InfillField, LayerContext
-from slicer.fields.linear import LinearField, hatch, line_frame
+from slicer.fields.linear import LinearField, hatch_many, line_frame
 from slicer.settings import SliceSettings
 
-WALL_OUTER = "WALL-OUTER"
-WALL_INNER = "WALL-INNER"
+WALL_OUTER = loops.WALL_OUTER
+WALL_INNER = loops.WALL_INNER
 SKIN = "SKIN"
 FILL = "FILL"
 SUPPORT = "SUPPORT"
@@ -141,32 +141,47 @@ def layer_paths(
         sparse = fill
     skin, sparse = _solid_small_regions(skin, sparse, settings.infill_solid_below_area)
     shortest = _MIN_PATH * w
-    skin_lines = [_hatched(r, settings.infill_angle, ctx.index, w, shortest) for r in skin]
+    skin_stacks = _stacks(skin, settings.infill_angle, ctx.index, w, shortest)
+    sparse_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
     if isinstance(field, LinearField):
         spacing = sparse_spacing(settings)
-        sparse_lines = [_hatched(r, field.angle, ctx.index, spacing, shortest) for r in sparse]
+        sparse_stacks = _stacks(sparse, field.angle, ctx.index, spacing, shortest)
     else:
+        sparse_stacks = None
         sparse_lines = _sparse_lines(sparse, ctx, field)
+    rings = loops.wall_loops(walls, settings.wall_order)
 
-    out: list[Path] = []
+    # walls are final; infill runs are joined for all islands at once after the walk
+    items: list[Path | tuple[str, int]] = []
+    runs: list[tuple[np.ndarray, np.ndarray, int]] = []
     pos = _start_position(islands)
     for k in _island_order(islands, pos):
-        loops = _wall_loops(walls[k], settings.wall_order)
         width = None if np.isnan(outer_width[k]) else float(outer_width[k])
-        for kind, ring in _order_loops(loops, pos):
-            out.append(Path(kind, ring, width if kind == WALL_OUTER else None))
+        for kind, ring in loops.order_loops(rings[k], pos):
+            items.append(Path(kind, ring, width if kind == WALL_OUTER else None))
             pos = ring[-1]
-        for kind, lines in ((SKIN, skin_lines[k]), (FILL, sparse_lines[k])):
-            if isinstance(lines, _Hatch):
-                ordered, pos = order.order_chords(
-                    lines.chords, lines.g, lines.d, lines.spacing, pos
-                )
-            elif lines:
-                ordered, pos = order.order_open_paths(lines, pos)
+        for kind, stacks in ((SKIN, skin_stacks), (FILL, sparse_stacks)):
+            if stacks is not None:
+                block, pos = order.walk_stacks(stacks, k, pos)
+                if len(block) == 0:
+                    continue
+                pts = block.reshape(-1, 2)
+                ends = np.arange(2, len(pts) + 1, 2)
+            elif kind == FILL and sparse_lines[k]:
+                ordered, pos = order.order_open_paths(sparse_lines[k], pos)
+                pts = np.concatenate(ordered)
+                ends = np.cumsum([len(c) for c in ordered])
             else:
                 continue
-            for coords in order.join_paths(ordered, fill[k], 2.0 * w, w / 2.0):
-                out.append(Path(kind, coords))
+            items.append((kind, len(runs)))
+            runs.append((pts, ends, k))
+    joined = order.join_runs(runs, fill, 2.0 * w, w / 2.0)
+    out: list[Path] = []
+    for item in items:
+        if isinstance(item, Path):
+            out.append(item)
+        else:
+            out.extend(Path(item[0], coords) for coords in joined[item[1]])
     if has_support:
         out.extend(_support(regions, ctx, support_paths, pos))
     return out
@@ -274,79 +289,26 @@ def _island_order(islands: np.ndarray, pos: np.ndarray) -> list[int]:
     return out
 
 
-def _wall_loops(levels: np.ndarray, wall_order: str) -> list[tuple[str, list[np.ndarray]]]:
-    """Rings of each wall level as point arrays, in the wall order the settings ask for."""
-    out = []
-    for k, level in enumerate(levels):
-        if level is None or level.is_empty:
-            continue
-        rings = []
-        for poly in shapely.get_parts(shapely.orient_polygons(level)):
-            rings.append(order.ring_points(shapely.get_coordinates(poly.exterior)))
-            rings.extend(order.ring_points(shapely.get_coordinates(r)) for r in poly.interiors)
-        rings = [r for r in rings if len(r) >= 3]
-        if rings:
-            out.append((WALL_OUTER if k == 0 else WALL_INNER, rings))
-    if wall_order == "inner_first":
-        out.reverse()
-    return out
+def _stacks(
+    regions: np.ndarray, angle: float, index: int, spacing: float, min_length: float
+) -> order.ChordStacks | None:
+    """Level sets of the linear field (Eq. 13, mirrored on odd layers) in every region, stacked.
 
-
-def _order_loops(
-    levels: list[tuple[str, list[np.ndarray]]], pos: np.ndarray
-) -> list[tuple[str, np.ndarray]]:
-    """Closed loops level by level, nearest first; outer walls seam at the rear."""
-    out = []
-    here = np.asarray(pos, dtype=np.float64)
-    for kind, rings in levels:
-        pts_x, pts_y = np.concatenate(rings).T
-        sizes = np.array([len(r) for r in rings])
-        starts = np.concatenate(([0], np.cumsum(sizes)[:-1]))
-        done = np.zeros(len(rings), dtype=bool)
-        for _ in range(len(rings)):
-            if len(rings) == 1:
-                j = 0
-            else:
-                dx, dy = pts_x - here[0], pts_y - here[1]
-                dist = np.minimum.reduceat(dx * dx + dy * dy, starts)
-                dist[done] = np.inf
-                j = int(dist.argmin())
-            done[j] = True
-            pts = rings[j]
-            start = order.rear_seam(pts) if kind == WALL_OUTER else order.nearest_vertex(pts, here)
-            ring = order.start_ring_at(pts, start)
-            out.append((kind, ring))
-            here = ring[-1]
-    return out
-
-
-@dataclass(frozen=True)
-class _Hatch:
-    """Straight parallel chords of one region: (n, 2, 2) mm, on lines ``x . g = k * spacing``."""
-
-    chords: np.ndarray
-    g: np.ndarray
-    d: np.ndarray
-    spacing: float
-
-
-def _hatched(region, angle: float, index: int, spacing: float, min_length: float) -> _Hatch | list:
-    """Level sets of the linear field (Eq. 13, mirrored on odd layers) inside ``region``.
-
-    Chords shorter than ``min_length`` mm are dropped. Empty list when none.
+    ``regions`` (p,) one (Multi)Polygon or None per island; chords shorter than
+    ``min_length`` mm are dropped. None when there are no chords at all.
     """
-    if region is None or region.is_empty or spacing <= 0:
-        return []
+    if spacing <= 0 or len(regions) == 0:
+        return None
     mirror = index % 2 == 1
-    chords = hatch(region, angle, mirror, spacing)
+    chords, owner = hatch_many(regions, angle, mirror, spacing)
     if len(chords) == 0:
-        return []
+        return None
     length = np.linalg.norm(chords[:, 1] - chords[:, 0], axis=1)
-    chords = chords[length >= min_length]
-    if len(chords) == 0:
-        return []
+    keep = length >= min_length
+    if not keep.any():
+        return None
     g, d = line_frame(angle, mirror)
-    return _Hatch(chords, g, d, spacing)
+    return order.chord_stacks(chords[keep], owner[keep], len(regions), g, d, spacing)
 
 
 def _sparse_lines(

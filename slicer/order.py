@@ -5,6 +5,8 @@ All functions are pure: coordinates in, coordinates out, ``(k, 2) float64`` mm.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 import shapely
 
@@ -118,6 +120,45 @@ def join_paths(
     return np.split(pts, cuts)
 
 
+def join_runs(
+    runs: list[tuple[np.ndarray, np.ndarray, int]],
+    regions: np.ndarray,
+    max_gap: float,
+    slack: float = 0.0,
+) -> list[list[np.ndarray]]:
+    """:func:`join_paths` of many runs of ordered paths at once (one vectorised check).
+
+    Each run is ``(points, ends, region)``: its paths' points concatenated
+    (m, 2) mm, where each path ends in them (cumulative sizes, (q,) int) and
+    the index into ``regions`` (r,) of the region its joints must stay near.
+    Paths are joined only within a run. Returns each run's joined paths.
+    ``regions`` are prepared in place: they must be the caller's own.
+    """
+    if not runs:
+        return []
+    counts = np.array([len(r[1]) for r in runs])
+    offsets = np.cumsum([0] + [len(r[0]) for r in runs])[:-1]
+    pts = np.concatenate([r[0] for r in runs])
+    ends = np.concatenate([r[1] + off for r, off in zip(runs, offsets, strict=True)])
+    which = np.repeat(np.arange(len(runs)), counts)
+    joint = np.ones(len(ends), dtype=bool)
+    joint[np.cumsum(counts) - 1] = False  # a run's last path joins nothing
+    a = pts[ends - 1]
+    b = pts[np.minimum(ends, len(pts) - 1)]
+    gap = np.linalg.norm(b - a, axis=1)
+    cand = np.flatnonzero(joint & (gap <= max_gap))
+    ok = np.zeros(len(ends), dtype=bool)
+    if len(cand):
+        region_of = np.array([r[2] for r in runs])[which[cand]]
+        shapely.prepare(regions[np.unique(region_of)])
+        middle = shapely.points((a[cand] + b[cand]) / 2.0)
+        ok[cand] = shapely.dwithin(regions[region_of], middle, slack)
+    pieces = np.split(pts, ends[:-1][~ok[:-1]])
+    per_run = np.bincount(which[~ok], minlength=len(runs))
+    bounds = np.cumsum(per_run)
+    return [pieces[e - c : e] for e, c in zip(bounds, per_run, strict=True)]
+
+
 def chord_levels(
     chords: np.ndarray, g: np.ndarray, d: np.ndarray, spacing: float
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -142,29 +183,78 @@ def order_chords(
     overlap one to one (the usual boustrophedon cells between holes); inside a
     stack each chord is entered at the end nearest to where the previous one
     ended, so neighbouring ends are joinable. Stacks are visited greedily by
-    nearest end. Links between levels are found for all chords at once with
-    ``searchsorted``; only the walk along the (few) stacks is a Python loop.
-    Returns the chords as (2, 2) arrays in print order and the final position.
+    nearest end. Returns the chords as (2, 2) arrays in print order and the
+    final position (see :func:`chord_stacks` and :func:`walk_stacks`).
+    """
+    if len(chords) == 0:
+        return [], pos
+    stacks = chord_stacks(chords, np.zeros(len(chords), dtype=np.int64), 1, g, d, spacing)
+    block, here = walk_stacks(stacks, 0, pos)
+    return list(block), here
+
+
+@dataclass(frozen=True)
+class ChordStacks:
+    """Zigzag stacks of the chords of several groups (islands), found for all at once.
+
+    ``fw`` (n, 2, 2) the chords, each along ``d``; ``seq`` (n,) chord indices
+    stack by stack, bottom to top; ``bounds`` (s + 1,) where each stack starts
+    in ``seq``; ``ends`` (s, 4, 2) the corners a stack can be entered at;
+    ``first``/``last`` (s,) its bottom and top chord; ``group_stacks``
+    (groups + 1,) the first stack of each group (a group's stacks are
+    consecutive).
+    """
+
+    fw: np.ndarray
+    seq: np.ndarray
+    bounds: np.ndarray
+    ends: np.ndarray
+    first: np.ndarray
+    last: np.ndarray
+    group_stacks: np.ndarray
+
+
+def chord_stacks(
+    chords: np.ndarray,
+    group: np.ndarray,
+    groups: int,
+    g: np.ndarray,
+    d: np.ndarray,
+    spacing: float,
+) -> ChordStacks:
+    """The zigzag stacks of parallel chords (n, 2, 2) mm, never across groups.
+
+    ``group`` (n,) int64 in ``[0, groups)``: the island of each chord. Links
+    between levels are found for all chords at once with ``searchsorted``
+    on exact integer keys (level, rank of the along-line coordinate); the
+    levels of different groups are kept two apart so no link crosses groups.
     """
     n = len(chords)
-    if n == 0:
-        return [], pos
     k, v0, v1 = chord_levels(chords, g, d, spacing)
-    order = np.lexsort((v0, k))
-    chords, k, v0, v1 = chords[order], k[order], v0[order], v1[order]
-    # position of each chord's level block, for lookups on the next level
-    kmin = int(k.min())
-    levels = k - kmin
+    order = np.lexsort((v0, k, group))
+    chords, k, v0, v1, group = chords[order], k[order], v0[order], v1[order], group[order]
+    # levels counted from each group's lowest, groups apart by two empty levels
+    gstart = np.searchsorted(group, np.arange(groups + 1))
+    present = gstart[1:] > gstart[:-1]
+    kmin = np.zeros(groups, dtype=np.int64)
+    height = np.zeros(groups, dtype=np.int64)
+    kmin[present] = k[gstart[:-1][present]]
+    height[present] = k[gstart[1:][present] - 1] - kmin[present] + 3
+    offset = np.cumsum(height) - height
+    levels = k - kmin[group] + offset[group]
     nlev = int(levels.max()) + 2
     start = np.searchsorted(levels, np.arange(nlev + 1))
     # candidates on the next level: chords b with v1_b > v0_a and v0_b < v1_a
     nb_lo = start[np.minimum(levels + 1, nlev)]
     nb_hi = start[np.minimum(levels + 2, nlev)]
-    span = float(max(v1.max() - v0.min(), 1.0)) * 4.0
-    key0 = levels * span + (v0 - v0.min())
-    key1 = levels * span + (v1 - v0.min())
-    first = np.maximum(np.searchsorted(key1, (levels + 1) * span + (v0 - v0.min()), "right"), nb_lo)
-    last = np.minimum(np.searchsorted(key0, (levels + 1) * span + (v1 - v0.min()), "left"), nb_hi)
+    values, rank = np.unique(np.concatenate([v0, v1]), return_inverse=True)
+    r0, r1 = rank[:n].astype(np.int64), rank[n:].astype(np.int64)
+    span = len(values) + 1
+    key0 = levels * span + r0
+    key1 = levels * span + r1
+    up = (levels + 1) * span
+    first = np.maximum(np.searchsorted(key1, up + r0, "right"), nb_lo)
+    last = np.minimum(np.searchsorted(key0, up + r1, "left"), nb_hi)
     count_up = np.maximum(last - first, 0)
     succ = np.where(count_up == 1, first, -1)
     # the successor must have this chord as its only overlapping chord below
@@ -174,7 +264,6 @@ def order_chords(
     ok[ok] = preds[succ[ok]] == 1
     succ = np.where(ok, succ, -1)
     has_pred[succ[succ >= 0]] = True
-    del key0, key1
     heads = np.flatnonzero(~has_pred)
     # head and depth of every chord's stack, by pointer doubling down the links
     pred = np.full(n, -1, dtype=np.int64)
@@ -193,20 +282,40 @@ def order_chords(
     seq = np.lexsort((depth, stack_of))  # chords stack by stack, bottom to top
     bounds = np.searchsorted(stack_of[seq], np.arange(len(heads) + 1))
     fw = _forward(chords, d)  # each chord along d; a zigzag alternates from there
-    first, last = seq[bounds[:-1]], seq[bounds[1:] - 1]
-    ends = np.stack([fw[first, 0], fw[first, 1], fw[last, 0], fw[last, 1]], axis=1)  # (s, 4, 2)
-    visits = _visit_stacks(ends, fw, first, last, np.diff(bounds), pos)
-    # every stack's chords, walked from the corner it is entered at, alternating
+    first_c, last_c = seq[bounds[:-1]], seq[bounds[1:] - 1]
+    ends = np.stack([fw[first_c, 0], fw[first_c, 1], fw[last_c, 0], fw[last_c, 1]], axis=1)
+    group_stacks = np.searchsorted(group[heads], np.arange(groups + 1))
+    return ChordStacks(fw, seq, bounds, ends, first_c, last_c, group_stacks)
+
+
+def walk_stacks(
+    stacks: ChordStacks, group: int, pos: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """The chords of one group in print order from ``pos``: ((m, 2, 2) mm, final position).
+
+    Stacks are visited greedily by nearest corner; each is walked from the
+    corner it is entered at, alternating direction. (0, 2, 2) and ``pos``
+    when the group has no chords.
+    """
+    s0, s1 = int(stacks.group_stacks[group]), int(stacks.group_stacks[group + 1])
+    if s0 == s1:
+        return np.empty((0, 2, 2)), pos
+    b = stacks.bounds[s0 : s1 + 1]
+    sizes = np.diff(b)
+    visits = _visit_stacks(
+        stacks.ends[s0:s1], stacks.fw, stacks.first[s0:s1], stacks.last[s0:s1], sizes, pos
+    )
     s_of, corner = visits[:, 0], visits[:, 1]
-    sizes = bounds[s_of + 1] - bounds[s_of]
-    stack = np.repeat(np.arange(len(visits)), sizes)
-    j = np.arange(n) - np.repeat(np.cumsum(sizes) - sizes, sizes)  # position in its stack
+    sz = sizes[s_of]
+    m = int(sz.sum())
+    stack = np.repeat(np.arange(len(visits)), sz)
+    j = np.arange(m) - np.repeat(np.cumsum(sz) - sz, sz)  # position in its stack
     c = corner[stack]
-    src = np.where(c >= 2, bounds[s_of + 1][stack] - 1 - j, bounds[s_of][stack] + j)
-    block = fw[seq[src]]
+    src = np.where(c >= 2, b[s_of + 1][stack] - 1 - j, b[s_of][stack] + j)
+    block = stacks.fw[stacks.seq[src]]
     flip = (j + c) % 2 == 1
     block[flip] = block[flip][:, ::-1]
-    return list(block), block[-1, 1]
+    return block, block[-1, 1]
 
 
 # stacks up to this many are ordered from one precomputed table of distances

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import asyncio
 import collections
 import concurrent.futures
 import threading
@@ -94,6 +93,8 @@ class LayerWindow(Generic[T]):
 
     async def take_async(self, index: int | None = None) -> T:
         """:meth:`take` for a coroutine: the event loop runs on while the layer is made."""
+        import asyncio  # only the daemon awaits layers: `hostd slice` never loads asyncio
+
         future = self._head(index)
         result = await asyncio.wrap_future(future)
         self._pop()

@@ -7,7 +7,12 @@ layers count as air). Comparing with the neighbours' infill domains rather
 than their outlines also makes the shell of sloped surfaces solid: where the
 walls of nearby layers pass over this layer's infill, there is solid fill, so
 the outer surface is closed and as thick as the walls whatever the sparse
-field (PrusaSlicer's "ensure vertical shell thickness").
+field (PrusaSlicer's "ensure vertical shell thickness"). A part of a skin
+narrower than ``2 _OPEN`` (one 0.4 mm line) everywhere, one that an inward
+offset by ``_OPEN`` empties, is left to the walls and the sparse infill, as
+PrusaSlicer leaves it: on steep slopes the cover misses only a hair-thin band
+behind the walls, which hatched solid was many short chords over-extruding
+into them (1.10-1.19 times PrusaSlicer's filament on a sphere and a cone).
 
 With the window intersections ``W(j, k) = F_j ∩ ... ∩ F_{j+k-1}``, the cover
 from above is ``U_i = W(i+1, top)``, the cover from below ``D_i = W(i-bottom,
@@ -47,6 +52,8 @@ from slicer import geom
 
 # largest deviation of the domains used to find skins, mm
 _SIMPLIFY = 0.1
+# skin parts narrower than twice this everywhere are dropped, mm
+_OPEN = 0.2
 # skin parts thinner than this on average (2 area / perimeter) are overlay noise, mm
 _SLIVER = 0.01
 # a layer's skin smaller than this is none, mm^2
@@ -139,6 +146,29 @@ def _drop_slivers(regions: np.ndarray) -> np.ndarray:
         out[rows[~single]] = multi[~single]
     area_left = shapely.area(out)
     out[~(area_left > _MIN_AREA)] = None
+    return out
+
+
+def _narrow_dropped(regions: np.ndarray) -> np.ndarray:
+    """``regions`` (m,) without their parts narrower than ``2 _OPEN`` everywhere, (m,)
+    object array (None where nothing is left): the parts that an inward offset by
+    ``_OPEN`` empties."""
+    out = regions.copy()
+    rows = np.flatnonzero([g is not None for g in regions])
+    if len(rows) == 0:
+        return out
+    parts, owner = shapely.get_parts(regions[rows], return_index=True)
+    if len(parts) == 0:
+        return out
+    wide = ~shapely.is_empty(shapely.buffer(parts, -_OPEN, quad_segs=2))
+    kept = np.bincount(owner[wide], minlength=len(rows))
+    total = np.bincount(owner, minlength=len(rows))
+    changed = np.flatnonzero(kept < total)
+    for r in changed:
+        mine = parts[(owner == r) & wide]
+        out[rows[r]] = (
+            None if len(mine) == 0 else mine[0] if len(mine) == 1 else shapely.multipolygons(mine)
+        )
     return out
 
 
@@ -325,7 +355,7 @@ class SkinCache:
         solid = np.array([s != {int(own[r])} for s, r in zip(sets, todo, strict=True)], dtype=bool)
         todo = todo[solid]
         if len(todo):
-            out[todo] = _drop_slivers(geom.difference(here[todo], cover[todo]))
+            out[todo] = _narrow_dropped(_drop_slivers(geom.difference(here[todo], cover[todo])))
         small = np.array([g is not None and not g.area > _MIN_AREA for g in out], dtype=bool)
         out[small] = None
         return out

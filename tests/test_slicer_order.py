@@ -1,8 +1,10 @@
-"""Bulk G-code formatting and travel checks give what the one-at-a-time versions give."""
+"""Bulk G-code formatting, travel checks and infill ordering match one-at-a-time versions."""
 
 import numpy as np
 import shapely
 
+from slicer import order
+from slicer.fields.linear import hatch, hatch_many, line_frame
 from slicer.gcode import _travels_leave, format_moves
 
 
@@ -57,3 +59,37 @@ def test_travels_leave_matches_covered_by():
     expected = ~(shapely.covered_by(lines, outline) | np.all(a == b, axis=1))
     assert (_travels_leave(a, b, outline, 0.4) == expected).all()
     assert not _travels_leave(a[:1], b[:1], outline, 0.4)[0]
+
+
+def test_islands_hatched_stacked_and_joined_at_once_match_one_at_a_time():
+    # side by side, so the islands' chords line up level by level: batched, they must
+    # still never share a zigzag stack or a joint
+    islands = np.array([
+        shapely.box(0, 0, 10, 10),
+        shapely.box(10.5, 0, 20, 10).difference(shapely.box(13, 3, 16, 6)),
+        shapely.Point(26, 5).buffer(4),
+        None,
+    ], dtype=object)
+    g, d = line_frame(45.0, True)
+    chords, owner = hatch_many(islands, 45.0, True, 0.4)
+    stacks = order.chord_stacks(chords, owner, len(islands), g, d, 0.4)
+    pos = np.array([0.0, 10.0])
+    runs, want = [], []
+    for k, island in enumerate(islands[:3]):
+        alone = hatch(island, 45.0, True, 0.4)
+        np.testing.assert_array_equal(chords[owner == k], alone)
+        block, end = order.walk_stacks(stacks, k, pos)
+        ordered, want_end = order.order_chords(alone, g, d, 0.4, pos)
+        np.testing.assert_array_equal(block, np.array(ordered))
+        np.testing.assert_array_equal(end, want_end)
+        region = island.buffer(0)  # each join check prepares its own copy
+        want.append(order.join_paths(ordered, region, 0.8, 0.2))
+        runs.append((block.reshape(-1, 2), np.arange(2, 2 * len(block) + 1, 2), k))
+        pos = end
+    assert order.walk_stacks(stacks, 3, pos)[0].shape == (0, 2, 2)
+    regions = np.array([i.buffer(0) for i in islands[:3]], dtype=object)
+    got = order.join_runs(runs, regions, 0.8, 0.2)
+    assert [len(r) for r in got] == [len(r) for r in want]
+    for got_run, want_run in zip(got, want, strict=True):
+        for a, b in zip(got_run, want_run, strict=True):
+            np.testing.assert_array_equal(a, b)

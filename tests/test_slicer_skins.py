@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 import shapely
 
-from slicer.skins import SkinCache, _domains, skin_regions
+from slicer.skins import _OPEN, SkinCache, _domains, skin_regions
 
 FILL = 0.8  # mm from an outline to its infill domain
 
@@ -58,7 +58,9 @@ def _reference(outlines: np.ndarray, top: int, bottom: int) -> list[shapely.Geom
             for j in nbrs[1:]:
                 cover = cover.intersection(fill[j])
             skin = skin.union(fill[i].difference(cover))
-        out.append(skin)
+        # a part narrower than 2 _OPEN everywhere is no skin
+        parts = [p for p in shapely.get_parts(skin) if not p.buffer(-_OPEN).is_empty]
+        out.append(shapely.union_all(parts) if parts else shapely.Polygon())
     return out
 
 
@@ -114,3 +116,18 @@ def test_no_slivers_between_nearly_equal_layers() -> None:
 
 def test_no_skins_without_solid_layers() -> None:
     assert all(g is None for g in skin_regions(_stack(), FILL, 0, 0))
+
+
+def test_steep_sides_get_no_hair_thin_skin_shallow_ones_a_band() -> None:
+    # a pyramid whose sides move 0.1 mm a layer (steep: the 3-layer cover misses a
+    # 0.3 mm band, narrower than a line) and then 0.5 mm a layer (a 1.5 mm band)
+    steep = [shapely.box(0, 0, 40, 40).buffer(-0.1 * i, join_style="mitre") for i in range(10)]
+    shallow = [steep[-1].buffer(-0.5 * i, join_style="mitre") for i in range(1, 10)]
+    outlines = np.array(steep + shallow, dtype=object)
+    skins = skin_regions(outlines, FILL, 3, 0)
+    assert all(g is None for g in skins[3:6])  # covered but for a 0.3 mm band: no skin
+    band = skins[12]
+    assert band is not None
+    domain = _domains(outlines[12:13], FILL)[0]
+    # the band under the next three layers' edges: 1.5 mm wide along the domain's edge
+    assert band.area == pytest.approx(domain.area - domain.buffer(-1.5).area, rel=0.05)

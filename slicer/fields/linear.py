@@ -39,11 +39,27 @@ def hatch(region: shapely.Geometry, angle_deg: float, mirror: bool, spacing: flo
     """
     if region is None or region.is_empty or spacing <= 0:
         return np.empty((0, 2, 2))
+    return hatch_many(np.array([region], dtype=object), angle_deg, mirror, spacing)[0]
+
+
+def hatch_many(
+    regions: np.ndarray, angle_deg: float, mirror: bool, spacing: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`hatch` of every region of ``regions`` (r,) at once (None or empty: no chords).
+
+    Returns the chords (n, 2, 2) float64 mm and the region each belongs to
+    (n,) int64, ordered by region, then as :func:`hatch` orders them.
+    """
+    none = (np.empty((0, 2, 2)), np.empty(0, dtype=np.int64))
+    if spacing <= 0 or len(regions) == 0:
+        return none
     g, d = line_frame(angle_deg, mirror)
-    rings = shapely.get_rings(shapely.get_parts(region))
+    parts, owner = shapely.get_parts(regions, return_index=True)
+    rings, ring_part = shapely.get_rings(parts, return_index=True)
     coords, ring = shapely.get_coordinates(rings, return_index=True)
     same = ring[1:] == ring[:-1]
     p, q = coords[:-1][same], coords[1:][same]
+    edge_owner = owner[ring_part[ring[:-1][same]]]
     up, uq = p @ g, q @ g
     vp, vq = p @ d, q @ d
     lo = np.minimum(up, uq)
@@ -53,25 +69,26 @@ def hatch(region: shapely.Geometry, angle_deg: float, mirror: bool, spacing: flo
     count = np.maximum(k1 - k0, 0)
     total = int(count.sum())
     if total == 0:
-        return np.empty((0, 2, 2))
+        return none
     edge = np.repeat(np.arange(len(count)), count)
     start = np.cumsum(count) - count
     k = k0[edge] + (np.arange(total) - start[edge])
     c = k * spacing
     t = (c - up[edge]) / (uq[edge] - up[edge])
     v = vp[edge] + t * (vq[edge] - vp[edge])
-    order = np.lexsort((v, k))
-    k, v, c = k[order], v[order], c[order]
-    # pair crossings per level: (0, 1), (2, 3), ...
-    first = np.concatenate(([True], k[1:] != k[:-1]))
+    who = edge_owner[edge]
+    order = np.lexsort((v, k, who))
+    k, v, c, who = k[order], v[order], c[order], who[order]
+    # pair crossings per level of each region: (0, 1), (2, 3), ...
+    first = np.concatenate(([True], (k[1:] != k[:-1]) | (who[1:] != who[:-1])))
     rank = np.arange(total) - np.maximum.accumulate(np.where(first, np.arange(total), 0))
     a = np.flatnonzero(rank % 2 == 0)
     a = a[a + 1 < total]
-    a = a[k[a + 1] == k[a]]
+    a = a[~first[a + 1]]
     cc, v0, v1 = c[a], v[a], v[a + 1]
     p0 = cc[:, None] * g + v0[:, None] * d
     p1 = cc[:, None] * g + v1[:, None] * d
-    return np.stack([p0, p1], axis=1)
+    return np.stack([p0, p1], axis=1), who[a]
 
 
 def line_family(
