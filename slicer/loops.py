@@ -31,15 +31,16 @@ def wall_loops(
     ring's rear seam vertex (:func:`slicer.order.rear_seam`).
     """
     p, levels = walls.shape
-    out: list[list[tuple[str, list[np.ndarray], list[int]]]] = [[] for _ in range(p)]
+    # per island: (kind, rings, seams, level) while the rings are gathered
+    out: list[list[tuple[str, list[np.ndarray], list[int], int]]] = [[] for _ in range(p)]
     if p == 0 or levels == 0:
-        return out
+        return [[] for _ in range(p)]
     flat = shapely.orient_polygons(walls.ravel())
     parts, cell = shapely.get_parts(flat, return_index=True)
     rings, ring_part = shapely.get_rings(parts, return_index=True)
     coords, ring = shapely.get_coordinates(rings, return_index=True)
     if len(coords) == 0:
-        return out
+        return [[] for _ in range(p)]
     # drop each ring's repeated closing point
     size = np.bincount(ring, minlength=len(rings))
     start = np.cumsum(size) - size

@@ -156,7 +156,8 @@ def test_the_wire_budget_coarsens_only_fast_runs() -> None:
             assert np.array_equal(tight.pts[tight.starts[k] : tight.ends[k]], kept)
     coarsened = [k for k, p in enumerate(paths)
                  if tight.ends[k] - tight.starts[k] < plain.ends[k] - plain.starts[k]]
-    assert coarsened and all(paths[k].kind != "WALL-OUTER" for k in coarsened)
+    assert coarsened
+    assert all(paths[k].kind != "WALL-OUTER" for k in coarsened)
     # a wire fast enough for every run changes nothing
     fast = free.with_settings(SliceSettings.from_mapping({"gcode.baud": 10_000_000, **coarse},
                                                          base=free.settings))
