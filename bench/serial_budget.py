@@ -144,6 +144,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="also feed each G-code over an endless wire, for the time lost")
     parser.add_argument("--resolution", type=float, default=None,
                         help="our resolution, mm (default: the setting's default)")
+    parser.add_argument("--lines-only", action="store_true",
+                        help="count lines against PrusaSlicer's only (no feed simulation)")
     parser.add_argument("--out", type=Path, default=OUT / "serial_budget.json")
     args = parser.parse_args(argv)
     every = sorted(p.stem for p in MODELS.glob("*.stl") if p.stem not in SKIP_MODELS)
@@ -153,6 +155,8 @@ def main(argv: list[str] | None = None) -> int:
               else list(INFILL_FIELDS) if args.full else list(DEFAULT["fields"]))
     speeds = ([float(s) for s in args.speeds.split(",")] if args.speeds
               else list(SPEEDS) if args.full else list(DEFAULT["speeds"]))
+    if args.lines_only:
+        return _lines_only(models, fields, speeds, args.out)
     rows: list[Row] = []
     ious: list[dict[str, object]] = []
     with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
@@ -189,6 +193,44 @@ def main(argv: list[str] | None = None) -> int:
     args.out.parent.mkdir(parents=True, exist_ok=True)
     args.out.write_text(json.dumps({"rows": [asdict(r) for r in rows], "iou": ious}, indent=1))
     print(f"written {args.out}")
+    return 0
+
+
+def _commands(lines: list[str]) -> int:
+    """Lines a host sends: neither empty nor comments only."""
+    return sum(1 for line in lines if line.split(";", 1)[0].strip())
+
+
+def _lines_only(models: list[str], fields: list[str], speeds: list[float], out: Path) -> int:
+    """Our line count with arcs and the 250000-baud budget against PrusaSlicer's, for every
+    model, field and speed given; the table and the runs over PrusaSlicer's count."""
+    table: list[dict[str, object]] = []
+    with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
+        work = Path(tmp)
+        for stem in models:
+            model = MODELS / f"{stem}.stl"
+            geometry = SlicePlan.from_file(model, SliceSettings.from_mapping(OURS),
+                                           bed=(200.0, 200.0, 200.0))
+            for speed in speeds:
+                prusa = _prusa(model, speed, work)
+                peer = _commands(prusa) if prusa is not None else None
+                for field in fields:
+                    base = {**_field_settings(field, work), "print_speed": speed,
+                            "wall_speed": speed, "gcode.arcs": "on", "gcode.baud": 250000}
+                    ours = _commands(_slice(geometry, base))
+                    table.append({"model": stem, "field": field, "speed": speed,
+                                  "ours": ours, "prusaslicer": peer})
+                    ratio = f"{ours / peer:.3f}" if peer else "-"
+                    print(f"  {stem:>16} {field:>10} {speed:5g}  ours {ours:8d}  "
+                          f"PrusaSlicer {peer if peer is not None else '-':>8}  ratio {ratio}",
+                          flush=True)
+    over = [r for r in table if r["prusaslicer"] and int(r["ours"]) > int(r["prusaslicer"])]
+    print(f"\nwith arcs, line count above PrusaSlicer's: {len(over)} of {len(table)} runs")
+    for r in over:
+        print(f"  {r['model']} {r['field']} {r['speed']:g} mm/s: {r['ours']} > {r['prusaslicer']}")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"lines": table}, indent=1))
+    print(f"written {out}")
     return 0
 
 
