@@ -44,6 +44,7 @@ block at once.
 from __future__ import annotations
 
 import threading
+from typing import Protocol
 
 import numpy as np
 import shapely
@@ -172,6 +173,15 @@ def _narrow_dropped(regions: np.ndarray) -> np.ndarray:
     return out
 
 
+class LayerOutlines(Protocol):
+    """Layer outlines by index: an object array of MultiPolygons, or a
+    :class:`slicer.lazycut.LazyOutlines` that cuts them on first use."""
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, key: slice, /) -> np.ndarray | shapely.Geometry: ...
+
+
 class SkinCache:
     """Skin regions computed on demand in blocks of layers, each block once, thread-safe.
 
@@ -189,7 +199,12 @@ class SkinCache:
     """
 
     def __init__(
-        self, outlines: np.ndarray, fill_distance: float, top: int, bottom: int, block: int = 16
+        self,
+        outlines: LayerOutlines,
+        fill_distance: float,
+        top: int,
+        bottom: int,
+        block: int = 16,
     ) -> None:
         self._outlines = outlines
         self._fill_distance = fill_distance
