@@ -83,7 +83,7 @@ def _domains(outlines: np.ndarray, fill_distance: float) -> np.ndarray:
     a part or a hole, or made an invalid polygon.
     """
     fill = shapely.buffer(outlines, -fill_distance, quad_segs=6)
-    fast = shapely.simplify(fill, _SIMPLIFY, preserve_topology=False)
+    fast: np.ndarray = shapely.simplify(fill, _SIMPLIFY, preserve_topology=False)
     lost = (_rings(fast) != _rings(fill)) | ~shapely.is_valid(fast)
     if lost.any():
         fast[lost] = shapely.simplify(fill[lost], _SIMPLIFY)
