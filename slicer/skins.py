@@ -174,8 +174,7 @@ def _narrow_dropped(regions: np.ndarray) -> np.ndarray:
 
 
 class LayerOutlines(Protocol):
-    """Layer outlines by index: an object array of MultiPolygons, or a
-    :class:`slicer.lazycut.LazyOutlines` that cuts them on first use."""
+    """Layer outlines by index: an object array of MultiPolygons, or a LazyOutlines."""
 
     def __len__(self) -> int: ...
 
@@ -199,12 +198,7 @@ class SkinCache:
     """
 
     def __init__(
-        self,
-        outlines: LayerOutlines,
-        fill_distance: float,
-        top: int,
-        bottom: int,
-        block: int = 16,
+        self, outlines: LayerOutlines, fill_distance: float, top: int, bottom: int, block: int = 16
     ) -> None:
         self._outlines = outlines
         self._fill_distance = fill_distance
