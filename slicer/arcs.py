@@ -16,6 +16,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slicer.settings import SliceSettings
 
@@ -35,15 +36,15 @@ class Arcs:
     (k, 2) mm, counter-clockwise where ``ccw[k]``, sweeping ``sweep[k]`` radians (> 0)
     on a circle of ``radius[k]`` mm. Sorted by ``first``; arcs never overlap."""
 
-    first: np.ndarray
-    last: np.ndarray
-    centre: np.ndarray
-    ccw: np.ndarray
-    sweep: np.ndarray
-    radius: np.ndarray
+    first: NDArray[np.int64]
+    last: NDArray[np.int64]
+    centre: NDArray[np.float64]
+    ccw: NDArray[np.bool_]
+    sweep: NDArray[np.float64]
+    radius: NDArray[np.float64]
 
     @property
-    def length(self) -> np.ndarray:
+    def length(self) -> NDArray[np.float64]:
         """Length of each arc, (k,) mm."""
         return self.radius * self.sweep
 
@@ -104,10 +105,14 @@ def fit_arcs(
     return _merged(pts, [c[order] for c in cols], tol_pt)
 
 
-def _points_of(starts: np.ndarray, ends: np.ndarray) -> np.ndarray:
+def _points_of(starts: NDArray[np.int64], ends: NDArray[np.int64]) -> NDArray[np.int64]:
     """Indices of every point of the paths ``[starts[i], ends[i])``, in order."""
     n = ends - starts
-    return np.repeat(starts, n) + (np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n))
+    # numpy's stubs lose the dtype in the mixed-width arithmetic: it is int64
+    index: NDArray[np.int64] = np.repeat(starts, n) + (
+        np.arange(n.sum()) - np.repeat(np.cumsum(n) - n, n)
+    )
+    return index
 
 
 def _merged(pts: np.ndarray, cols: list[np.ndarray], tol: np.ndarray) -> Arcs:

@@ -16,7 +16,10 @@ MAX_LENGTH = 2000
 
 CONSTANTS: dict[str, float] = {"pi": math.pi, "e": math.e}
 
-FUNCTIONS: dict[str, tuple[Callable[..., np.ndarray], int, int | None]] = {
+# a value while evaluating: an array of floats, or a float64 scalar for a constant
+Value = np.ndarray | np.float64
+
+FUNCTIONS: dict[str, tuple[Callable[..., Value], int, int | None]] = {
     # name: (function, least arguments, most arguments or None for any)
     "sin": (np.sin, 1, 1),
     "cos": (np.cos, 1, 1),
@@ -31,7 +34,7 @@ FUNCTIONS: dict[str, tuple[Callable[..., np.ndarray], int, int | None]] = {
     "max": (lambda *a: _reduce(np.maximum, a), 2, None),
 }
 
-BINARY: dict[type, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
+BINARY: dict[type, Callable[[Value, Value], Value]] = {
     ast.Add: operator.add,
     ast.Sub: operator.sub,
     ast.Mult: operator.mul,
@@ -40,7 +43,7 @@ BINARY: dict[type, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
     ast.Mod: operator.mod,
 }
 
-COMPARE: dict[type, Callable[[np.ndarray, np.ndarray], np.ndarray]] = {
+COMPARE: dict[type, Callable[[Value, Value], np.ndarray | np.bool_]] = {
     ast.Lt: operator.lt,
     ast.LtE: operator.le,
     ast.Gt: operator.gt,
@@ -69,8 +72,7 @@ _DESCRIBE: dict[type, str] = {
 }
 
 
-def _reduce(func: Callable[[np.ndarray, np.ndarray], np.ndarray], args: tuple[np.ndarray, ...]
-            ) -> np.ndarray:
+def _reduce(func: Callable[[Value, Value], Value], args: tuple[Value, ...]) -> Value:
     result = args[0]
     for arg in args[1:]:
         result = func(result, arg)
@@ -194,9 +196,9 @@ def _symbol(op: ast.AST) -> str:
     }.get(type(op), type(op).__name__)
 
 
-def _evaluate(node: ast.AST, variables: Mapping[str, np.ndarray | float]) -> np.ndarray:
+def _evaluate(node: ast.AST, variables: Mapping[str, np.ndarray | float]) -> Value:
     """Walk a checked tree; every node type here was admitted by :func:`_check`."""
-    if isinstance(node, ast.Constant):
+    if isinstance(node, ast.Constant) and isinstance(node.value, int | float):
         return np.float64(node.value)
     if isinstance(node, ast.Name):
         if node.id in CONSTANTS:
@@ -211,7 +213,7 @@ def _evaluate(node: ast.AST, variables: Mapping[str, np.ndarray | float]) -> np.
         return -value if isinstance(node.op, ast.USub) else +value
     if isinstance(node, ast.Compare):
         left = _evaluate(node.left, variables)
-        result = np.True_
+        result: np.ndarray | np.bool_ = np.True_
         for op, comparator in zip(node.ops, node.comparators, strict=True):
             right = _evaluate(comparator, variables)
             result = result & COMPARE[type(op)](left, right)

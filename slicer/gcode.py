@@ -13,6 +13,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 
 from slicer.budget import Moves, budget_moves
 from slicer.detour import detours
@@ -286,7 +287,7 @@ def _rounded(v: np.ndarray, decimals: int) -> tuple[np.ndarray, np.ndarray] | No
     return np.signbit(v).astype(np.int64), units.astype(np.int64)
 
 
-def _round_near_half(a: np.ndarray, scale: float) -> np.ndarray:
+def _round_near_half(a: NDArray[np.float64], scale: float) -> NDArray[np.float64]:
     """``a * scale`` rounded to a whole number, ties to even, for products within
     1e-6 of a half: (k,) float64 whole numbers.
 
@@ -301,7 +302,8 @@ def _round_near_half(a: np.ndarray, scale: float) -> np.ndarray:
     split = a * 134217729.0  # 2**27 + 1
     high = split - (split - a)
     side = (high * scale - (low + 0.5)) + (a - high) * scale
-    return low + ((side > 0) | ((side == 0) & (low % 2 == 1)))
+    rounded: NDArray[np.float64] = low + ((side > 0) | ((side == 0) & (low % 2 == 1)))
+    return rounded
 
 
 def _fpm(speed_mm_s: float) -> int:
@@ -329,7 +331,9 @@ def _pack(paths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return pts, starts, ends
 
 
-def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: float) -> np.ndarray:
+def _travels_leave(
+    a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: float
+) -> NDArray[np.bool_]:
     """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave the part (retraction needed).
 
     A travel that starts inside the part and meets none of its edges stays
@@ -350,7 +354,8 @@ def _travels_leave(a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: f
         covered = shapely.contains_xy(area, a[:, 0], a[:, 1]) & ~shapely.intersects(edges, lines)
     rest = np.flatnonzero(~covered)
     covered[rest] = shapely.covered_by(lines[rest], area)
-    return ~(covered | zero)
+    leave: NDArray[np.bool_] = ~(covered | zero)
+    return leave
 
 
 def heat_commands(settings: SliceSettings) -> list[str]:

@@ -17,6 +17,7 @@ two sides meet on the medial axis (as the variable-width walls of PrusaSlicer
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -35,6 +36,12 @@ SUPPORT = "SUPPORT"
 
 # arcs of offset corners: segments per quarter circle
 _QUAD_SEGS = 6
+# slicer.support.support_paths: (support region, part outline, context, interface region or
+# None) -> support paths by kind ("wall", "interface", "infill")
+SupportPaths = Callable[
+    [shapely.Geometry, shapely.Geometry, LayerContext, shapely.Geometry | None],
+    dict[str, shapely.Geometry],
+]
 # paths shorter than this fraction of the line width are not printed
 _MIN_PATH = 0.5
 # thin islands up to this inscribed radius (in line widths) get one widened outer
@@ -102,7 +109,7 @@ def layer_paths(
     regions: LayerRegions,
     ctx: LayerContext,
     field: InfillField,
-    support_paths=None,
+    support_paths: SupportPaths | None = None,
 ) -> list[Path]:
     """Every toolpath of one layer, in print order.
 
@@ -111,13 +118,12 @@ def layer_paths(
     """
     settings = ctx.settings
     islands = regions.islands
-    has_support = (
-        support_paths is not None and regions.support is not None and not regions.support.is_empty
-    )
+    support = regions.support
+    has_support = support_paths is not None and support is not None and not support.is_empty
     if len(islands) == 0:
-        if not has_support:
+        if support_paths is None or support is None or support.is_empty:
             return []
-        b = regions.support.bounds
+        b = support.bounds
         return _support(regions, ctx, support_paths, np.array([b[0], b[3]]))
     w = settings.line_width
     levels = (np.arange(settings.perimeters) + 0.5) * w
@@ -182,7 +188,7 @@ def layer_paths(
             out.append(item)
         else:
             out.extend(Path(item[0], coords) for coords in joined[item[1]])
-    if has_support:
+    if support_paths is not None and has_support:
         out.extend(_support(regions, ctx, support_paths, pos))
     return out
 
@@ -354,7 +360,7 @@ def _as_coords(lines: shapely.Geometry | np.ndarray, w: float) -> list[np.ndarra
 
 
 def _support(
-    regions: LayerRegions, ctx: LayerContext, support_paths, pos: np.ndarray
+    regions: LayerRegions, ctx: LayerContext, support_paths: SupportPaths, pos: np.ndarray
 ) -> list[Path]:
     """Support toolpaths (wall, interface and infill), nearest first."""
     outline = shapely.union_all(regions.islands) if len(regions.islands) else shapely.Polygon()

@@ -10,6 +10,7 @@ import os
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slicer import repair
 from slicer.errors import ModelError
@@ -332,14 +333,15 @@ def _remove_bad_faces(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int, _Edg
     return faces, removed, stats
 
 
-def _fins(faces: np.ndarray, nv: int) -> np.ndarray:
+def _fins(faces: np.ndarray, nv: int) -> NDArray[np.bool_]:
     """Faces with two open edges that hang on an edge shared by three or more faces."""
     a = faces.ravel()
     b = faces[:, [1, 2, 0]].ravel()
     ekey = np.minimum(a, b).astype(np.int64) * nv + np.maximum(a, b)
     _, inverse, counts = np.unique(ekey, return_inverse=True, return_counts=True)
     per_face = counts[inverse].reshape(-1, 3)
-    return ((per_face == 1).sum(axis=1) >= 2) & (per_face >= 3).any(axis=1)
+    fins: NDArray[np.bool_] = ((per_face == 1).sum(axis=1) >= 2) & (per_face >= 3).any(axis=1)
+    return fins
 
 
 def _jump(parent: np.ndarray) -> np.ndarray:

@@ -10,6 +10,7 @@ are limited to what the acceleration can reach over the neighbouring moves.
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 
 # Marlin's default junction deviation, mm
 JUNCTION_DEVIATION = 0.013
@@ -78,8 +79,12 @@ def run_time(points: np.ndarray, speed: float, accel: float) -> float:
 
 
 def segment_times(
-    length: np.ndarray, speed: float | np.ndarray, v_in: np.ndarray, v_out: np.ndarray, accel: float
-) -> np.ndarray:
+    length: NDArray[np.float64],
+    speed: float | NDArray[np.float64],
+    v_in: NDArray[np.float64],
+    v_out: NDArray[np.float64],
+    accel: float,
+) -> NDArray[np.float64]:
     """Time of each move (n,) s: accelerate from ``v_in``, cruise at ``speed``, brake to ``v_out``.
 
     ``length`` (n,) mm; speeds mm/s; ``accel`` mm/s^2. When the move is too

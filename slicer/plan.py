@@ -373,7 +373,7 @@ class SlicePlan:
     def _islands(self, i: int, excluded: frozenset[int]) -> np.ndarray:
         if not 0 <= i < self.layer_count:
             return _EMPTY
-        polys = shapely.get_parts(self._geo.outlines[i])
+        polys: np.ndarray = shapely.get_parts(self._geo.outlines[i])
         if excluded and len(polys):
             polys = polys[~np.isin(self._geo.bodies(i), list(excluded))]
         return polys
@@ -464,8 +464,8 @@ def _apart(mesh: PlacedMesh) -> bool:
         pts = mesh.vertices[mesh.faces[order, j]]
         lo = np.minimum(lo, np.minimum.reduceat(pts, starts, axis=0))
         hi = np.maximum(hi, np.maximum.reduceat(pts, starts, axis=0))
-    meet = (lo[:, None, :] <= hi[None, :, :]) & (lo[None, :, :] <= hi[:, None, :])
-    meet = meet.all(axis=2)
+    overlap = (lo[:, None, :] <= hi[None, :, :]) & (lo[None, :, :] <= hi[:, None, :])
+    meet = np.asarray(overlap.all(axis=2))  # (k, k) bool: the boxes of shells i and j meet
     np.fill_diagonal(meet, False)
     return not meet.any()
 

@@ -44,6 +44,7 @@ block at once.
 from __future__ import annotations
 
 import threading
+from typing import Protocol
 
 import numpy as np
 import shapely
@@ -82,7 +83,7 @@ def _domains(outlines: np.ndarray, fill_distance: float) -> np.ndarray:
     a part or a hole, or made an invalid polygon.
     """
     fill = shapely.buffer(outlines, -fill_distance, quad_segs=6)
-    fast = shapely.simplify(fill, _SIMPLIFY, preserve_topology=False)
+    fast: np.ndarray = shapely.simplify(fill, _SIMPLIFY, preserve_topology=False)
     lost = (_rings(fast) != _rings(fill)) | ~shapely.is_valid(fast)
     if lost.any():
         fast[lost] = shapely.simplify(fill[lost], _SIMPLIFY)
@@ -172,6 +173,14 @@ def _narrow_dropped(regions: np.ndarray) -> np.ndarray:
     return out
 
 
+class LayerOutlines(Protocol):
+    """Layer outlines by index: an object array of MultiPolygons, or a LazyOutlines."""
+
+    def __len__(self) -> int: ...
+
+    def __getitem__(self, key: slice, /) -> np.ndarray | shapely.Geometry: ...
+
+
 class SkinCache:
     """Skin regions computed on demand in blocks of layers, each block once, thread-safe.
 
@@ -189,7 +198,7 @@ class SkinCache:
     """
 
     def __init__(
-        self, outlines: np.ndarray, fill_distance: float, top: int, bottom: int, block: int = 16
+        self, outlines: LayerOutlines, fill_distance: float, top: int, bottom: int, block: int = 16
     ) -> None:
         self._outlines = outlines
         self._fill_distance = fill_distance

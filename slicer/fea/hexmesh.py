@@ -6,6 +6,7 @@ from dataclasses import dataclass
 from functools import lru_cache
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy import ndimage
 
 from slicer.fea.voxel import VoxelGrid
@@ -80,7 +81,8 @@ def _element_matrix(hx: float, hy: float, hz: float, poisson: float) -> np.ndarr
     for node, corner in enumerate(mine):
         for comp in range(3):
             order[3 * corner + comp] = basis.nodal_dofs[comp, node]
-    return stiffness[np.ix_(order, order)]
+    reordered: NDArray[np.float64] = stiffness[np.ix_(order, order)]
+    return reordered
 
 
 def element_matrix(cell: np.ndarray, poisson: float) -> np.ndarray:

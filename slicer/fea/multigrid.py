@@ -6,6 +6,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import scipy.sparse as sp
+from numpy.typing import NDArray
 from scipy.sparse.linalg import splu
 
 from slicer.fea.hexmesh import HexMesh
@@ -118,9 +119,10 @@ class Multigrid:
     def _cycle(self, k: int, b: np.ndarray) -> np.ndarray:
         level = self.levels[k]
         if k == len(self.levels) - 1:
-            return self.factor.solve(b)
+            coarse: NDArray[np.float64] = self.factor.solve(b)
+            return coarse
         a, d = level.matrix, level.inverse_diagonal
-        x = DAMPING * d * b
+        x: NDArray[np.float64] = DAMPING * d * b
         for _ in range(SMOOTHING - 1):
             x += DAMPING * d * (b - a @ x)
         down = level.down

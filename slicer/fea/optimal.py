@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slicer.fea.hexmesh import HexMesh, element_matrix
 from slicer.fea.loadcase import LoadCase
@@ -19,7 +20,10 @@ def strain_energy(solution: Solution, case: LoadCase, density: np.ndarray) -> np
     mesh = solution.mesh
     ke = element_matrix(mesh.grid.cell, case.poisson)
     u = solution.displacement.ravel()[mesh.dofs]  # (e, 24)
-    return 0.5 * case.youngs_mpa * density * np.einsum("ei,ij,ej->e", u, ke, u)
+    energy: NDArray[np.float64] = (
+        0.5 * case.youngs_mpa * density * np.einsum("ei,ij,ej->e", u, ke, u)
+    )
+    return energy
 
 
 def optimal_density(

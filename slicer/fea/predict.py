@@ -5,6 +5,7 @@ from __future__ import annotations
 import os
 from dataclasses import dataclass
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -14,6 +15,9 @@ from slicer.fea.optimal import strain_energy
 from slicer.fea.printed import apparent_modulus, fill_fractions, modulus_scale, read_roads
 from slicer.fea.solve import Solution, analyse
 from slicer.settings import SliceSettings
+
+if TYPE_CHECKING:
+    from trimesh.path import Path2D
 
 GAGE_LENGTH = 0.2  # extensometer span as a fraction of the specimen's length, centred
 GAGE_BAND = (1.0 / 3.0, 2.0 / 3.0)  # the band across the width it reads, as fractions
@@ -59,7 +63,12 @@ def tension_test(vertices: np.ndarray, faces: np.ndarray, case: LoadCase) -> Ten
     newtons = sum(float(load.vector[0]) for load in case.loads if load.vector is not None)
     section = trimesh.Trimesh(vertices, faces, process=False).section(
         plane_origin=middle, plane_normal=[1.0, 0.0, 0.0])
-    area = float(section.to_2D()[0].area) if section is not None else 0.0
+    area = 0.0
+    if section is not None:
+        # trimesh annotates to_2D as Tuple["Path2D", NDArray] with its own Tuple = tuple
+        # alias, which mypy reads as a bare tuple: the first item is the Path2D
+        planar = cast("Path2D", section.to_2D()[0])
+        area = float(planar.area)
     return TensionTest((middle[0] - span, middle[0] + span), band, newtons, abs(area))
 
 

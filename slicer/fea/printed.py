@@ -7,6 +7,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from PIL import Image, ImageDraw
 
 from slicer.fea.voxel import VoxelGrid
@@ -127,7 +128,8 @@ def modulus_scale(fractions: np.ndarray, cells: np.ndarray) -> np.ndarray:
     """Each element's stiffness as a fraction of the solid's: its fill fraction (the
     rule of mixtures, blind to road direction), never under :data:`VOID`.
     ``cells`` (e, 3) int64 lattice indices -> (e,) float64."""
-    return np.maximum(fractions[tuple(cells.T)], VOID)
+    scale: NDArray[np.float64] = np.maximum(fractions[tuple(cells.T)], VOID)
+    return scale
 
 
 def apparent_modulus(
@@ -150,4 +152,5 @@ def apparent_modulus(
     inside = (points[:, 1] >= band[0] - 1e-9) & (points[:, 1] <= band[1] + 1e-9)
     pulled = [np.mean(displacement[inside & (np.abs(points[:, 0] - x) < 1e-6), 0]) for x in ends]
     strain = (pulled[1] - pulled[0]) / (ends[1] - ends[0])
-    return newtons / area_mm2 / strain
+    modulus: float = newtons / area_mm2 / strain  # a numpy float64
+    return modulus

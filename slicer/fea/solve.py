@@ -8,6 +8,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slicer.fea.hexmesh import (
     Faces,
@@ -236,7 +237,8 @@ def conjugate_gradients(
 def von_mises(stress: np.ndarray) -> np.ndarray:
     """Von Mises stress (e,) of stresses (e, 6) in Voigt order, same units."""
     sx, sy, sz, tyz, txz, txy = stress.T
-    return np.sqrt(
+    squared: NDArray[np.float64] = (
         0.5 * ((sx - sy) ** 2 + (sy - sz) ** 2 + (sz - sx) ** 2)
         + 3.0 * (tyz**2 + txz**2 + txy**2)
     )
+    return np.sqrt(squared)

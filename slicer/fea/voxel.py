@@ -42,7 +42,7 @@ class VoxelGrid:
 def default_cell(volume_mm3: float, cells: int = DEFAULT_CELLS) -> float:
     """The default cube edge, mm: the part's ``volume_mm3`` cut into about ``cells`` cubes,
     rounded to 0.05 mm and never under :data:`MIN_CELL_MM`."""
-    edge = (max(volume_mm3, 1e-9) / cells) ** (1.0 / 3.0)
+    edge: float = (max(volume_mm3, 1e-9) / cells) ** (1.0 / 3.0)  # float ** float types as Any
     return max(MIN_CELL_MM, round(edge / 0.05) * 0.05)
 
 

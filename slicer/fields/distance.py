@@ -4,20 +4,22 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from slicer.fields.paths import prepared
 
 
-def boundary_points(geom: shapely.Geometry, step: float) -> np.ndarray:
+def boundary_points(geom: shapely.Geometry, step: float) -> NDArray[np.float64]:
     """Points along every ring of ``geom``, at most ``step`` mm apart: (n, 2) float64 mm."""
     rings = shapely.boundary(geom)
-    return shapely.get_coordinates(shapely.segmentize(rings, step))
+    points: NDArray[np.float64] = shapely.get_coordinates(shapely.segmentize(rings, step))
+    return points
 
 
 def signed_distance(
     geom: shapely.Geometry, x: np.ndarray, y: np.ndarray, step: float = 0.05
-) -> np.ndarray:
+) -> NDArray[np.float64]:
     """Distance from each point to the boundary of ``geom``, positive inside, negative outside.
 
     ``x``, ``y`` any matching shape, float64 mm; returns the same shape, float64 mm.
@@ -31,4 +33,5 @@ def signed_distance(
     points = boundary_points(geom, step)
     dist, _ = cKDTree(points).query(np.column_stack((x.ravel(), y.ravel())))
     inside = shapely.contains_xy(prepared(geom), x.ravel(), y.ravel())
-    return np.where(inside, dist, -dist).reshape(x.shape)
+    signed: NDArray[np.float64] = np.where(inside, dist, -dist).reshape(x.shape)
+    return signed

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 from PIL import Image, ImageDraw
 
 from slicer.fields.base import InfillField, LayerContext
@@ -25,12 +26,14 @@ PATH_COLOUR = (0, 0, 0)
 WALL_COLOUR = (220, 40, 40)
 
 
-def colour_map(values: np.ndarray) -> np.ndarray:
+def colour_map(values: np.ndarray) -> NDArray[np.uint8]:
     """Values in [0, 1] (any shape) to RGB: (..., 3) uint8."""
     t = np.clip(np.nan_to_num(values, nan=0.0), 0.0, 1.0) * (len(ANCHORS) - 1)
     low = np.minimum(np.floor(t).astype(int), len(ANCHORS) - 2)
     frac = (t - low)[..., None]
-    return (ANCHORS[low] * (1.0 - frac) + ANCHORS[low + 1] * frac).astype(np.uint8)
+    mixed = ANCHORS[low] * (1.0 - frac) + ANCHORS[low + 1] * frac
+    rgb: NDArray[np.uint8] = mixed.astype(np.uint8)
+    return rgb
 
 
 def draw_field(

@@ -7,6 +7,7 @@ from dataclasses import replace
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre, rotated
@@ -67,4 +68,5 @@ class EggcrateField(GridField):
         density = self.settings.infill_density
         spacing = self.settings.line_width / density if density > 0 else 0.0
         a = math.pi / min(max(self.settings.infill_scale, MIN_PERIOD * spacing), 200.0)
-        return np.sin(a * u) ** 2 + np.sin(a * v) ** 2
+        values: NDArray[np.float64] = np.sin(a * u) ** 2 + np.sin(a * v) ** 2
+        return values

@@ -8,6 +8,7 @@ from dataclasses import dataclass
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 from scipy import ndimage
 from skimage.measure import find_contours
 
@@ -51,10 +52,11 @@ class Grid:
             (self.x0 + rows_cols[:, 1] * self.cell, self.y0 + rows_cols[:, 0] * self.cell)
         )
 
-    def mask(self, geom: shapely.Geometry) -> np.ndarray:
+    def mask(self, geom: shapely.Geometry) -> NDArray[np.bool_]:
         """Nodes inside ``geom``: (ny, nx) bool."""
         xx, yy = self.mesh()
-        return shapely.contains_xy(prepared(geom), xx.ravel(), yy.ravel()).reshape(xx.shape)
+        inside: NDArray[np.bool_] = shapely.contains_xy(prepared(geom), xx.ravel(), yy.ravel())
+        return inside.reshape(xx.shape)
 
 
 def grid_over(

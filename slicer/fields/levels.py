@@ -27,6 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy import ndimage
 
 
@@ -154,9 +155,9 @@ def holes(
     points: np.ndarray,
     origin: tuple[float, float],
     cell: float,
-    region_mask: np.ndarray,
+    region_mask: NDArray[np.bool_],
     radius: float,
-) -> np.ndarray:
+) -> NDArray[np.bool_]:
     """Grid nodes inside the region farther than ``radius`` mm from every path point.
 
     ``points`` (n, 2) float64 mm sampled along the paths (at most a cell apart);
@@ -175,5 +176,5 @@ def holes(
         covered[rows, cols] = True
     if covered.all():
         return np.zeros_like(region_mask)
-    distance = ndimage.distance_transform_edt(~covered) * cell
+    distance: NDArray[np.float64] = ndimage.distance_transform_edt(~covered) * cell
     return (distance > radius) & region_mask

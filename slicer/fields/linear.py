@@ -11,6 +11,7 @@ import math
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 
 from slicer.fields.base import LayerContext, register
 from slicer.settings import SliceSettings
@@ -119,4 +120,5 @@ class LinearField:
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """H at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64 mm."""
         g, _ = line_frame(self.angle, ctx.index % 2 == 1)
-        return np.asarray(x) * g[0] + np.asarray(y) * g[1]
+        values: NDArray[np.float64] = np.asarray(x) * g[0] + np.asarray(y) * g[1]
+        return values

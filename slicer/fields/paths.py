@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 LINESTRING = 1
@@ -37,10 +38,12 @@ def as_multiline(lines: np.ndarray) -> shapely.Geometry:
 
 def linestring_parts(geoms: np.ndarray | shapely.Geometry) -> np.ndarray:
     """Every non-empty LineString inside ``geoms`` (any mix of line geometries), as an array."""
-    parts = shapely.get_parts(np.atleast_1d(np.asarray(geoms, dtype=object)))
+    parts: np.ndarray = shapely.get_parts(np.atleast_1d(np.asarray(geoms, dtype=object)))
     if parts.size == 0:
         return parts
-    keep = (shapely.get_type_id(parts) == LINESTRING) & (shapely.length(parts) > 0.0)
+    keep: NDArray[np.bool_] = (shapely.get_type_id(parts) == LINESTRING) & (
+        shapely.length(parts) > 0.0
+    )
     return parts[keep]
 
 
@@ -161,7 +164,9 @@ def finish(
     return as_multiline(tidy)
 
 
-def _widen(dropped: np.ndarray, owner: np.ndarray, arc: np.ndarray, reach: float) -> np.ndarray:
+def _widen(
+    dropped: NDArray[np.bool_], owner: np.ndarray, arc: np.ndarray, reach: float
+) -> NDArray[np.bool_]:
     """Also drop every vertex within ``reach`` mm along its line of a dropped one, so the
     two ends left at a cut lie apart rather than facing each other across a crumb gap."""
     if not dropped.any():
@@ -171,7 +176,8 @@ def _widen(dropped: np.ndarray, owner: np.ndarray, arc: np.ndarray, reach: float
     pos = np.searchsorted(cut, key)
     after = np.abs(cut[np.minimum(pos, cut.size - 1)] - key)
     before = np.abs(key - cut[np.maximum(pos - 1, 0)])
-    return dropped | (np.minimum(after, before) <= reach)
+    near: NDArray[np.bool_] = np.minimum(after, before) <= reach
+    return dropped | near
 
 
 def _merged(pieces: np.ndarray) -> np.ndarray:

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numpy.typing import NDArray
 from scipy import sparse
 from scipy.interpolate import RegularGridInterpolator
 from scipy.sparse.linalg import spsolve
@@ -68,4 +69,5 @@ class PoissonField(GridField):
         xs, ys = grid.axes()
         interpolate = RegularGridInterpolator((ys, xs), solved, bounds_error=False, fill_value=0.0)
         points = np.column_stack((np.ravel(y), np.ravel(x)))
-        return interpolate(points).reshape(np.shape(x))
+        values: NDArray[np.float64] = interpolate(points).reshape(np.shape(x))
+        return values

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
 from slicer.fields.base import LayerContext, register
@@ -42,7 +43,8 @@ class RandomField:
     def sample(self, x: np.ndarray, y: np.ndarray, ctx: LayerContext) -> np.ndarray:
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64 mm."""
         dist, _ = cKDTree(self.points(ctx)).query(np.column_stack((np.ravel(x), np.ravel(y))))
-        return dist.reshape(np.shape(x))
+        values: NDArray[np.float64] = dist.reshape(np.shape(x))
+        return values
 
     def paths(
         self, region: shapely.Geometry, ctx: LayerContext, spacing: float

@@ -8,6 +8,7 @@ import threading
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre
@@ -103,7 +104,8 @@ class StressField(GridField):
             mid = max(ctx.z - 0.5 * self.settings.layer_height, 0.0) + corner[2]
             frame = (x - xmin + corner[0], y - ymin + corner[1], np.full(x.shape, mid))
             axis, stations, values = self.profile
-            return np.interp(frame[axis], stations, values)
+            along: NDArray[np.float64] = np.interp(frame[axis], stations, values)
+            return along
         mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0)
         xmin, ymin, xmax, ymax = ctx.bounds
         if self.data.on_lattice:  # the analysis' own lattice: its plane at this height
@@ -126,7 +128,8 @@ class StressField(GridField):
         points = np.column_stack(
             (np.clip(y.ravel(), ys[0], ys[-1]), np.clip(x.ravel(), xs[0], xs[-1]))
         )
-        return read(points).reshape(x.shape)
+        sampled: NDArray[np.float64] = read(points).reshape(x.shape)
+        return sampled
 
     def _plane(self, z: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The lattice's plane at height ``z`` (data frame), cached: a layer's field is
@@ -153,7 +156,8 @@ class StressField(GridField):
         t = math.radians(self.settings.infill_angle)
         mirror = -1.0 if ctx.index % 2 else 1.0
         linear = (x - cx) * math.sin(t) + (y - cy) * math.cos(t) * mirror
-        return (sigma.reshape(x.shape) * linear).reshape(x.shape)
+        field: NDArray[np.float64] = (sigma.reshape(x.shape) * linear).reshape(x.shape)
+        return field
 
 
     def _density_lines(self, ctx: LayerContext) -> DensityLines:

@@ -6,6 +6,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+from numpy.typing import NDArray
 
 from slicer.settings import SettingsError
 
@@ -48,9 +49,10 @@ class StressData:
                 self._linear = None
 
     @property
-    def lower_corner(self) -> np.ndarray:
+    def lower_corner(self) -> NDArray[np.float64]:
         """The samples' least (x, y, z), mm: lined up with the model's lower corner."""
-        return self.points.min(axis=0)
+        corner: NDArray[np.float64] = self.points.min(axis=0)
+        return corner
 
     @property
     def on_lattice(self) -> bool:
@@ -95,7 +97,7 @@ class StressData:
 
 def bilinear(
     xs: np.ndarray, ys: np.ndarray, values: np.ndarray, x: np.ndarray, y: np.ndarray
-) -> np.ndarray:
+) -> NDArray[np.float64]:
     """Bilinear interpolation of ``values`` (nx, ny) on the nodes ``xs`` (nx,), ``ys``
     (ny,) (increasing, mm) at points ``x``, ``y`` (n,) -> (n,) float64, clamped at the
     grid's edges."""
@@ -107,7 +109,8 @@ def bilinear(
     ty = (y - ys[j]) / (ys[j + 1] - ys[j])
     low = values[i, j] + tx * (values[i + 1, j] - values[i, j])
     high = values[i, j + 1] + tx * (values[i + 1, j + 1] - values[i, j + 1])
-    return low + ty * (high - low)
+    out: NDArray[np.float64] = low + ty * (high - low)
+    return out
 
 
 def _lattice(

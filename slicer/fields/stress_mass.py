@@ -8,7 +8,7 @@ from dataclasses import dataclass
 
 from slicer.gcode import filament_grams
 from slicer.plan import SlicePlan
-from slicer.settings import SettingsError, SliceSettings
+from slicer.settings import SettingsError
 
 TOLERANCE = 0.005  # relative mass error the search stops at (the promise is 1 %)
 MAX_TRIALS = 8
@@ -57,7 +57,7 @@ def target_of(plan: SlicePlan) -> tuple[float, str] | None:
     if settings.infill_target_mass_g > 0:
         return settings.infill_target_mass_g, "infill.target_mass_g"
     if settings.infill_match_mass_of == "linear":
-        linear = plan.with_settings(_with(settings, infill_field="linear"))
+        linear = plan.with_settings(dataclasses.replace(settings, infill_field="linear"))
         return extruded_grams(linear), f"linear infill at density {settings.infill_density:g}"
     return None
 
@@ -85,7 +85,7 @@ def match_mass(
     def mass_at(density: float) -> tuple[SlicePlan, float]:
         nonlocal trials
         trials += 1
-        trial = plan.with_settings(_with(settings, infill_density=density))
+        trial = plan.with_settings(dataclasses.replace(settings, infill_density=density))
         return trial, measure(trial)
 
     first_d = settings.infill_density
@@ -129,7 +129,3 @@ def match_mass(
             best = (density, trial_plan, mass)
     density, chosen, mass = best
     return chosen, MassMatch(density, mass, target, reference, trials)
-
-
-def _with(settings: SliceSettings, **changes: object) -> SliceSettings:
-    return dataclasses.replace(settings, **changes)

@@ -6,6 +6,7 @@ import math
 
 import numpy as np
 import shapely
+from numpy.typing import NDArray
 from scipy.special import ellipe
 
 from slicer.fields.base import LayerContext, register
@@ -68,7 +69,8 @@ class WaveField:
         spacing = self.settings.line_width / max(self.settings.infill_density, 1e-3)
         a, b, _ = self._shape(spacing)
         u, v = rotated(x, y, ctx.bounds, self._angle(ctx))
-        return a * np.sin(b * u) + v
+        values: NDArray[np.float64] = a * np.sin(b * u) + v
+        return values
 
     def paths(
         self, region: shapely.Geometry, ctx: LayerContext, spacing: float
