@@ -53,14 +53,18 @@ def test_a_bad_model_fails_with_an_mqtt_event_and_commands_are_answered_emergenc
     async def watch() -> tuple[dict[str, Any], dict[str, Any], str]:
         failed: dict[str, Any] | None = None
         refused: dict[str, Any] | None = None
+        sent = False
         async with aiomqtt.Client(HOST, broker.port, username=USER, password=SECRET) as client:
             await client.subscribe(f"hostd/{PRINTER}/#", qos=1)
             async with asyncio.timeout(40):
                 async for message in client.messages:
                     topic = str(message.topic)
-                    if topic.endswith("/online") and message.payload == b"online":
-                        # the daemon is up: drop a model that cannot be printed, send commands
-                        # (carried out in order: the pause's refusal follows the stop)
+                    if not sent and topic.endswith("/status") and json.loads(
+                            message.payload).get("printer", {}).get("connected"):
+                        # the daemon is up with its printer connected: drop a model that
+                        # cannot be printed, send commands (carried out in order: the
+                        # pause's refusal follows the stop)
+                        sent = True
                         (tmp_path / "jobs" / "junk.stl").write_bytes(b"\x00" * 40)
                         await client.publish(f"hostd/{PRINTER}/cmd", '{"cmd": "emergency_stop"}',
                                              qos=1)
