@@ -74,6 +74,18 @@ class Lane:
         epoch = self.epoch
         clock = self.clock
         rate = self.rate
+        if len(pieces) == 1 and self.delay is None:
+            piece = pieces[0]  # the usual case, without the per-piece bookkeeping
+            now = clock.now
+            free = (self._free_at if self._free_at > now else now) \
+                + (len(piece) / rate if rate else 0.0)
+            self._free_at = free
+            arrival = free + self.latency
+            if arrival < self._last_arrival:
+                arrival = self._last_arrival
+            self._last_arrival = arrival
+            clock.at(arrival, self._arrive, piece, epoch)
+            return
         for piece in pieces:
             start = self._free_at if self._free_at > clock.now else clock.now
             self._free_at = free = start + (len(piece) / rate if rate else 0.0)
@@ -155,7 +167,11 @@ class VirtualPrinter:
 
     def emit(self, line: str) -> None:
         """One reply line (subject to the printer -> host corruption fault)."""
-        data = (line + "\n").encode("latin-1", "replace")
+        data = _ENCODED.get(line)
+        if data is None:
+            data = (line + "\n").encode("latin-1", "replace")
+            if len(_ENCODED) < 256 and (line.startswith("ok") or line == BUSY):
+                _ENCODED[line] = data  # the same few oks, line after line
         if self.faults.fires("corrupt_tx"):
             data = self.faults.flip_bit("corrupt_tx", data)
         self.to_host.send([data])
@@ -165,8 +181,15 @@ class VirtualPrinter:
     def _serve(self) -> None:
         """Read lines into the queue while it has room; run the next command if idle."""
         limit = self.config.max_cmd_size - 1
-        while len(self._queue) < self.config.bufsize and self._rx:
-            end = self._rx.find(b"\n")
+        bufsize = self.config.bufsize
+        rx = self._rx
+        while len(self._queue) < bufsize and rx:
+            end = rx.find(b"\n")
+            if 0 < end <= limit and not self._partial:
+                line = bytes(rx[:end])  # a whole line that fits: the usual case
+                del rx[: end + 1]
+                self._process_line(line)
+                continue
             stop = end if end >= 0 else len(self._rx)
             room = max(0, limit - len(self._partial))
             self._partial += self._rx[: min(stop, room)]
@@ -269,3 +292,4 @@ def _known(code: str) -> bool:
 
 
 _KNOWN: dict[str, bool] = {}  # command word -> whether it runs
+_ENCODED: dict[str, bytes] = {}  # reply line -> its bytes on the wire
