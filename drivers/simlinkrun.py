@@ -12,7 +12,7 @@ from typing import TypedDict
 
 from drivers.linkconfig import StreamerConfig, StreamStats
 from drivers.linkcore import LinkCore
-from drivers.linkevents import Acked, Event, Failed, Started
+from drivers.linkevents import Acked, Event, Failed, Started, Written
 from drivers.protocol import frame
 from drivers.resend import recover
 from drivers.responses import Response, parse_response
@@ -96,11 +96,15 @@ def run_core(
 
     def handle(events: list[Event]) -> None:
         for event in events:
-            if isinstance(event, Started):
+            kind = type(event)
+            if kind is Written:
+                continue
+            if kind is Started:
                 core.begin_handshake(0, keep_history=False, token=handshake)
             elif isinstance(event, Acked):
                 if event.job:
                     acked.append(event.command)
+                    continue
                 if event.token == handshake:
                     core.queue_control("M115", internal=True, token=identify)
                 elif event.token == identify:

@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 
-@dataclass
+@dataclass(slots=True)
 class InFlight:
     """One line on the wire or in the printer's buffers, awaiting its ``ok``.
 
