@@ -160,14 +160,11 @@ def run_core(
     core.begin_connect(0.0)
     printer.power_on()
     clock.at(interval, tick)
-    step = clock.step
-    while True:
-        if phase["next"] >= total and done():
-            break
-        if not step():
-            raise NoConvergence("nothing left to happen and the job is not done")
-        if clock.now > max_seconds:
-            raise NoConvergence(f"not done after {max_seconds:g} virtual seconds")
+    outcome = clock.run(lambda: phase["next"] >= total and done(), max_seconds)
+    if outcome == "idle":
+        raise NoConvergence("nothing left to happen and the job is not done")
+    if outcome == "late":
+        raise NoConvergence(f"not done after {max_seconds:g} virtual seconds")
     phase["end"] = clock.now
     return LinkRun(job_commands(printer.executed), acked, phase["end"] - phase["start"],
                    written[0], printer, core.stats)

@@ -46,6 +46,21 @@ class Clock:
         action(*args)
         return True
 
+    def run(self, finished: Callable[[], bool], max_seconds: float) -> str:
+        """Run actions in order until ``finished()`` is true after one (``""``), nothing is
+        left (``"idle"``) or the clock passes ``max_seconds`` (``"late"``)."""
+        queue = self._queue
+        pop = heapq.heappop
+        while not finished():
+            if not queue:
+                return "idle"
+            when, _, action, args = pop(queue)
+            self.now = when
+            action(*args)
+            if when > max_seconds:
+                return "late"
+        return ""
+
     def next_time(self) -> float | None:
         """When the next action is due (``None``: nothing queued)."""
         return self._queue[0][0] if self._queue else None
@@ -117,6 +132,7 @@ class VirtualPrinter:
         self.on_line = on_line
         self.exec_s = exec_s
         self.faults = FaultInjector(config, threaded=False)
+        self._fires = self.faults.fires
         rate = config.bytes_per_second
         self.to_printer = Lane(clock, rate, config.latency_s, self._receive)
         self.to_host = Lane(clock, rate, config.latency_s, self._host_bytes)
@@ -172,7 +188,7 @@ class VirtualPrinter:
             data = (line + "\n").encode("latin-1", "replace")
             if len(_ENCODED) < 256 and (line.startswith("ok") or line == BUSY):
                 _ENCODED[line] = data  # the same few oks, line after line
-        if self.faults.fires("corrupt_tx"):
+        if self._fires("corrupt_tx"):
             data = self.faults.flip_bit("corrupt_tx", data)
         self.to_host.send([data])
 
@@ -204,7 +220,7 @@ class VirtualPrinter:
             self._start_next()
 
     def _process_line(self, raw: bytes) -> None:
-        if self.faults.fires("corrupt_rx"):
+        if self._fires("corrupt_rx"):
             raw = self.faults.flip_bit("corrupt_rx", raw)
         check = check_line(raw, self.last_n)
         if check.error:
@@ -221,7 +237,7 @@ class VirtualPrinter:
             return
         self._queue.append((check.command, check.number))
         replies, refused = spurious_replies(
-            self.faults.fires, check.command, check.number, self.last_n
+            self._fires, check.command, check.number, self.last_n
         )
         for reply in replies:
             self.emit(reply)
@@ -229,12 +245,12 @@ class VirtualPrinter:
             self._ok()
 
     def _start_next(self) -> None:
-        if self.faults.fires("reset"):
+        if self._fires("reset"):
             self._reset()
             return
         self._running = True
         delay = self.exec_s
-        if self.faults.fires("busy"):
+        if self._fires("busy"):
             for k in range(self.faults.randint("busy", 1, 5)):
                 self.clock.at(self.clock.now + k * self.config.keepalive_s, self.emit, BUSY)
                 delay += self.config.keepalive_s
@@ -247,7 +263,8 @@ class VirtualPrinter:
         command, _ = self._queue.popleft()
         self._running = False
         code = command.split(" ", 1)[0]
-        if _known(code):
+        known = _known(code)
+        if known:
             self.executed.append(command)  # an unknown command runs as nothing, as in Marlin
         if code == "M105":
             self._ok(TEMPERATURES)
@@ -256,13 +273,13 @@ class VirtualPrinter:
             self.emit(f"Cap:EMERGENCY_PARSER:{int(self.config.emergency_parser)}")
             self._ok()
         else:
-            if not _known(code):
+            if not known:
                 self.emit(f'echo:Unknown command: "{command}"')
             self._ok()
         self._serve()
 
     def _ok(self, suffix: str = "") -> None:
-        if self.faults.fires("drop_ok"):
+        if self._fires("drop_ok"):
             return
         if suffix or not self.config.advanced_ok:
             self.emit("ok" + suffix)
