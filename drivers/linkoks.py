@@ -99,6 +99,8 @@ class Acknowledging(CoreFields):
         if held is None or number >= self.next_number:
             return self.window.ack_probe() if probe_answer else self.window.ack_one()
         done = self.window.ack_upto(number)
+        if len(done) == 1 and done[0].number == number:
+            return done  # the usual case: the oldest line in flight, alone
         if not any(e.number == number for e in done):
             command, internal = held
             done.append(InFlight(number, command, 0, internal=internal,

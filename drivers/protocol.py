@@ -23,7 +23,7 @@ def checksum(text: str) -> int:
 def frame(number: int, command: str) -> bytes:
     """One numbered, checksummed line as sent on the wire: ``N<n> <cmd>*<cs>\\n``."""
     body = f"N{number} {command}".encode("ascii", "replace")
-    return b"%s*%d\n" % (body, xor_bytes(body))
+    return b"%s*%d\n" % (body, reduce(xor, body, 0))
 
 
 def strip_comment(line: str) -> str:

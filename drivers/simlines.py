@@ -4,6 +4,8 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
+from functools import reduce
+from operator import xor
 from typing import NamedTuple
 
 from drivers.protocol import xor_bytes
@@ -95,7 +97,7 @@ def _fast_check(raw: bytes, last_n: int) -> LineCheck | None:
     number = int(digits)
     if number != last_n + 1:
         return LineCheck(ERR_LINE_NO, "", number, last_n)
-    if int(tail) != xor_bytes(raw[:star]):
+    if int(tail) != reduce(xor, raw[:star], 0):
         return LineCheck(ERR_CHECKSUM, "", number, last_n)
     return LineCheck("", raw[space:star].strip().decode("latin-1"), number, number)
 

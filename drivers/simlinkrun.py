@@ -137,6 +137,8 @@ def run_core(
         if events:
             handle(events)
         pump()
+        if phase["next"] >= total and done():
+            clock.stop()  # only a line read or a tick changes what the link knows
 
     def done() -> bool:
         if not (phase["streaming"] and phase["next"] >= total and not pending):
@@ -153,6 +155,8 @@ def run_core(
         pump()
         if not done():
             clock.at(clock.now + interval, tick)
+        elif phase["next"] >= total:
+            clock.stop()
 
     printer = printer_class(sim, clock, on_line, exec_s=exec_s)
     if printer_hook is not None:
@@ -160,7 +164,7 @@ def run_core(
     core.begin_connect(0.0)
     printer.power_on()
     clock.at(interval, tick)
-    outcome = clock.run(lambda: phase["next"] >= total and done(), max_seconds)
+    outcome = clock.run(max_seconds)
     if outcome == "idle":
         raise NoConvergence("nothing left to happen and the job is not done")
     if outcome == "late":

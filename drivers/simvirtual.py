@@ -31,6 +31,7 @@ class Clock:
         self.now = 0.0
         self._queue: list[tuple[float, int, Callable[..., None], tuple[object, ...]]] = []
         self._seq = itertools.count()
+        self.stopped = False
 
     def at(self, when: float, action: Callable[..., None], *args: object) -> None:
         """Run ``action(*args)`` at virtual time ``when`` (not before now)."""
@@ -46,12 +47,13 @@ class Clock:
         action(*args)
         return True
 
-    def run(self, finished: Callable[[], bool], max_seconds: float) -> str:
-        """Run actions in order until ``finished()`` is true after one (``""``), nothing is
-        left (``"idle"``) or the clock passes ``max_seconds`` (``"late"``)."""
+    def run(self, max_seconds: float) -> str:
+        """Run actions in order until one calls :meth:`stop` (``""``), nothing is left
+        (``"idle"``) or the clock passes ``max_seconds`` (``"late"``)."""
         queue = self._queue
         pop = heapq.heappop
-        while not finished():
+        self.stopped = False
+        while not self.stopped:
             if not queue:
                 return "idle"
             when, _, action, args = pop(queue)
@@ -60,6 +62,10 @@ class Clock:
             if when > max_seconds:
                 return "late"
         return ""
+
+    def stop(self) -> None:
+        """End :meth:`run` after the action running now."""
+        self.stopped = True
 
     def next_time(self) -> float | None:
         """When the next action is due (``None``: nothing queued)."""
@@ -133,6 +139,7 @@ class VirtualPrinter:
         self.exec_s = exec_s
         self.faults = FaultInjector(config, threaded=False)
         self._fires = self.faults.fires
+        self._left = self.faults.left  # countdowns to each fault: counted here inline
         rate = config.bytes_per_second
         self.to_printer = Lane(clock, rate, config.latency_s, self._receive)
         self.to_host = Lane(clock, rate, config.latency_s, self._host_bytes)
@@ -188,7 +195,10 @@ class VirtualPrinter:
             data = (line + "\n").encode("latin-1", "replace")
             if len(_ENCODED) < 256 and (line.startswith("ok") or line == BUSY):
                 _ENCODED[line] = data  # the same few oks, line after line
-        if self._fires("corrupt_tx"):
+        left = self._left
+        if left["corrupt_tx"]:
+            left["corrupt_tx"] -= 1
+        elif self.faults.fire("corrupt_tx"):
             data = self.faults.flip_bit("corrupt_tx", data)
         self.to_host.send([data])
 
@@ -220,7 +230,10 @@ class VirtualPrinter:
             self._start_next()
 
     def _process_line(self, raw: bytes) -> None:
-        if self._fires("corrupt_rx"):
+        left = self._left
+        if left["corrupt_rx"]:
+            left["corrupt_rx"] -= 1
+        elif self.faults.fire("corrupt_rx"):
             raw = self.faults.flip_bit("corrupt_rx", raw)
         check = check_line(raw, self.last_n)
         if check.error:
@@ -279,7 +292,10 @@ class VirtualPrinter:
         self._serve()
 
     def _ok(self, suffix: str = "") -> None:
-        if self._fires("drop_ok"):
+        left = self._left
+        if left["drop_ok"]:
+            left["drop_ok"] -= 1
+        elif self.faults.fire("drop_ok"):
             return
         if suffix or not self.config.advanced_ok:
             self.emit("ok" + suffix)
