@@ -119,8 +119,10 @@ class Acknowledging(CoreFields):
         if number is not None and not repeated and number > self._emitted_through + 1:
             self._catch_up(number)
         if number is not None:
-            self.last_acked_number = max(self.last_acked_number, number)
-            self.model.holds(number)
+            if number > self.last_acked_number:
+                self.last_acked_number = number
+            if number > self.model.held:
+                self.model.held = number  # (PrinterModel.holds, inline: once per line)
             if not repeated:
                 self._emitted_through = number
         token = entry.token

@@ -105,7 +105,9 @@ class Lane:
             if arrival < self._last_arrival:
                 arrival = self._last_arrival
             self._last_arrival = arrival
-            clock.at(arrival, self._arrive, piece, epoch)
+            # Clock.at without the call (arrival is never before now)
+            heapq.heappush(clock._queue, (arrival, next(clock._seq), self._arrive,
+                                          (piece, epoch)))
             return
         for piece in pieces:
             start = self._free_at if self._free_at > clock.now else clock.now
@@ -249,6 +251,14 @@ class VirtualPrinter:
         if not check.command:
             return
         self._queue.append((check.command, check.number))
+        left = self._left
+        if left["resend"] and left["refuse"] and check.number is not None:
+            left["resend"] -= 1  # neither noise fires after this line: the draws counted
+            left["refuse"] -= 1
+            if "M110" in check.command:  # a renumbering draws nothing: take them back
+                left["resend"] += 1
+                left["refuse"] += 1
+            return
         replies, refused = spurious_replies(
             self._fires, check.command, check.number, self.last_n
         )
@@ -258,12 +268,17 @@ class VirtualPrinter:
             self._ok()
 
     def _start_next(self) -> None:
-        if self._fires("reset"):
+        left = self._left
+        if left["reset"]:
+            left["reset"] -= 1
+        elif self.faults.fire("reset"):
             self._reset()
             return
         self._running = True
         delay = self.exec_s
-        if self._fires("busy"):
+        if left["busy"]:
+            left["busy"] -= 1
+        elif self.faults.fire("busy"):
             for k in range(self.faults.randint("busy", 1, 5)):
                 self.clock.at(self.clock.now + k * self.config.keepalive_s, self.emit, BUSY)
                 delay += self.config.keepalive_s
@@ -276,7 +291,9 @@ class VirtualPrinter:
         command, _ = self._queue.popleft()
         self._running = False
         code = command.split(" ", 1)[0]
-        known = _known(code)
+        known = _KNOWN.get(code)
+        if known is None:
+            known = _known(code)
         if known:
             self.executed.append(command)  # an unknown command runs as nothing, as in Marlin
         if code == "M105":
