@@ -9,6 +9,8 @@ from collections import Counter
 
 from drivers.simconfig import FAULT_KINDS, SimulatorConfig
 
+NEVER = 1 << 62  # a countdown that never runs out
+
 
 class FaultInjector:
     """Decides, reproducibly for a seed, whether each fault fires, and counts both.
@@ -29,7 +31,7 @@ class FaultInjector:
             # the number of chances until it next fires (geometric, the same odds as one
             # draw per chance), so a chance costs a countdown; ``chances`` stays empty
             self.fires = self._fires_counted  # type: ignore[method-assign]
-            self._left = {kind: self._gap(kind) for kind in FAULT_KINDS}
+            self.left = {kind: self._gap(kind) for kind in FAULT_KINDS}
 
     def fires(self, kind: str) -> bool:
         """One chance for ``kind``: True with its configured probability."""
@@ -44,22 +46,27 @@ class FaultInjector:
             return hit
 
     def _gap(self, kind: str) -> int:
-        """Chances that pass before ``kind`` fires next (-1: never)."""
+        """Chances that pass before ``kind`` fires next (``NEVER``: it does not)."""
         p = self._p[kind]
         if p <= 0.0:
-            return -1
+            return NEVER
         if p >= 1.0:
             return 0
         return int(math.log(1.0 - self._rng[kind].random()) / math.log1p(-p))
 
     def _fires_counted(self, kind: str) -> bool:
-        left = self._left[kind]
+        left = self.left[kind]
         if left:
-            if left > 0:
-                self._left[kind] = left - 1
+            self.left[kind] = left - 1
             return False
+        return self.fire(kind)
+
+    def fire(self, kind: str) -> bool:
+        """``kind`` fires now (its countdown in ``left`` reached 0): counted, and the next
+        countdown drawn. A single-threaded caller may count ``left`` down itself (one
+        chance: ``left[kind] -= 1`` while it is not 0) and call this at 0. Returns True."""
         self.fired[kind] += 1
-        self._left[kind] = self._gap(kind)
+        self.left[kind] = self._gap(kind)
         return True
 
     def randint(self, kind: str, low: int, high: int) -> int:

@@ -108,7 +108,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         response = self._plain_oks.get(text)
         if response is None:
             response = recover(parse_response(text))
-            if response.kind == "ok" and not response.has_temperatures \
+            if response.kind == "ok" and not response.temperatures \
                     and len(self._plain_oks) < 16:
                 self._plain_oks[text] = response  # the same few texts, line after line
         self.handle(response, now)
@@ -154,7 +154,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         error_before = self._last_error
         self._last_error = None
         if kind == "ok":
-            if response.has_temperatures:
+            if response.temperatures:
                 self._events.append(Temperature(response))
             if after_resend:
                 return  # the ok Marlin 2.1 sends after every Resend

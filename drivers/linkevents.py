@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import StrEnum
+from typing import NamedTuple
 
 from drivers.responses import Response
 
@@ -26,16 +27,14 @@ STOPPED = frozenset({LinkState.ERROR, LinkState.HALTED, LinkState.DISCONNECTED,
                      LinkState.RECONNECTING})
 
 
-@dataclass(frozen=True)
-class Written:
+class Written(NamedTuple):
     """A job line (``token`` from ``queue_job``) went out as line ``number``."""
 
     token: int
     number: int
 
 
-@dataclass(frozen=True)
-class Acked:
+class Acked(NamedTuple):
     """A line was acknowledged for the first time.
 
     ``job`` is False for the link's own lines (``M110``, ``M105``...); ``token`` is the

@@ -32,7 +32,8 @@ class Acknowledging(CoreFields):
         raise NotImplementedError
 
     def _on_ok(self, response: Response) -> None:
-        if response.has_temperatures:
+        probe_answer = bool(response.temperatures)
+        if probe_answer:
             self._late_oks = 0  # a probe's answer: any late ok came before it
         elif self._late_oks:
             self._late_oks -= 1
@@ -48,12 +49,16 @@ class Acknowledging(CoreFields):
         # acknowledges (firmwares print the last line received or the one executed)
         if self.renumber is not None:
             # the M110 numbers itself apart (a reset's M110 reuses the last line's number)
-            done = self.window.ack_probe() if response.has_temperatures else self.window.ack_one()
+            done = self.window.ack_probe() if probe_answer else self.window.ack_one()
         else:
-            done = self._ack_by_count(response.has_temperatures)
-        if any(e.probe and e.number == self.next_number - 1 for e in done):
-            self.fenced = True  # (a firmware that answers M105 without temperatures too)
-        if done and self.replay_next is None:
+            done = self._ack_by_count(probe_answer)
+        if not done:
+            return
+        last = self.next_number - 1
+        for entry in done:
+            if entry.probe and entry.number == last:
+                self.fenced = True  # (a firmware that answers M105 without temperatures too)
+        if self.replay_next is None:
             self.window.grow()
         for entry in done:
             self.acknowledged(entry)
@@ -94,6 +99,8 @@ class Acknowledging(CoreFields):
         if held is None or number >= self.next_number:
             return self.window.ack_probe() if probe_answer else self.window.ack_one()
         done = self.window.ack_upto(number)
+        if len(done) == 1 and done[0].number == number:
+            return done  # the usual case: the oldest line in flight, alone
         if not any(e.number == number for e in done):
             command, internal = held
             done.append(InFlight(number, command, 0, internal=internal,
@@ -109,11 +116,13 @@ class Acknowledging(CoreFields):
         """
         number = entry.number
         repeated = number is not None and number <= self._emitted_through
-        if number is not None and not repeated:
+        if number is not None and not repeated and number > self._emitted_through + 1:
             self._catch_up(number)
         if number is not None:
-            self.last_acked_number = max(self.last_acked_number, number)
-            self.model.holds(number)
+            if number > self.last_acked_number:
+                self.last_acked_number = number
+            if number > self.model.held:
+                self.model.held = number  # (PrinterModel.holds, inline: once per line)
             if not repeated:
                 self._emitted_through = number
         token = entry.token

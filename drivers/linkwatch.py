@@ -51,10 +51,10 @@ class Watching(CoreFields):
         if not len(self.window):
             return
         silence = now - self.last_rx
-        long_running = any(e.command.split(" ", 1)[0] in LONG_COMMANDS for e in self.window)
         due = self.config.probe_after_s * (self.probes_unanswered + 1)
         if silence < due:
             return
+        long_running = any(e.command.split(" ", 1)[0] in LONG_COMMANDS for e in self.window)
         if long_running:
             if silence >= self.config.long_command_timeout_s:
                 self.fail(f"printer silent for {silence:.0f} s during a long command")

@@ -91,11 +91,8 @@ class Writing(CoreFields):
         if self.control:
             return self._next_control_line()
         if self.pending and not self.paused and not self.cancelled:
-            framed = self._framed
-            if framed is not None and framed[0] == self.next_number \
-                    and framed[1] is self.pending[0][0] and self.window.full_for(len(framed[2])):
-                return None  # the next job line, framed already, still waits for room
-            if self.next_number >= self.config.renumber_at:
+            number = self.next_number
+            if number >= self.config.renumber_at:
                 if len(self.window):
                     # drain first, outside the renumbering: until the M110 is written the
                     # printer keeps the old numbers, and a probe must recover a lost ok
@@ -108,19 +105,24 @@ class Writing(CoreFields):
                         self.queue_control("M105", internal=True, probe=True)
                     return self._next_control_line()
                 self.stats.renumbers += 1
-                self.renumber = Renumber(self.next_number, 0, keep_history=False)
+                self.renumber = Renumber(number, 0, keep_history=False)
                 return self._next_renumber_line(now)
             command, token = self.pending[0]
             framed = self._framed
-            if framed is not None and framed[0] == self.next_number and framed[1] is command:
+            if framed is not None and framed[0] == number and framed[1] is command:
                 data = framed[2]
             else:
-                data = frame(self.next_number, command)
-                self._framed = (self.next_number, command, data)
-            if not self.window.has_room(len(data)):
+                data = frame(number, command)
+                self._framed = (number, command, data)
+            if self.window.full_for(len(data)):
                 return None  # framed once: the line waits for room as it is
             self.pending.popleft()
-            number = self._assign(command)
+            # the line's number assigned (as ``_assign`` does, inline: once per job line)
+            self.fenced = False
+            self.next_number = number + 1
+            history = self.history
+            history[number] = (command, False)
+            history.pop(number - self.config.history, None)
             self._events.append(Written(token, number))
             return data, InFlight(number, command, len(data))
         return None

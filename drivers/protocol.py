@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from functools import reduce
+from operator import xor
+
 from drivers.responses import Response, parse_response
 
 __all__ = ["Response", "checksum", "frame", "parse_response", "strip_comment"]
@@ -9,10 +12,7 @@ __all__ = ["Response", "checksum", "frame", "parse_response", "strip_comment"]
 
 def xor_bytes(data: bytes) -> int:
     """XOR of every byte of ``data``, 0..255."""
-    value = 0
-    for byte in data:
-        value ^= byte
-    return value
+    return reduce(xor, data, 0)
 
 
 def checksum(text: str) -> int:
@@ -23,7 +23,7 @@ def checksum(text: str) -> int:
 def frame(number: int, command: str) -> bytes:
     """One numbered, checksummed line as sent on the wire: ``N<n> <cmd>*<cs>\\n``."""
     body = f"N{number} {command}".encode("ascii", "replace")
-    return b"%s*%d\n" % (body, xor_bytes(body))
+    return b"%s*%d\n" % (body, reduce(xor, body, 0))
 
 
 def strip_comment(line: str) -> str:

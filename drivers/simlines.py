@@ -4,7 +4,9 @@ from __future__ import annotations
 
 import re
 from collections.abc import Callable
-from dataclasses import dataclass
+from functools import reduce
+from operator import xor
+from typing import NamedTuple
 
 from drivers.protocol import xor_bytes
 
@@ -16,8 +18,7 @@ _LEADING_N = re.compile(r"^N[-+]?\d*\s*")
 _STRTOL = re.compile(r"\s*([-+]?\d+)")
 
 
-@dataclass(frozen=True)
-class LineCheck:
+class LineCheck(NamedTuple):
     """The outcome of checking one line.
 
     ``error`` is one of the ``ERR_*`` prefixes (the caller appends the last line number)
@@ -47,6 +48,10 @@ def check_line(raw: bytes, last_n: int) -> LineCheck:
     last line to ``m``, numbered or not; without a parameter a numbered M110 sets it to
     its own number.
     """
+    if raw[:1] == b"N" and b";" not in raw:
+        quick = _fast_check(raw, last_n)  # the usual line: numbered, no comment, no blanks
+        if quick is not None:
+            return quick
     text = raw.decode("latin-1").split(";", 1)[0].lstrip(" ")
     if not text.strip():
         return LineCheck("", "", None, last_n)
@@ -76,6 +81,25 @@ def check_line(raw: bytes, last_n: int) -> LineCheck:
         if param >= 0:
             last_n = strtol(command[param + 1 :])
     return LineCheck("", command, number, last_n)
+
+
+def _fast_check(raw: bytes, last_n: int) -> LineCheck | None:
+    """:func:`check_line` for ``N<digits> <command>*<digits>`` without ``M110`` (``None``:
+    another form, checked the general way)."""
+    space = raw.find(b" ")
+    star = raw.rfind(b"*")
+    if space < 2 or star < space or b"M110" in raw:
+        return None
+    digits = raw[1:space]
+    tail = raw[star + 1:]
+    if not (digits.isdigit() and tail.isdigit()):
+        return None
+    number = int(digits)
+    if number != last_n + 1:
+        return LineCheck(ERR_LINE_NO, "", number, last_n)
+    if int(tail) != reduce(xor, raw[:star], 0):
+        return LineCheck(ERR_CHECKSUM, "", number, last_n)
+    return LineCheck("", raw[space:star].strip().decode("latin-1"), number, number)
 
 
 def spurious_replies(

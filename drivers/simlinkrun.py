@@ -12,7 +12,7 @@ from typing import TypedDict
 
 from drivers.linkconfig import StreamerConfig, StreamStats
 from drivers.linkcore import LinkCore
-from drivers.linkevents import Acked, Event, Failed, Started
+from drivers.linkevents import Acked, Event, Failed, Started, Written
 from drivers.protocol import frame
 from drivers.resend import recover
 from drivers.responses import Response, parse_response
@@ -96,11 +96,15 @@ def run_core(
 
     def handle(events: list[Event]) -> None:
         for event in events:
-            if isinstance(event, Started):
+            kind = type(event)
+            if kind is Written:
+                continue
+            if kind is Started:
                 core.begin_handshake(0, keep_history=False, token=handshake)
             elif isinstance(event, Acked):
                 if event.job:
                     acked.append(event.command)
+                    continue
                 if event.token == handshake:
                     core.queue_control("M115", internal=True, token=identify)
                 elif event.token == identify:
@@ -133,6 +137,8 @@ def run_core(
         if events:
             handle(events)
         pump()
+        if phase["next"] >= total and done():
+            clock.stop()  # only a line read or a tick changes what the link knows
 
     def done() -> bool:
         if not (phase["streaming"] and phase["next"] >= total and not pending):
@@ -149,6 +155,8 @@ def run_core(
         pump()
         if not done():
             clock.at(clock.now + interval, tick)
+        elif phase["next"] >= total:
+            clock.stop()
 
     printer = printer_class(sim, clock, on_line, exec_s=exec_s)
     if printer_hook is not None:
@@ -156,14 +164,11 @@ def run_core(
     core.begin_connect(0.0)
     printer.power_on()
     clock.at(interval, tick)
-    step = clock.step
-    while True:
-        if phase["next"] >= total and done():
-            break
-        if not step():
-            raise NoConvergence("nothing left to happen and the job is not done")
-        if clock.now > max_seconds:
-            raise NoConvergence(f"not done after {max_seconds:g} virtual seconds")
+    outcome = clock.run(max_seconds)
+    if outcome == "idle":
+        raise NoConvergence("nothing left to happen and the job is not done")
+    if outcome == "late":
+        raise NoConvergence(f"not done after {max_seconds:g} virtual seconds")
     phase["end"] = clock.now
     return LinkRun(job_commands(printer.executed), acked, phase["end"] - phase["start"],
                    written[0], printer, core.stats)

@@ -31,6 +31,7 @@ class Clock:
         self.now = 0.0
         self._queue: list[tuple[float, int, Callable[..., None], tuple[object, ...]]] = []
         self._seq = itertools.count()
+        self.stopped = False
 
     def at(self, when: float, action: Callable[..., None], *args: object) -> None:
         """Run ``action(*args)`` at virtual time ``when`` (not before now)."""
@@ -45,6 +46,26 @@ class Clock:
         self.now = when
         action(*args)
         return True
+
+    def run(self, max_seconds: float) -> str:
+        """Run actions in order until one calls :meth:`stop` (``""``), nothing is left
+        (``"idle"``) or the clock passes ``max_seconds`` (``"late"``)."""
+        queue = self._queue
+        pop = heapq.heappop
+        self.stopped = False
+        while not self.stopped:
+            if not queue:
+                return "idle"
+            when, _, action, args = pop(queue)
+            self.now = when
+            action(*args)
+            if when > max_seconds:
+                return "late"
+        return ""
+
+    def stop(self) -> None:
+        """End :meth:`run` after the action running now."""
+        self.stopped = True
 
     def next_time(self) -> float | None:
         """When the next action is due (``None``: nothing queued)."""
@@ -74,6 +95,20 @@ class Lane:
         epoch = self.epoch
         clock = self.clock
         rate = self.rate
+        if len(pieces) == 1 and self.delay is None:
+            piece = pieces[0]  # the usual case, without the per-piece bookkeeping
+            now = clock.now
+            free = (self._free_at if self._free_at > now else now) \
+                + (len(piece) / rate if rate else 0.0)
+            self._free_at = free
+            arrival = free + self.latency
+            if arrival < self._last_arrival:
+                arrival = self._last_arrival
+            self._last_arrival = arrival
+            # Clock.at without the call (arrival is never before now)
+            heapq.heappush(clock._queue, (arrival, next(clock._seq), self._arrive,
+                                          (piece, epoch)))
+            return
         for piece in pieces:
             start = self._free_at if self._free_at > clock.now else clock.now
             self._free_at = free = start + (len(piece) / rate if rate else 0.0)
@@ -105,6 +140,8 @@ class VirtualPrinter:
         self.on_line = on_line
         self.exec_s = exec_s
         self.faults = FaultInjector(config, threaded=False)
+        self._fires = self.faults.fires
+        self._left = self.faults.left  # countdowns to each fault: counted here inline
         rate = config.bytes_per_second
         self.to_printer = Lane(clock, rate, config.latency_s, self._receive)
         self.to_host = Lane(clock, rate, config.latency_s, self._host_bytes)
@@ -155,8 +192,15 @@ class VirtualPrinter:
 
     def emit(self, line: str) -> None:
         """One reply line (subject to the printer -> host corruption fault)."""
-        data = (line + "\n").encode("latin-1", "replace")
-        if self.faults.fires("corrupt_tx"):
+        data = _ENCODED.get(line)
+        if data is None:
+            data = (line + "\n").encode("latin-1", "replace")
+            if len(_ENCODED) < 256 and (line.startswith("ok") or line == BUSY):
+                _ENCODED[line] = data  # the same few oks, line after line
+        left = self._left
+        if left["corrupt_tx"]:
+            left["corrupt_tx"] -= 1
+        elif self.faults.fire("corrupt_tx"):
             data = self.faults.flip_bit("corrupt_tx", data)
         self.to_host.send([data])
 
@@ -165,8 +209,15 @@ class VirtualPrinter:
     def _serve(self) -> None:
         """Read lines into the queue while it has room; run the next command if idle."""
         limit = self.config.max_cmd_size - 1
-        while len(self._queue) < self.config.bufsize and self._rx:
-            end = self._rx.find(b"\n")
+        bufsize = self.config.bufsize
+        rx = self._rx
+        while len(self._queue) < bufsize and rx:
+            end = rx.find(b"\n")
+            if 0 < end <= limit and not self._partial:
+                line = bytes(rx[:end])  # a whole line that fits: the usual case
+                del rx[: end + 1]
+                self._process_line(line)
+                continue
             stop = end if end >= 0 else len(self._rx)
             room = max(0, limit - len(self._partial))
             self._partial += self._rx[: min(stop, room)]
@@ -181,7 +232,10 @@ class VirtualPrinter:
             self._start_next()
 
     def _process_line(self, raw: bytes) -> None:
-        if self.faults.fires("corrupt_rx"):
+        left = self._left
+        if left["corrupt_rx"]:
+            left["corrupt_rx"] -= 1
+        elif self.faults.fire("corrupt_rx"):
             raw = self.faults.flip_bit("corrupt_rx", raw)
         check = check_line(raw, self.last_n)
         if check.error:
@@ -197,8 +251,16 @@ class VirtualPrinter:
         if not check.command:
             return
         self._queue.append((check.command, check.number))
+        left = self._left
+        if left["resend"] and left["refuse"] and check.number is not None:
+            left["resend"] -= 1  # neither noise fires after this line: the draws counted
+            left["refuse"] -= 1
+            if "M110" in check.command:  # a renumbering draws nothing: take them back
+                left["resend"] += 1
+                left["refuse"] += 1
+            return
         replies, refused = spurious_replies(
-            self.faults.fires, check.command, check.number, self.last_n
+            self._fires, check.command, check.number, self.last_n
         )
         for reply in replies:
             self.emit(reply)
@@ -206,12 +268,17 @@ class VirtualPrinter:
             self._ok()
 
     def _start_next(self) -> None:
-        if self.faults.fires("reset"):
+        left = self._left
+        if left["reset"]:
+            left["reset"] -= 1
+        elif self.faults.fire("reset"):
             self._reset()
             return
         self._running = True
         delay = self.exec_s
-        if self.faults.fires("busy"):
+        if left["busy"]:
+            left["busy"] -= 1
+        elif self.faults.fire("busy"):
             for k in range(self.faults.randint("busy", 1, 5)):
                 self.clock.at(self.clock.now + k * self.config.keepalive_s, self.emit, BUSY)
                 delay += self.config.keepalive_s
@@ -224,7 +291,10 @@ class VirtualPrinter:
         command, _ = self._queue.popleft()
         self._running = False
         code = command.split(" ", 1)[0]
-        if _known(code):
+        known = _KNOWN.get(code)
+        if known is None:
+            known = _known(code)
+        if known:
             self.executed.append(command)  # an unknown command runs as nothing, as in Marlin
         if code == "M105":
             self._ok(TEMPERATURES)
@@ -233,13 +303,16 @@ class VirtualPrinter:
             self.emit(f"Cap:EMERGENCY_PARSER:{int(self.config.emergency_parser)}")
             self._ok()
         else:
-            if not _known(code):
+            if not known:
                 self.emit(f'echo:Unknown command: "{command}"')
             self._ok()
         self._serve()
 
     def _ok(self, suffix: str = "") -> None:
-        if self.faults.fires("drop_ok"):
+        left = self._left
+        if left["drop_ok"]:
+            left["drop_ok"] -= 1
+        elif self.faults.fire("drop_ok"):
             return
         if suffix or not self.config.advanced_ok:
             self.emit("ok" + suffix)
@@ -269,3 +342,4 @@ def _known(code: str) -> bool:
 
 
 _KNOWN: dict[str, bool] = {}  # command word -> whether it runs
+_ENCODED: dict[str, bytes] = {}  # reply line -> its bytes on the wire

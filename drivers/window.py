@@ -8,7 +8,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass, field
 
 
-@dataclass
+@dataclass(slots=True)
 class InFlight:
     """One line on the wire or in the printer's buffers, awaiting its ``ok``.
 
@@ -59,16 +59,19 @@ class SendWindow:
 
     def has_room(self, nbytes: int) -> bool:
         """True if a line of ``nbytes`` may be written now (always, when nothing is in flight)."""
-        if not self._entries:
+        entries = self._entries
+        if not entries:
             return True
-        lines = min(self.max_lines, self.limit)
-        return self._bytes + nbytes <= self.max_bytes and len(self._entries) < lines
+        limit = self.limit if self.limit < self.max_lines else self.max_lines
+        return self._bytes + nbytes <= self.max_bytes and len(entries) < limit
 
     def full_for(self, nbytes: int) -> bool:
         """True if a line of ``nbytes`` must wait (the opposite of :meth:`has_room`)."""
         entries = self._entries
-        return bool(entries) and (self._bytes + nbytes > self.max_bytes
-                                  or len(entries) >= min(self.max_lines, self.limit))
+        if not entries:
+            return False
+        limit = self.limit if self.limit < self.max_lines else self.max_lines
+        return self._bytes + nbytes > self.max_bytes or len(entries) >= limit
 
     def shrink(self) -> None:
         """A refusal: halve the line limit (at least one line stays allowed)."""
@@ -113,12 +116,14 @@ class SendWindow:
         them written later too (the printer refuses or drains those: no ``ok`` of theirs
         comes); lines of higher numbers stay, in order."""
         entries = self._entries
-        if entries and entries[0].number == number and all(
-                e.number is not None and e.number > number
-                for e in itertools.islice(entries, 1, None)):
-            entry = entries.popleft()  # the usual case: the oldest line, and nothing else
-            self._bytes -= entry.nbytes
-            return [entry]
+        if entries and entries[0].number == number:
+            for later in itertools.islice(entries, 1, None):
+                if later.number is None or later.number <= number:
+                    break  # a copy of a line done, or an unnumbered line: the general case
+            else:
+                entry = entries.popleft()  # the usual case: the oldest line, nothing else
+                self._bytes -= entry.nbytes
+                return [entry]
         done = [e for e in entries if e.number is None or e.number <= number]
         if done:
             self._entries = deque(e for e in self._entries
