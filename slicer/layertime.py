@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from slicer.budget import Moves
-from slicer.motion import JUNCTION_DEVIATION, segment_times
+from slicer.motion import JUNCTION_DEVIATION, planned_time, segment_times
 
 # Marlin's default limits (Configuration.h) for the axes a slicer does not set: mm/s, mm/s^2
 MAX_Z_SPEED = 5.0
@@ -169,11 +169,4 @@ def chain_time(
     v2 = np.minimum(v2, np.minimum(speed[1:], speed[:-1]) ** 2)
     limit = np.full(m + 1, MIN_SPEED**2)
     limit[1:-1] = np.where(stopped, MIN_SPEED**2, v2)
-    # planner passes as prefix minima: v_j^2 = min_k (limit_k + 2 a |S_j - S_k|)
-    two_a = 2.0 * accel
-    s_fwd = np.concatenate(([0.0], np.cumsum(length)))
-    fwd = two_a * s_fwd + np.minimum.accumulate(limit - two_a * s_fwd)
-    s_bwd = s_fwd[-1] - s_fwd
-    bwd = two_a * s_bwd + np.minimum.accumulate((limit - two_a * s_bwd)[::-1])[::-1]
-    v = np.sqrt(np.maximum(np.minimum(fwd, bwd), 0.0))
-    return float(segment_times(length, speed, v[:-1], v[1:], accel).sum())
+    return planned_time(length, speed, limit, accel)

@@ -57,7 +57,17 @@ def packed_runs_time(
     v2 = accel * JUNCTION_DEVIATION * sin_half / np.maximum(1.0 - sin_half, 1e-12)
     v2 = np.minimum(v2, np.minimum(speed[1:], speed[:-1]) ** 2)
     limit[1:-1] = np.where(joined, v2, 0.0)
-    # planner passes as prefix minima: v_j^2 = min_k (limit_k + 2 a (S_j - S_k))
+    return planned_time(length, speed, limit, accel)
+
+
+def planned_time(
+    length: NDArray[np.float64], speed: NDArray[np.float64], limit: NDArray[np.float64],
+    accel: float,
+) -> float:
+    """Seconds of a chain of segments (``length``, ``speed`` (n,) mm, mm/s) whose squared
+    speed at each junction (``limit`` (n + 1,) mm²/s², the chain's ends included) is at
+    most ``limit``: the planner's forward and backward passes as prefix minima,
+    ``v_j^2 = min_k (limit_k + 2 a |S_j - S_k|)``, then a trapezoid per segment."""
     two_a = 2.0 * accel
     s_fwd = np.concatenate(([0.0], np.cumsum(length)))
     fwd = two_a * s_fwd + np.minimum.accumulate(limit - two_a * s_fwd)
