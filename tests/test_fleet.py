@@ -169,10 +169,11 @@ def test_enter_opens_the_printer_screen_over_mqtt_refusal_emergency_stop_and_bac
             assert "farm7" in bar
             assert "IDLE" in bar.upper()
             assert "no job printing" in str(screen.query_one(LayerView).render())
+            await pilot.pause()  # the screen takes keys once it is mounted
             await pilot.press("p")  # nothing is printing: the daemon refuses on its event topic
+            await until(lambda: "> pause" in texts(screen), what=lambda: texts(screen))
             await until(lambda: "refused pause: no job is printing" in texts(screen),
                         what=lambda: texts(screen))
-            assert "> pause" in texts(screen)
             await pilot.press("exclamation_mark")
             await until(lambda: isinstance(app.screen, ConfirmScreen))
             assert "M112" in str(app.screen.query_one("#question").render())

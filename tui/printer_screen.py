@@ -84,6 +84,7 @@ class PrinterScreen(Screen[None]):
         self._estimated_at: tuple[str, int] | None = None
         self._retry_at = 0.0  # when a layer that could not be fetched is asked for again
         self._layer_failed = False
+        self._early: list[StatusItem | EventItem] = []  # fed before the screen was mounted
 
     def compose(self) -> ComposeResult:
         yield StateBar(id="state")
@@ -101,6 +102,9 @@ class PrinterScreen(Screen[None]):
                   "#log": "events", "#layer": "layer"}
         for selector, title in titles.items():
             self.query_one(selector).border_title = title
+        early, self._early = self._early, []
+        for item in early:
+            self.feed(item)
         if self.own_stream:
             self.run_worker(self._pump, name="status-pump", exclusive=True)
 
@@ -116,6 +120,9 @@ class PrinterScreen(Screen[None]):
             return
         if not self.printer and item.printer and isinstance(item, StatusItem):
             self.printer = item.printer  # the first printer heard from is the one shown
+        if not self.is_mounted:  # fed (by the fleet) before its widgets exist: shown on mount
+            self._early.append(item)
+            return
         if isinstance(item, StatusItem):
             self.show(item.snapshot)
         else:
@@ -226,6 +233,8 @@ class PrinterScreen(Screen[None]):
         try:
             self.estimate = await self._query("estimate")
         except ControlError:
+            return
+        if not self.is_mounted:  # the screen was closed meanwhile
             return
         used = self.estimate.get("filament_used_mm")
         total = self.estimate.get("filament_total_mm")
