@@ -61,7 +61,8 @@ class Connecting:
         loop = asyncio.get_running_loop()
         self.core.begin_connect(loop.time())
         with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(self._started.wait(), self.config.start_timeout_s)
+            async with asyncio.timeout(self.config.start_timeout_s):
+                await self._started.wait()
         with contextlib.suppress(TransportError):
             await self._transport.write(b"\n")  # end any noise the printer has buffered
         try:

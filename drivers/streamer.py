@@ -38,6 +38,7 @@ from drivers.linkevents import (
 from drivers.linkprofile import Profile
 from drivers.linkwaiters import Waiters
 from drivers.protocol import Response
+from drivers.tasks import cancel_and_wait
 from drivers.transport import Transport, TransportError
 
 __all__ = [
@@ -170,9 +171,7 @@ class Streamer(Connecting):
     async def close(self) -> None:
         """Stop the link's tasks, fail every waiter and close the transport."""
         if self._group is not None:
-            self._group.cancel()
-            with contextlib.suppress(asyncio.CancelledError):
-                await self._group
+            await cancel_and_wait(self._group)
             self._group = None
         self._waiters.fail_all(LinkError("link closed"))
         self._tags.clear()
@@ -286,7 +285,8 @@ class Streamer(Connecting):
             await self._write_ready()
         if self.core.alive():
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._failed.wait(), KILL_REPLY_S)
+                async with asyncio.timeout(KILL_REPLY_S):
+                    await self._failed.wait()
         self.core.halt("emergency stop")
         self._dispatch(self.core.take_events())
 

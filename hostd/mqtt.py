@@ -18,6 +18,7 @@ import aiomqtt
 from drivers.backoff import Backoff  # the one reconnect policy (also the printer link's)
 from hostd.api import Snapshot
 from hostd.homeassistant import HA_STATUS_TOPIC, DeviceTopics, discovery_messages
+from hostd.mqtt_calls import publish, subscribe
 from hostd.status import CommandError, Controller, StatusHub
 
 log = logging.getLogger(__name__)
@@ -232,7 +233,7 @@ class MqttBridge:
         """Publish the retained ``offline`` before a clean disconnect (best effort, bounded)."""
         with contextlib.suppress(aiomqtt.MqttError, TimeoutError):
             async with asyncio.timeout(2.0):
-                await client.publish(self.topics.online, "offline", qos=1, retain=True)
+                await publish(client, self.topics.online, "offline", qos=1, retain=True)
 
     async def _session(self, client: aiomqtt.Client) -> None:
         """One connection: subscribe, announce, then publish and listen until it drops.
@@ -240,10 +241,10 @@ class MqttBridge:
         Commands are subscribed before ``online`` is published, so a client that
         sees ``online`` can send a command at once.
         """
-        await client.subscribe(self.topics.cmd, qos=1)
-        await client.publish(self.topics.online, "online", qos=1, retain=True)
+        await subscribe(client, self.topics.cmd, qos=1)
+        await publish(client, self.topics.online, "online", qos=1, retain=True)
         if self._settings.homeassistant:
-            await client.subscribe(HA_STATUS_TOPIC, qos=1)
+            await subscribe(client, HA_STATUS_TOPIC, qos=1)
             await self._announce(client)
         self.connected.set()
         async with asyncio.TaskGroup() as group:
@@ -258,10 +259,10 @@ class MqttBridge:
         commands = self._settings.allow_commands and bool(self._settings.username)
         topics = DeviceTopics.for_printer(self._printer_id)
         for topic, payload in discovery_messages(self._printer_id, topics, commands):
-            await client.publish(topic, payload, qos=1, retain=True)
+            await publish(client, topic, payload, qos=1, retain=True)
 
     async def _send_status(self, client: aiomqtt.Client, snapshot: Snapshot) -> None:
-        await client.publish(self.topics.status, snapshot.to_json(), qos=1, retain=True)
+        await publish(client, self.topics.status, snapshot.to_json(), qos=1, retain=True)
 
     async def _publish_status(self, client: aiomqtt.Client) -> None:
         """Retained status: every state change at once, other changes at most once an interval."""
@@ -302,7 +303,7 @@ class MqttBridge:
                 await feed.changed.wait()
                 continue
             item = feed.items[0]
-            await client.publish(self.topics.event, json.dumps(item, default=str), qos=1)
+            await publish(client, self.topics.event, json.dumps(item, default=str), qos=1)
             if feed.items and feed.items[0] is item:
                 feed.items.popleft()
 
@@ -316,7 +317,7 @@ class MqttBridge:
                 continue
             answer = await self.execute(message.payload, retained=message.retain)
             if answer is not None:
-                await client.publish(self.topics.event, json.dumps(answer, default=str), qos=1)
+                await publish(client, self.topics.event, json.dumps(answer, default=str), qos=1)
 
     async def execute(self, payload: Any, *, retained: bool = False) -> dict[str, Any] | None:
         """Carry out one command message; the ``error`` event to publish when refused, else None."""

@@ -9,6 +9,7 @@ from typing import Any, Protocol
 import aiomqtt
 
 from hostd.jobinfo import JobTracker, layer_png
+from hostd.mqtt_calls import publish
 
 IMAGE_SIZE = 480  # pixels on the picture's longer side
 
@@ -55,14 +56,14 @@ class MqttExtras:
             changed.clear()
             info = self.tracker.info()
             if info is not None:
-                await client.publish(self.job_topic, json.dumps(info), qos=1, retain=True)
+                await publish(client, self.job_topic, json.dumps(info), qos=1, retain=True)
                 layer = self.tracker.picture_layer(info["completed"] + 1)
                 text = self.tracker.layer_text(layer) if layer is not None else None
                 if text is not None and (info["id"], layer) != shown:
                     title = f"{info['name']}  layer {layer + 1} of {info['layers']}"
                     png = await asyncio.to_thread(layer_png, text, title, IMAGE_SIZE)
-                    await client.publish(self.image_topic, png, qos=1, retain=True)
+                    await publish(client, self.image_topic, png, qos=1, retain=True)
                     shown = (info["id"], layer)
             if self.history is not None:
                 summary = self.history.summary()
-                await client.publish(self.history_topic, json.dumps(summary), qos=1, retain=True)
+                await publish(client, self.history_topic, json.dumps(summary), qos=1, retain=True)

@@ -16,6 +16,7 @@ from typing import IO, Any, NamedTuple, Protocol
 from drivers.linkacks import Ack, AckChannel
 from drivers.protocol import strip_comment
 from drivers.streamer import LinkError, StreamCancelled
+from drivers.tasks import cancel_and_wait
 from drivers.transport import TransportError
 from hostd.api import JobStatus
 from hostd.checkpoints import Checkpoint, CheckpointWriter
@@ -222,9 +223,7 @@ class JobRunner:
                     await self._stream_all()
                     await self.link.drain()
                 finally:
-                    follower.cancel()
-                    with contextlib.suppress(asyncio.CancelledError):
-                        await follower
+                    await cancel_and_wait(follower)
                     for ack in acks.take():  # delivered while the follower was stopping
                         self.on_ack(ack)
             if self._cancelled:

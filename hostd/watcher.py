@@ -78,7 +78,8 @@ class Watcher:
         """Scan again now and then: network shares and event overflows can miss changes."""
         while not stop.is_set():
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(stop.wait(), timeout=self.rescan_s)
+                async with asyncio.timeout(self.rescan_s):
+                    await stop.wait()
             if not stop.is_set():
                 self.scan()
 
@@ -154,7 +155,8 @@ class Watcher:
             if due:
                 continue
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), timeout=_poll_interval(wait))
+                async with asyncio.timeout(_poll_interval(wait)):
+                    await self._wake.wait()
 
 
     def _look_early(self, path: Path, signature: tuple[int, int, int, int] | None) -> None:

@@ -87,10 +87,11 @@ def test_a_bad_model_fails_with_an_mqtt_event_and_commands_are_answered_emergenc
     try:
         failed, refused, availability = asyncio.run(watch())
         output, _ = daemon.communicate(timeout=30)
-    finally:
+    except BaseException:
         if daemon.poll() is None:
             daemon.kill()
-            daemon.wait()
+        sys.stderr.write(daemon.communicate()[0])  # the daemon's log, shown with the failure
+        raise
     assert "junk" in json.dumps(failed)
     assert (tmp_path / "jobs" / "failed" / "junk.error.txt").exists()
     assert refused["reason"] == "no job is printing"  # the daemon's controller answered

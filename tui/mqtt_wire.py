@@ -105,7 +105,8 @@ class WireClient:
             with contextlib.suppress(OSError, RuntimeError):
                 self._writer.write(_packet(DISCONNECT, 0, b""))
                 self._writer.close()
-                await asyncio.wait_for(self._writer.wait_closed(), 2)
+                async with asyncio.timeout(2):
+                    await self._writer.wait_closed()
             self._writer = None
 
     def _connect_packet(self) -> bytes:
