@@ -33,13 +33,16 @@ def test_layer_alone_equals_layer_of_full_run(feature_plan: SlicePlan, tmp_path)
 
 def test_same_input_same_bytes(tmp_path) -> None:
     a = SlicePlan.from_file(DATA / "bunny.stl", SETTINGS)
-    b = SlicePlan.from_file(DATA / "bunny.stl", SETTINGS)
     write_gcode(a, tmp_path / "a.gcode")
-    write_gcode(b, tmp_path / "b.gcode")
-    assert (tmp_path / "a.gcode").read_bytes() == (tmp_path / "b.gcode").read_bytes()
-    # and in reverse order, layer by layer, from one plan
-    for i in reversed(range(0, a.layer_count, 37)):
-        assert a.layer_gcode(i) == b.layer_gcode(i)
+    blocks = layer_blocks((tmp_path / "a.gcode").read_text().splitlines())
+    # a second plan of the same file, its layers asked for in reverse order, every third
+    b = SlicePlan.from_file(DATA / "bunny.stl", SETTINGS)
+    for i in reversed(range(0, b.layer_count, 3)):
+        assert b.layer_gcode(i) == blocks[i], f"layer {i}"
+    # and what surrounds the layers too: a whole file twice is the same file
+    for name in ("c.gcode", "d.gcode"):
+        write_gcode(SlicePlan.from_file(DATA / "cube20_xyz.stl", SETTINGS), tmp_path / name)
+    assert (tmp_path / "c.gcode").read_bytes() == (tmp_path / "d.gcode").read_bytes()
 
 
 def test_outer_wall_is_the_outline_offset_by_half_a_line(tmp_path) -> None:

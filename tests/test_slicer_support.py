@@ -94,12 +94,6 @@ def test_gentle_slopes_are_self_supporting_and_steep_ones_are_not() -> None:
     assert any(not region.is_empty for region in at_30)
 
 
-def test_candle_stand_gets_support_under_its_overhangs() -> None:
-    layers = outlines(trimesh.load(DATA / "candle_stand.stl"))
-    regions = support_regions(layers, SETTINGS, H)
-    assert sum(region.area for region in regions) > 1000.0
-
-
 def test_support_paths_wall_infill_and_interface_stay_in_the_region(
     tee: list[shapely.Geometry],
 ) -> None:
@@ -160,3 +154,5 @@ def test_support_from_the_plans_outlines(model: str, supported: bool) -> None:
     regions = support_regions(layers, SETTINGS, SETTINGS.layer_height)
     # the cube's engraved letters bridge; the candle stand's plate needs holding up
     assert any(not region.is_empty for region in regions) is supported
+    if supported:  # under its overhangs, not a sliver
+        assert sum(region.area for region in regions) > 1000.0
