@@ -88,6 +88,26 @@ async def watch(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
             await asyncio.sleep(0.3)
 
 
+async def watch_until_interrupted(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
+    """:func:`watch` until the daemon exits or Ctrl-C (SIGINT) comes.
+
+    The signal sets an event rather than cancelling the loop's main task, so the
+    demo stops the daemon even if a cancellation were lost on the way.
+    """
+    loop = asyncio.get_running_loop()
+    interrupted = asyncio.Event()
+    loop.add_signal_handler(signal.SIGINT, interrupted.set)
+    try:
+        watcher = asyncio.create_task(watch(socket, daemon), name="demo-watch")
+        stop = asyncio.create_task(interrupted.wait(), name="demo-sigint")
+        await asyncio.wait({watcher, stop}, return_when=asyncio.FIRST_COMPLETED)
+        for task in (watcher, stop):
+            task.cancel()
+        await asyncio.wait({watcher, stop}, timeout=2.0)
+    finally:
+        loop.remove_signal_handler(signal.SIGINT)
+
+
 async def dashboard(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
     """The dashboard on the demo daemon, until it is quit."""
     from tui.app import Dashboard
@@ -129,7 +149,9 @@ def main() -> int:
                     asyncio.run(dashboard(STATE / "hostd.sock", daemon))
                     print("dashboard closed: stopping the daemon...")
                 else:
-                    asyncio.run(watch(STATE / "hostd.sock", daemon))
+                    asyncio.run(watch_until_interrupted(STATE / "hostd.sock", daemon))
+                    if daemon.poll() is None:
+                        print("\nstopping the daemon...")
             except KeyboardInterrupt:
                 print("\nstopping the daemon...")
             finally:

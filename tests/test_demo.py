@@ -65,7 +65,14 @@ def test_demo_prints_and_ctrl_c_stops_the_daemon(tmp_path: Path) -> None:
     assert b"started: dogbone.stl" in seen
     assert b"[printing]" in seen, seen.decode(errors="replace")[-500:]
     demo.send_signal(signal.SIGINT)
-    rest, _ = demo.communicate(timeout=30)
+    try:
+        rest, _ = demo.communicate(timeout=30)
+    except subprocess.TimeoutExpired:
+        for pid in _daemon_pids(tmp_path):  # leave no daemon behind, show its log
+            os.kill(pid, signal.SIGKILL)
+        demo.kill()
+        log = (tmp_path / "var" / "hostd.log").read_text()[-3000:]
+        raise AssertionError(f"the demo did not stop on Ctrl-C; daemon log:\n{log}") from None
     assert b"daemon exited with code 0" in rest
     assert demo.returncode == 0
     assert _daemon_pids(tmp_path) == []
