@@ -170,7 +170,9 @@ def test_clean_run_log_equals_the_commands(tmp_path):
     with SimulatedPrinter(SimulatorConfig(time_scale=0.0, baud=0, log_path=str(log))) as sim:
         link = Host(sim.start())
         link.wait_start()
-        stream(link, commands)
+        # no ok is lost on a clean run: a long wait before a resend, so that a loaded
+        # machine's slow answer is not taken for a lost one (a resend is an error)
+        stream(link, commands, ok_timeout=10.0)
         link.close()
         executed = [c for c in sim.executed if not c.startswith("M110")]
         assert executed == commands
