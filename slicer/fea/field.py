@@ -20,7 +20,7 @@ from slicer.fea.loadcase import (
     LoadCaseError,
     read_load_case,
 )
-from slicer.fea.optimal import ITERATIONS, optimal_density
+from slicer.fea.optimal import ITERATIONS, OBJECTIVE_VERSION, optimal_density
 from slicer.fea.solve import Solution, analyse, fixed_nodes, nodal_loads
 from slicer.fea.voxel import default_cell, mesh_volume, voxelize
 
@@ -131,7 +131,7 @@ def field_key(vertices: np.ndarray, faces: np.ndarray, case: LoadCase, size: flo
     density, its mean)."""
     digest = hashlib.sha256()
     if optimal:
-        digest.update(f"optimal {optimal!r} {ITERATIONS}".encode())
+        digest.update(f"optimal {optimal!r} {ITERATIONS} {OBJECTIVE_VERSION}".encode())
     digest.update(FIELD_VERSION.encode())
     mesh = hashlib.sha256(np.ascontiguousarray(vertices, dtype="<f8").tobytes())
     mesh.update(np.ascontiguousarray(faces, dtype="<i8").tobytes())

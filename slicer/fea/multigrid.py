@@ -15,7 +15,8 @@ CHUNK = 2048  # elements assembled at a time (bounds the assembly's memory)
 COARSEST = 6000  # unknowns at or under which a level is factorised directly
 MAX_LEVELS = 8
 SMOOTHING = 2
-DAMPING = 0.5
+SMOOTHER_WEIGHT = 4.0 / 3.0  # Jacobi's weight times the spectral radius of D^-1 A
+POWER_STEPS = 12  # power iterations that estimate that radius
 
 
 def assemble(mesh: HexMesh, ke: np.ndarray, scale: np.ndarray) -> sp.csr_matrix:
@@ -71,10 +72,29 @@ def _prolongation(positions: np.ndarray, bodies: np.ndarray) -> tuple[sp.csr_mat
     return matrix, coarse[first], body[first]
 
 
+def smoother_scale(a: sp.csr_matrix) -> np.ndarray:
+    """Damped Jacobi's ``weight / diag(a)`` (n,) with weight ``4 / (3 rho)``, ``rho`` the
+    spectral radius of ``D^-1 a`` (estimated by power iteration, from a fixed start,
+    with a 5 % margin): the sweep then damps every mode. A fixed weight of 0.5
+    does not: ``rho`` is about 4.7 on a scanned surface's voxels (nodes held by
+    one element at a corner), over 2 / 0.5, and the sweep amplified those modes."""
+    inverse = 1.0 / a.diagonal()
+    root = np.sqrt(inverse)
+    x = np.random.default_rng(0).standard_normal(a.shape[0])
+    estimate = 1.0
+    for _ in range(POWER_STEPS):
+        x /= np.sqrt(np.einsum("i,i->", x, x))
+        y = root * (a @ (root * x))
+        estimate = float(np.einsum("i,i->", x, y))
+        x = y
+    scale: NDArray[np.float64] = SMOOTHER_WEIGHT / (1.05 * estimate) * inverse
+    return scale
+
+
 @dataclass
 class _Level:
     matrix: sp.csr_matrix
-    inverse_diagonal: np.ndarray
+    inverse_diagonal: np.ndarray  # the smoother's weight over the diagonal
     down: sp.csr_matrix | None = None  # prolongation from the next level to this one
 
 
@@ -84,7 +104,8 @@ class Multigrid:
     ``positions`` (n, 3) int64 lattice coordinates and ``bodies`` (n,) int64 of the
     mesh's nodes; ``free`` (3n,) bool the unknowns kept in ``matrix``. Each level
     interpolates from every other lattice node (trilinearly, within a body); its
-    matrix is the Galerkin product ``P^T A P``; damped Jacobi smooths; the
+    matrix is the Galerkin product ``P^T A P``; damped Jacobi smooths (weighted by
+    :func:`smoother_scale`); the
     coarsest level is factorised (SuperLU). Symmetric, so fit for conjugate
     gradients.
     """
@@ -95,7 +116,7 @@ class Multigrid:
         a = matrix.tocsr()
         keep = free
         for _ in range(MAX_LEVELS):
-            level = _Level(a, 1.0 / a.diagonal())
+            level = _Level(a, smoother_scale(a))
             self.levels.append(level)
             if a.shape[0] <= COARSEST:
                 break
@@ -109,7 +130,7 @@ class Multigrid:
             if a.shape[0] >= 0.6 * level.matrix.shape[0]:  # coarsening stalled
                 break
         if self.levels[-1].down is not None:
-            self.levels.append(_Level(a, 1.0 / a.diagonal()))
+            self.levels.append(_Level(a, smoother_scale(a)))
         self.factor = splu(self.levels[-1].matrix.tocsc())
 
     def __call__(self, residual: np.ndarray) -> np.ndarray:
@@ -122,12 +143,12 @@ class Multigrid:
             coarse: NDArray[np.float64] = self.factor.solve(b)
             return coarse
         a, d = level.matrix, level.inverse_diagonal
-        x: NDArray[np.float64] = DAMPING * d * b
+        x: NDArray[np.float64] = d * b
         for _ in range(SMOOTHING - 1):
-            x += DAMPING * d * (b - a @ x)
+            x += d * (b - a @ x)
         down = level.down
         assert down is not None
         x += down @ self._cycle(k + 1, down.T @ (b - a @ x))
         for _ in range(SMOOTHING):
-            x += DAMPING * d * (b - a @ x)
+            x += d * (b - a @ x)
         return x

@@ -10,6 +10,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from slicer.fea.field import analyse_arrays
+from slicer.fea.gage import gage_span
 from slicer.fea.loadcase import LoadCase, read_load_case
 from slicer.fea.optimal import strain_energy
 from slicer.fea.printed import apparent_modulus, fill_fractions, modulus_scale, read_roads
@@ -18,9 +19,6 @@ from slicer.settings import SliceSettings
 
 if TYPE_CHECKING:
     from trimesh.path import Path2D
-
-GAGE_LENGTH = 0.2  # extensometer span as a fraction of the specimen's length, centred
-GAGE_BAND = (1.0 / 3.0, 2.0 / 3.0)  # the band across the width it reads, as fractions
 
 
 @dataclass(frozen=True)
@@ -51,15 +49,14 @@ class TensionTest:
 
 def tension_test(vertices: np.ndarray, faces: np.ndarray, case: LoadCase) -> TensionTest:
     """The test a load case sets on a specimen along x: the pull is the x forces'
-    sum; the extensometer spans the middle :data:`GAGE_LENGTH` of the length over
+    sum; the extensometer spans the middle fifth of the length (``slicer.fea.gage``) over
     the middle third of the width (the paper's 10 x 20 mm gage on its dogbone);
     the nominal area is the model's cross-section at mid-length."""
     import trimesh
 
     lo, hi = vertices.min(axis=0), vertices.max(axis=0)
     middle = (lo + hi) / 2.0
-    span = GAGE_LENGTH * (hi[0] - lo[0]) / 2.0
-    band = (lo[1] + GAGE_BAND[0] * (hi[1] - lo[1]), lo[1] + GAGE_BAND[1] * (hi[1] - lo[1]))
+    gage, band = gage_span(lo, hi)
     newtons = sum(float(load.vector[0]) for load in case.loads if load.vector is not None)
     section = trimesh.Trimesh(vertices, faces, process=False).section(
         plane_origin=middle, plane_normal=[1.0, 0.0, 0.0])
@@ -69,7 +66,7 @@ def tension_test(vertices: np.ndarray, faces: np.ndarray, case: LoadCase) -> Ten
         # alias, which mypy reads as a bare tuple: the first item is the Path2D
         planar = cast("Path2D", section.to_2D()[0])
         area = float(planar.area)
-    return TensionTest((middle[0] - span, middle[0] + span), band, newtons, abs(area))
+    return TensionTest(gage, band, newtons, abs(area))
 
 
 def measured(solution: Solution, test: TensionTest) -> float:

@@ -10,6 +10,7 @@ import numpy as np
 from numpy.typing import NDArray
 from PIL import Image, ImageDraw
 
+from slicer.fea.gage import extensometer
 from slicer.fea.voxel import VoxelGrid
 
 PIXEL_MM = 0.05  # the finest raster roads are drawn on before they are averaged to boxes
@@ -147,10 +148,6 @@ def apparent_modulus(
     planes nearest its ends) over y ``band``; ``newtons`` the pull and
     ``area_mm2`` the nominal cross-section of the gage.
     """
-    planes = np.unique(np.round(points[:, 0], 9))
-    ends = [float(planes[np.argmin(np.abs(planes - g))]) for g in gage]
-    inside = (points[:, 1] >= band[0] - 1e-9) & (points[:, 1] <= band[1] + 1e-9)
-    pulled = [np.mean(displacement[inside & (np.abs(points[:, 0] - x) < 1e-6), 0]) for x in ends]
-    strain = (pulled[1] - pulled[0]) / (ends[1] - ends[0])
-    modulus: float = newtons / area_mm2 / strain  # a numpy float64
-    return modulus
+    weights, length = extensometer(points, gage, band)
+    strain = float(np.sum(weights * displacement)) / length
+    return newtons / area_mm2 / strain

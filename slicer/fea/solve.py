@@ -6,6 +6,7 @@ import math
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 from numpy.typing import NDArray
@@ -20,6 +21,9 @@ from slicer.fea.hexmesh import (
 )
 from slicer.fea.loadcase import NORMAL_CONE_DEG, LoadCase, LoadCaseError, Region
 
+if TYPE_CHECKING:
+    import scipy.sparse as sp
+
 RTOL = 1e-8  # relative residual at which the conjugate gradients stop
 MAX_ITERATIONS = 20_000
 MG_ITERATIONS = 300  # with multigrid, more than this means it does not suit the mesh
@@ -31,7 +35,8 @@ class Solution:
 
     ``displacement`` (n, 3) float64 mm at the mesh's nodes; ``stress`` (e, 6)
     float64 MPa at element centres (xx, yy, zz, yz, xz, xy); ``von_mises`` (e,)
-    float64 MPa; ``iterations`` of the solver; ``seconds`` it took.
+    float64 MPa; ``iterations`` of the solver; ``seconds`` it took; ``adjoint``
+    (n, 3) float64 the displacement under the extra load asked for, if any.
     """
 
     mesh: HexMesh
@@ -40,6 +45,7 @@ class Solution:
     von_mises: np.ndarray
     iterations: int
     seconds: float
+    adjoint: np.ndarray | None = None
 
 
 def select(faces: Faces, region: Region, cell: np.ndarray) -> np.ndarray:
@@ -131,7 +137,8 @@ def fixed_nodes(mesh: HexMesh, faces: Faces, case: LoadCase) -> np.ndarray:
     return np.flatnonzero(held)
 
 
-def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = None) -> Solution:
+def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = None,
+            adjoint: np.ndarray | None = None) -> Solution:
     """Solve ``K u = f`` for the case and recover the stress.
 
     ``modulus_scale`` (e,) float64 in [0, 1] multiplies each element's modulus
@@ -140,7 +147,9 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
     chunk at a time into a sparse matrix and solved by conjugate gradients
     preconditioned with a geometric multigrid V-cycle (see
     :class:`slicer.fea.multigrid.Multigrid`): memory grows linearly with the
-    mesh, with no factorisation of the whole matrix.
+    mesh, with no factorisation of the whole matrix. ``adjoint`` (n, 3) float64 N:
+    a second load on the same supports, solved with the same matrix and
+    preconditioner (an objective's adjoint), its displacement in the answer.
     Raises LoadCaseError for a case the mesh cannot carry.
     """
     from slicer.fea.multigrid import Multigrid, assemble  # scipy.sparse.linalg: when solving
@@ -166,21 +175,15 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
         preconditioner = Multigrid(stiffness, positions, node_body, free)
     except RuntimeError as exc:  # a singular coarsest level: the case moves freely
         raise LoadCaseError(f"{case.source}: the model cannot carry this case ({exc})") from exc
-    solved, iterations = conjugate_gradients(
-        lambda x: stiffness @ x, force[free], preconditioner, max_iterations=MG_ITERATIONS
-    )
-    if solved is None:  # a mesh the smoother does not suit: plain Jacobi, slower but sure
-        inverse = 1.0 / stiffness.diagonal()
-        solved, more = conjugate_gradients(lambda x: stiffness @ x, force[free],
-                                           lambda r: inverse * r)
-        iterations += more
-    if solved is None:
-        raise LoadCaseError(
-            f"{case.source}: the analysis did not converge in {iterations} iterations: part "
-            "of the model may hang by a thread; try another mesh size"
-        )
+    solve = _solver(stiffness, preconditioner, case)
     u = np.zeros(n)
-    u[free] = solved
+    u[free], iterations = solve(force[free])
+    other = None
+    if adjoint is not None:
+        w = np.zeros(n)
+        w[free], more = solve(np.asarray(adjoint, dtype=float).ravel()[free])
+        iterations += more
+        other = w.reshape(-1, 3)
     dofs = mesh.dofs
     strain = u[dofs] @ strain_matrix(mesh.grid.cell).T  # (e, 6)
     stress = (strain @ elasticity_matrix(case.poisson).T) * scale[:, None]
@@ -191,7 +194,33 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
         von_mises=von_mises(stress),
         iterations=iterations,
         seconds=time.perf_counter() - started,
+        adjoint=other,
     )
+
+
+def _solver(stiffness: sp.csr_matrix, preconditioner: Callable[[np.ndarray], np.ndarray],
+            case: LoadCase) -> Callable[[np.ndarray], tuple[np.ndarray, int]]:
+    """Solve ``stiffness x = rhs`` -> (x, iterations): conjugate gradients with the
+    multigrid, else (a mesh the V-cycle does not suit) with Jacobi; a case that
+    converges with neither is refused (LoadCaseError)."""
+
+    def solve(rhs: np.ndarray) -> tuple[np.ndarray, int]:
+        solved, iterations = conjugate_gradients(
+            lambda x: stiffness @ x, rhs, preconditioner, max_iterations=MG_ITERATIONS
+        )
+        if solved is None:  # a mesh the smoother does not suit: plain Jacobi, slower but sure
+            inverse = 1.0 / stiffness.diagonal()
+            solved, more = conjugate_gradients(lambda x: stiffness @ x, rhs,
+                                               lambda r: inverse * r)
+            iterations += more
+        if solved is None:
+            raise LoadCaseError(
+                f"{case.source}: the analysis did not converge in {iterations} iterations: "
+                "part of the model may hang by a thread; try another mesh size"
+            )
+        return solved, iterations
+
+    return solve
 
 
 def _dot(a: np.ndarray, b: np.ndarray) -> float:

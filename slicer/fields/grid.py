@@ -13,6 +13,7 @@ from scipy import ndimage
 from skimage.measure import find_contours
 
 from slicer.fields.base import LayerContext
+from slicer.fields.density_levels import density_plan
 from slicer.fields.levels import LevelPlan, holes, plan_levels
 from slicer.fields.paths import empty_paths, finish, prepared
 from slicer.settings import SliceSettings
@@ -91,6 +92,7 @@ class _Sampled:
     region_mask: np.ndarray
     contour_mask: np.ndarray
     grad: np.ndarray
+    density: np.ndarray | None = None  # line density asked for, when the field sets one
 
 
 def trace_levels(
@@ -206,6 +208,12 @@ class GridField:
         xx, yy = grid.mesh()
         return np.asarray(self.sample(xx.ravel(), yy.ravel(), ctx), dtype=float).reshape(xx.shape)
 
+    def line_density(self, grid: Grid, ctx: LayerContext) -> np.ndarray | None:
+        """A relative line density (ny, nx) float64 the levels must print (see
+        :func:`slicer.fields.density_levels.density_plan`; the field's values then
+        have unit gradient), or None: levels placed by the field's own spacing."""
+        return None
+
     def reference(self, ctx: LayerContext) -> shapely.Geometry:
         """Where shared levels are fitted: the model's bounding box."""
         return shapely.box(*ctx.bounds)
@@ -264,7 +272,8 @@ class GridField:
         contour_mask = ndimage.binary_dilation(region_mask, iterations=grow)
         contour_mask &= np.isfinite(values)
         grad_y, grad_x = np.gradient(np.where(np.isfinite(values), values, 0.0), grid.cell)
-        return _Sampled(grid, values, region_mask, contour_mask, np.hypot(grad_x, grad_y))
+        return _Sampled(grid, values, region_mask, contour_mask, np.hypot(grad_x, grad_y),
+                        self.line_density(grid, ctx))
 
     def _trace(
         self,
@@ -276,17 +285,21 @@ class GridField:
     ) -> tuple[shapely.Geometry, float]:
         """Paths for one choice of target spacing (and optionally a fixed step),
         with the level step used (inf when the field is flat)."""
-        plan = plan_levels(
-            sampled.grad,
-            sampled.contour_mask,
-            sampled.region_mask & sampled.contour_mask,
-            target,
-            width,
-            sampled.grid.cell,
-            self.gap,
-            densify=self.densify,
-            step=step,
-        )
+        if sampled.density is not None:
+            plan = density_plan(sampled.density, sampled.region_mask & sampled.contour_mask,
+                                target, width, self.gap)
+        else:
+            plan = plan_levels(
+                sampled.grad,
+                sampled.contour_mask,
+                sampled.region_mask & sampled.contour_mask,
+                target,
+                width,
+                sampled.grid.cell,
+                self.gap,
+                densify=self.densify,
+                step=step,
+            )
         if plan is None:
             return empty_paths(), math.inf
         grid = sampled.grid

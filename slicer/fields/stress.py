@@ -12,13 +12,12 @@ from numpy.typing import NDArray
 
 from slicer.fields.base import LayerContext, register
 from slicer.fields.coords import centre
-from slicer.fields.grid import GridField
+from slicer.fields.grid import Grid, GridField
 from slicer.fields.stress_pending import pending, waiting
 from slicer.settings import SettingsError, SliceSettings
 
 if TYPE_CHECKING:
     from slicer.fields.stress_data import StressData
-    from slicer.fields.stress_lines import DensityLines
 
 KEY = "infill.file"
 
@@ -42,9 +41,9 @@ class StressField(GridField):
     lower corner is lined up with the placed model's. Contours crowd where the
     stress is high (down to one line width) and thin out where it is low (up to
     six times the mean spacing). With ``infill.stress = "optimal"`` the file holds
-    an optimised density and the field is that density integrated across Eq. 13's
-    lines instead (:class:`slicer.fields.stress_lines.DensityLines`), so the line
-    density follows the density itself.
+    an optimised density and the field is ``H_lin`` itself, its straight lines
+    thinned by whole octaves where the density is low (:meth:`line_density`), so
+    the line density follows the density itself.
     """
 
     name = "stress"
@@ -148,44 +147,28 @@ class StressField(GridField):
         """Field values at points: ``x``, ``y`` (n,) float64 mm -> (n,) float64."""
         x = np.asarray(x, dtype=float)
         y = np.asarray(y, dtype=float)
-        if self.settings.infill_stress == "optimal" and self.data.on_lattice:
-            return self._density_lines(ctx)(x, y).reshape(x.shape)
-        stress = self.stress(x, y, ctx)  # loads the field first: peak is known after it
-        sigma = np.maximum(np.abs(stress) / self.peak, FLOOR)
         cx, cy = centre(ctx.bounds)
         t = math.radians(self.settings.infill_angle)
         mirror = -1.0 if ctx.index % 2 else 1.0
         linear = (x - cx) * math.sin(t) + (y - cy) * math.cos(t) * mirror
+        if self.settings.infill_stress == "optimal":  # straight lines: line_density spaces them
+            return linear
+        stress = self.stress(x, y, ctx)  # loads the field first: peak is known after it
+        sigma = np.maximum(np.abs(stress) / self.peak, FLOOR)
         field: NDArray[np.float64] = (sigma.reshape(x.shape) * linear).reshape(x.shape)
         return field
 
 
-    def _density_lines(self, ctx: LayerContext) -> DensityLines:
-        """The optimised density's lines on this layer (:class:`DensityLines`): across
-        Eq. 13's direction, as dense as the density, in the bed frame; cached by
-        height and direction (odd and even layers mirror it)."""
-        from slicer.fields.stress_lines import DensityLines
-
-        corner = self.data.lower_corner
-        mid_z = max(ctx.z - 0.5 * self.settings.layer_height, 0.0) + corner[2]
-        mirror = -1.0 if ctx.index % 2 else 1.0
-        key = ("lines", mid_z, mirror, ctx.bounds)
-        with self._loaded:
-            known = self._planes.get(key)
-        if known is None:
-            xs, ys, plane = self._plane(mid_z)
-            xmin, ymin = ctx.bounds[:2]
-            shift = np.array([xmin - corner[0], ymin - corner[1]])  # data frame -> bed
-            t = math.radians(self.settings.infill_angle)
-            rho = np.maximum(np.abs(plane) / self.peak, FLOOR)
-            known = DensityLines(xs + shift[0], ys + shift[1], rho,
-                                 np.array([math.sin(t), math.cos(t) * mirror]),
-                                 np.array(centre(ctx.bounds)))
-            with self._loaded:
-                self._planes[key] = known
-                while len(self._planes) > PLANES_KEPT:
-                    self._planes.pop(next(iter(self._planes)))
-        return known
+    def line_density(self, grid: Grid, ctx: LayerContext) -> np.ndarray | None:
+        """With ``infill.stress = "optimal"``: the optimised density on the grid's nodes
+        (ny, nx), scaled to its peak and floored at 5 %, which the straight lines'
+        spacing follows (:func:`slicer.fields.density_levels.density_plan`); else None."""
+        if self.settings.infill_stress != "optimal":
+            return None
+        xx, yy = grid.mesh()
+        rho = self.stress(xx.ravel(), yy.ravel(), ctx)
+        density: NDArray[np.float64] = np.maximum(np.abs(rho) / self.peak, FLOOR)
+        return density.reshape(xx.shape)
 
 
 def axis_profile(data: StressData) -> tuple[int, np.ndarray, np.ndarray]:
