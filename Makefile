@@ -36,13 +36,14 @@ system-deps:
 run: $(STAMP)
 	$(BIN)/python -m hostd.demo
 
-# mypy runs beside pytest (the suite waits on daemons and ptys more than on the CPU);
-# its report follows the suite's, and either failing fails the target
+# The suite waits on daemons and ptys more than on the CPU: it runs in two workers
+# (a test file stays on one worker, so module fixtures are built once), and mypy
+# beside it; mypy's report follows the suite's, and either failing fails the target
 test: $(STAMP) system-deps
 	$(BIN)/ruff check .
 	$(BIN)/lint-imports
 	@report=$$(mktemp); $(BIN)/mypy > $$report 2>&1 & checker=$$!; \
-	$(BIN)/python -m pytest -q; suite=$$?; \
+	$(BIN)/python -m pytest -q -n 2 --dist loadfile; suite=$$?; \
 	wait $$checker; typed=$$?; cat $$report; rm -f $$report; \
 	[ $$suite -eq 0 ] && [ $$typed -eq 0 ]
 
