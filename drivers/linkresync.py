@@ -81,6 +81,7 @@ class Resync(CoreFields):
         if number >= self.next_number:
             return  # the printer has every line sent: nothing to replay
         self.window.shrink()
+        self._answers_owed = 0  # a line behind them refused: the replay's answers come next
         dropped = self.window.drop_from(number)
         model.replaying(number, len(dropped) - 1, top=self.next_number - 1)
         self.replay_next = number
