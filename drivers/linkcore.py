@@ -26,7 +26,7 @@ from drivers.window import InFlight, SendWindow
 # framed lines whose leading N noise turned into another character (its checksum may be
 # stripped from the echo)
 _UNKNOWN = 'echo:unknown command: "'
-_GARBLED_N = re.compile(r'\s*[^\d\s"](\d+) ')
+_GARBLED_N = re.compile(r'\s*[^\d\s"](\d+)\D')  # (the blank after it may be garbled too)
 
 # most oks awaited for an M110 written several times
 MAX_LATE_OKS = 8
@@ -69,7 +69,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self._emitted_through = 0
         self._waiters: dict[int, int] = {}  # line number -> token of a replayed control line
         self._late_oks = 0  # oks of M110s written again, still to come and not counted
-        self._answers_owed = 0  # answers of probes acknowledged ahead of them, to come
+        self._answers_owed: list[int] = []  # probes acknowledged ahead of their answers
         self.advanced_ok = False
         self.init_resync()
 
@@ -291,7 +291,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.replay_next = None
         self.force_replay = False
         self._late_oks = 0
-        self._answers_owed = 0
+        self._answers_owed = []
         if self.renumber is not None:
             self.renumber.sent = False
             self.renumber.writes = self.renumber.refusals = 0

@@ -38,10 +38,10 @@ class Acknowledging(CoreFields):
             if self._answers_owed:
                 # the answer of a probe acknowledged with the one before it: the printer
                 # has answered up to that probe now, and no line after it
-                self._answers_owed -= 1
+                del self._answers_owed[0]
                 return
-        else:
-            self._answers_owed = 0  # answers come in order: those owed came (or were lost)
+        elif self._answers_owed:
+            self._answers_owed = []  # answers come in order: those owed came (or were lost)
         if not probe_answer and self._late_oks:
             self._late_oks -= 1
             return
@@ -77,7 +77,7 @@ class Acknowledging(CoreFields):
         first = next((k for k, e in enumerate(done) if _is_probe_line((e.command, True))),
                      None)
         if first is not None:
-            self._answers_owed = len(done) - 1 - first
+            self._answers_owed = [e.number for e in done[first + 1:] if e.number is not None]
         return done
 
     def _ack_by_count(self, probe_answer: bool) -> list[InFlight]:
@@ -115,11 +115,11 @@ class Acknowledging(CoreFields):
                 number += 1
             if number >= self.next_number:
                 return self._ack_probe()
-            ahead = 0
+            ahead: list[int] = []
             while number + 1 < self.next_number \
                     and _is_probe_line(history.get(number + 1), internal=True):
                 number += 1
-                ahead += 1
+                ahead.append(number)
             self._answers_owed = ahead
         held = history.get(number)
         if held is None or number >= self.next_number:
