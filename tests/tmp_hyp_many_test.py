@@ -1,0 +1,379 @@
+"""The protocol core on a virtual clock: the resend storm's situation, seeded fault runs,
+interleavings explored by hypothesis. No real time passes and no pty is involved."""
+
+from __future__ import annotations
+
+import itertools
+import math
+import os
+
+import pytest
+from hypothesis import HealthCheck, given, settings
+from hypothesis import strategies as st
+
+from drivers.linkconfig import StreamerConfig
+from drivers.linkcore import LinkCore
+from drivers.linkevents import Acked, LinkState
+from drivers.protocol import frame
+from drivers.simconfig import SimulatorConfig
+from drivers.simlines import ERR_CHECKSUM
+from drivers.simlinkrun import run_core, run_send_and_wait
+from drivers.simvirtual import VirtualPrinter
+
+LINK = StreamerConfig(temperature_interval_s=0, probe_after_s=0.05, probe_retries=1000,
+                      resync_quiet_s=0.01)
+NO_OK_LINK = StreamerConfig(**{**LINK.__dict__, "ok_after_resend": False})
+FAULTS = ("corrupt_rx", "corrupt_tx", "drop_ok", "resend", "refuse", "busy")
+
+
+def spiral(n: int) -> list[str]:
+    """``n`` short G1 moves around a circle (distinct lines, so order is visible)."""
+    return [f"G1 X{100 + 40 * math.cos(0.0075 * i):.3f} Y{100 + 40 * math.sin(0.0075 * i):.3f}"
+            f" E{0.00996 + 1e-5 * (i % 7):.5f}" for i in range(n)]
+
+
+def wire(**kw) -> SimulatorConfig:
+    """A 250000-baud board with 1 ms of latency each way, fast busy and boot."""
+    base = {"baud": 250000, "latency_s": 0.001, "keepalive_s": 0.05, "boot_delay_s": 0.05}
+    return SimulatorConfig(**{**base, **kw})
+
+
+# -- the transcript's situation, line by line -----------------------------------------------
+
+def _connected_core() -> LinkCore:
+    core = LinkCore(LINK)
+    core.begin_connect(0.0)
+    core.feed("start", 0.0)
+    core.begin_handshake(0, keep_history=False, token=1)
+    assert core.next_bytes(0.0) == frame(1, "M110 N0")
+    core.feed("ok", 0.001)
+    core.connected(0.001)
+    return core
+
+
+def _write_all(core: LinkCore, now: float) -> list[int]:
+    numbers = []
+    while (data := core.next_bytes(now)) is not None:
+        numbers.append(int(data.split(b" ", 1)[0][1:]))
+    return numbers
+
+
+def test_a_refusal_of_a_line_the_printer_took_is_answered_once_and_never_feeds_itself():
+    # the transcript: the firmware took 346, then answers "checksum mismatch, Last Line:
+    # 346 / Resend: 347 / ok" while 347 and 348 are on the wire and will be taken too
+    core = _connected_core()
+    for i in range(350):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    t, taken = 0.01, 0
+    # the first 345 lines go through cleanly, one ok each
+    while taken < 345:
+        _write_all(core, t)
+        core.feed("ok", t)
+        taken += 1
+        t += 0.001
+    # numbering: M110 was line 1, so job line k is line k + 1; 346 was just taken
+    _write_all(core, t)
+    on_wire = [n for n in core.window.numbers() if n > 346]
+    assert 346 in core.window.numbers()
+    assert len(on_wire) >= 2
+    core.feed(f"Error:{ERR_CHECKSUM}346", t)
+    core.feed("Resend: 347", t)
+    core.feed("ok", t)
+    replay = _write_all(core, t)
+    assert replay[:1] == [347]  # answered once: 347 again (the window allows no more)
+    # the printer takes 346 and the lines that were on the wire: their oks come; each copy
+    # of a line it holds is refused, naming the last line it holds
+    held = on_wire[-1]
+    for _ in range(1 + len(on_wire)):
+        core.feed("ok", t)
+    # copies of held lines may go out until a refusal says the printer holds them
+    early = replay + _write_all(core, t)
+    copies = [n for n in early if n <= held]
+    later: list[int] = []
+    for _ in copies:
+        core.feed(f"Error:Line Number is not Last Line Number+1, Last Line: {held}", t)
+        core.feed(f"Resend: {held + 1}", t)
+        core.feed("ok", t)
+        later += _write_all(core, t)
+    # from the first of those refusals on, no line the printer holds is written again:
+    # each refusal is answered by nothing, and the stream goes on where the printer is
+    assert [n for n in later if n <= held] == []
+    assert core.stats.lines_resent == len(copies)
+    assert (later or [n for n in early if n > held])[0] == held + 1
+
+
+def test_the_ok_of_a_line_taken_after_a_spurious_refusal_is_its_own_not_a_copys():
+    # the printer takes 3, refuses it spuriously (Last Line 3 / Resend 4), takes 4, refuses
+    # that spuriously too, and only then sends 4's ok: that ok is line 4's, although 4 was
+    # dropped from the window and its copy taken for the refused one. Counted for the copy
+    # of 5 before the printer ran 5, a board reset then would renumber past 5 and skip it
+    core = _connected_core()
+    for i in range(20):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    assert _write_all(core, 0.01) == [1, 2, 3, 4]
+    core.feed("ok", 0.02)
+    core.feed("ok", 0.02)
+    assert _write_all(core, 0.02) == [5, 6]
+    core.feed(f"Error:{ERR_CHECKSUM}3", 0.03)
+    core.feed("Resend: 4", 0.03)
+    core.feed("ok", 0.03)
+    replay = _write_all(core, 0.03)
+    assert replay[:1] == [4]
+    acked = [e.number for e in core.feed("ok", 0.04) if isinstance(e, Acked)]  # 3 ran
+    assert acked == [3]
+    replay += _write_all(core, 0.04)
+    assert 5 in replay
+    core.feed(f"Error:{ERR_CHECKSUM}4", 0.05)
+    core.feed("Resend: 5", 0.05)
+    core.feed("ok", 0.05)
+    acked = [e.number for e in core.feed("ok", 0.06) if isinstance(e, Acked)]  # 4 ran
+    assert acked == [4]
+    assert core.last_acked_number == 4
+
+
+PROBE_ANSWER = "ok T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"
+
+
+def _acked(events) -> list[int]:
+    return [e.number for e in events if isinstance(e, Acked) and e.job]
+
+
+def test_a_probe_acknowledged_with_the_one_before_it_still_owes_its_answer():
+    # the interleaving the hypothesis test found: probes 5 and 6 go out back to back; 5's
+    # answer acknowledges 6 too, job lines 7-10 follow and a probe 11 after silence. 6's
+    # own answer then comes: counted for the first probe from the count on (11), it took
+    # 7-10 as done before the printer ran them, and a board reset renumbered past them
+    core = _connected_core()
+    for i in range(10):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    assert _write_all(core, 0.01) == [1, 2, 3, 4]
+    core.tick(0.07)  # silence: a probe past the window
+    assert _write_all(core, 0.07) == [5]
+    core.tick(0.13)  # still silent: another one, right behind it
+    assert _write_all(core, 0.13) == [6]
+    events = [e for _ in range(4) for e in core.feed("ok", 0.14)]
+    assert _acked(events) == [1, 2, 3, 4]
+    core.feed(PROBE_ANSWER, 0.14)  # 5's answer: 6 is done too (nothing but probes since)
+    assert core.window.numbers() == []
+    assert _write_all(core, 0.14) == [7, 8, 9, 10]
+    core.tick(0.25)
+    assert _write_all(core, 0.25) == [11]
+    assert _acked(core.feed(PROBE_ANSWER, 0.26)) == []  # 6's answer: nothing more is done
+    assert core.window.numbers() == [7, 8, 9, 10, 11]
+    core.feed("start", 0.27)  # the board resets before running 7
+    core.tick(0.30)
+    assert core.next_bytes(0.30) == frame(6, "M110 N6")
+    core.feed("ok", 0.31)
+    assert _write_all(core, 0.31)[:1] == [7]  # 7-10 are replayed, none skipped
+    # the answers owed are answers to probes: a plain ok is never taken for one
+    assert _acked(core.feed("ok", 0.32)) == [7]
+
+
+def test_an_m110_refused_with_its_resend_lost_still_counts_as_answered():
+    # a reset; the M110 is refused (Error, the Resend garbled beyond reading, no ok after
+    # it on this firmware), written again after silence and taken: its first write was
+    # answered, so no ok is still to come for it, and the next ok is the first line's
+    core = _connected_core()
+    core.config = NO_OK_LINK
+    for i in range(10):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    assert _write_all(core, 0.01) == [1, 2, 3, 4]
+    for _ in range(4):
+        core.feed("ok", 0.02)
+    core.feed("start", 0.03)
+    core.tick(0.05)
+    assert core.next_bytes(0.05) == frame(4, "M110 N4")
+    core.feed(f"Error:{ERR_CHECKSUM}0", 0.06)
+    core.feed("Resend: \x11", 0.06)
+    core.tick(1.2)  # no answer: written again
+    assert core.next_bytes(1.2) == frame(4, "M110 N4")
+    core.feed("ok", 1.21)
+    assert _write_all(core, 1.21)[:1] == [5]
+    assert _acked(core.feed("ok", 1.22)) == [5]  # not taken for a second answer to M110
+
+
+def test_an_unknown_command_echo_garbled_still_marks_its_ok_as_nobodys():
+    # line 2's leading N garbled: Marlin runs "F2 ..." as an unknown command and answers
+    # ok; the echo saying so has a character changed too. That ok is no line's
+    for echo in ('echo:Tnknown command: "F2 G1 X1"', 'ecxo:Unknown command: "F2 G1 X1"'):
+        core = _connected_core()
+        for i in range(10):
+            core.queue_job(f"G1 X{i}", 10 + i)
+        assert _write_all(core, 0.01) == [1, 2, 3, 4]
+        assert _acked(core.feed("ok", 0.02)) == [1]
+        core.feed(echo, 0.02)
+        assert _acked(core.feed("ok", 0.02)) == []
+        assert core.last_acked_number == 1
+
+
+class SpuriousRefusals(VirtualPrinter):
+    """Refuses, in Marlin's form, lines it has just taken (``at``): the transcript's case."""
+
+    at: frozenset[int] = frozenset()
+
+    def _process_line(self, raw: bytes) -> None:
+        before = self.last_n
+        super()._process_line(raw)
+        if self.last_n != before and self.last_n in self.at:
+            self.emit(f"Error:{ERR_CHECKSUM}{self.last_n}")
+            self.emit(f"Resend: {self.last_n + 1}")
+            if self.config.ok_after_resend:
+                self._ok()
+
+
+@pytest.mark.parametrize("ok_after_resend", [True, False])
+def test_the_transcripts_situation_converges_exactly_once(ok_after_resend):
+    lines = spiral(3000)
+    refusals = frozenset(range(347, 3000, 53))
+
+    class Printer(SpuriousRefusals):
+        at = refusals
+
+    link = LINK if ok_after_resend else NO_OK_LINK
+    run = run_core(lines, wire(ok_after_resend=ok_after_resend), link, printer_class=Printer)
+    assert run.executed == lines
+    assert run.acked == lines
+    # no storm: each spurious refusal costs a few lines at most (the storm wrote 15 times
+    # what was needed)
+    needed = sum(len(frame(i + 2, line)) for i, line in enumerate(lines))
+    assert run.bytes_written < needed * 1.1
+    assert run.stats.lines_resent <= 4 * len(refusals)
+
+
+# -- seeded fault runs ----------------------------------------------------------------------
+
+def _faulty(lines: int, seed: int, resets: bool) -> None:
+    kinds = [k for k in FAULTS if not (resets and k == "drop_ok")]
+    if resets:
+        # a reset after a lost ok, before a probe's answer set the count right, cannot be
+        # told apart by any host from a reset before that line ran
+        kinds.append("reset")
+    job = spiral(lines)
+    run = run_core(job, wire(seed=seed, **{f"p_{k}": 0.01 for k in kinds}), LINK)
+    assert run.executed == job
+    assert run.acked == job
+    fired = run.printer.faults.fired
+    assert all(fired[k] >= lines // 400 for k in kinds), fired
+
+
+def test_100k_lines_with_every_fault_kind_exactly_once():
+    _faulty(100_000, seed=41, resets=False)
+
+
+def test_20k_lines_with_resets_and_every_fault_kind_but_lost_oks_exactly_once():
+    _faulty(20_000, seed=47, resets=True)
+
+
+@pytest.mark.slow
+@pytest.mark.skipif(not os.environ.get("HOSTD_SLOW_TESTS"),
+                    reason="a million lines: set HOSTD_SLOW_TESTS=1")
+def test_a_million_lines_with_every_fault_kind_exactly_once():
+    _faulty(1_000_000, seed=43, resets=False)
+
+
+@pytest.mark.parametrize("p", [0.02, 0.05, 0.10])
+@pytest.mark.parametrize("form", ["refuse", "resend"])
+@pytest.mark.parametrize("ok_after_resend", [True, False])
+def test_spurious_refusals_at_any_rate_stay_exactly_once(p, form, ok_after_resend):
+    lines = spiral(4000)
+    sim = wire(seed=7, ok_after_resend=ok_after_resend, **{f"p_{form}": p})
+    run = run_core(lines, sim, LINK if ok_after_resend else NO_OK_LINK)
+    assert run.executed == lines
+    assert run.acked == lines
+    baseline = run_send_and_wait(lines, sim)
+    assert baseline.executed == lines
+
+
+# -- interleavings --------------------------------------------------------------------------
+
+# 40 new examples on every run (a seeded loop over 3,000 such runs: docs/streaming.md)
+@settings(max_examples=int(os.environ.get("HYP_N", "40")), deadline=None, suppress_health_check=[HealthCheck.too_slow])
+@given(data=st.data(), seed=st.integers(0, 10_000), ok_after_resend=st.booleans(),
+       p=st.sampled_from([0.0, 0.03, 0.08]))
+def test_bytes_split_anywhere_and_replies_delayed_anywhere(data, seed, ok_after_resend, p):
+    lines = spiral(120)
+    kinds = ("corrupt_rx", "corrupt_tx", "resend", "refuse", "busy", "reset")
+    sim = wire(seed=seed, ok_after_resend=ok_after_resend, **{f"p_{k}": p for k in kinds})
+
+    def split(chunk: bytes) -> list[bytes]:
+        cuts = sorted(data.draw(st.lists(st.integers(1, len(chunk) - 1), max_size=3),
+                               label="cuts"))
+        edges = [0, *cuts, len(chunk)]
+        return [chunk[a:b] for a, b in itertools.pairwise(edges) if b > a]
+
+    def delay(_size: int) -> float:
+        return data.draw(st.sampled_from([0.0, 0.0, 0.0002, 0.001, 0.004]), label="delay")
+
+    def hook(printer: VirtualPrinter) -> None:
+        printer.split = split
+        printer.to_host.delay = delay
+
+    link = LINK if ok_after_resend else NO_OK_LINK
+    run = run_core(lines, sim, link, printer_hook=hook, max_seconds=600)
+    assert _once_but_boot_fragments(run.executed, run.printer.unnumbered) == lines
+    assert run.acked == lines
+
+
+def _once_but_boot_fragments(executed: list[str], unnumbered: list[str]) -> list[str]:
+    """``executed`` less the first run of each job line a fragment ran too: the rest of a
+    line whose first bytes (its ``N``) a reset's boot swallowed runs unnumbered, and no
+    host can tell which line that was (docs/streaming.md); about one run in 400 at 8 %."""
+    out = list(executed)
+    for command in unnumbered:
+        if out.count(command) > 1:
+            out.remove(command)
+    return out
+
+
+# -- the core as a state machine ------------------------------------------------------------
+
+def test_the_state_is_an_explicit_enum_and_halts_on_kill():
+    core = _connected_core()
+    assert core.state is LinkState.READY
+    assert core.state == "ready"
+    core.queue_job("G1 X1", 5)
+    _write_all(core, 0.01)
+    events = core.feed("Error:Printer halted. kill() called!", 0.02)
+    assert core.state is LinkState.HALTED
+    assert not core.alive()
+    assert core.next_bytes(0.03) is None
+    assert any(not isinstance(e, Acked) for e in events)
+
+
+def test_the_window_shrinks_on_refusals_and_grows_back_on_clean_oks():
+    core = _connected_core()
+    for i in range(40):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    first = _write_all(core, 0.01)
+    assert len(first) == core.window.max_lines  # short lines: the line limit binds
+    core.feed(f"Error:{ERR_CHECKSUM}{first[0] - 1}", 0.02)
+    core.feed(f"Resend: {first[0]}", 0.02)
+    core.feed("ok", 0.02)
+    assert core.window.limit < core.window.max_lines
+    replay = _write_all(core, 0.02)
+    assert len(replay) == core.window.limit
+    t = 0.03
+    for _ in range(30):
+        core.feed("ok", t)
+        _write_all(core, t)
+        t += 0.001
+    assert core.window.limit == core.window.max_lines
+
+
+def test_the_core_does_no_io_and_reads_no_clock():
+    import ast
+    from pathlib import Path
+
+    root = Path(__file__).resolve().parent.parent / "drivers"
+    forbidden = {"asyncio", "serial", "threading", "time", "os", "select", "socket"}
+    for name in ("linkcore", "linkoks", "linkwrite", "linkresync", "linkwatch", "linkmodel",
+                 "linkevents", "linkconfig", "linkprofile", "window", "resend", "responses",
+                 "protocol"):
+        tree = ast.parse((root / f"{name}.py").read_text(encoding="utf-8"))
+        imported = set()
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                imported.update(alias.name.split(".")[0] for alias in node.names)
+            elif isinstance(node, ast.ImportFrom) and node.module:
+                imported.add(node.module.split(".")[0])
+        assert not imported & forbidden, (name, imported & forbidden)
