@@ -18,13 +18,15 @@ from drivers.linkoks import Acknowledging
 from drivers.linkresync import Resync
 from drivers.linkwatch import Watching
 from drivers.linkwrite import Control, Renumber, Writing
-from drivers.resend import recover
+from drivers.resend import edit_distance, recover
 from drivers.responses import Response, parse_response
 from drivers.window import InFlight, SendWindow
 
-# the echo of one of our framed lines whose leading N noise turned into another character:
-# the printer ran it as an unknown command (its checksum may be stripped from the echo)
-_GARBLED_N = re.compile(r'unknown command:\s*"?[^\d\s"](\d+) ', re.IGNORECASE)
+# Marlin's echo of a line it ran as an unknown command, and the rest of it for one of our
+# framed lines whose leading N noise turned into another character (its checksum may be
+# stripped from the echo)
+_UNKNOWN = 'echo:unknown command: "'
+_GARBLED_N = re.compile(r'\s*[^\d\s"](\d+)\D')  # (the blank after it may be garbled too)
 
 # most oks awaited for an M110 written several times
 MAX_LATE_OKS = 8
@@ -67,6 +69,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self._emitted_through = 0
         self._waiters: dict[int, int] = {}  # line number -> token of a replayed control line
         self._late_oks = 0  # oks of M110s written again, still to come and not counted
+        self._answers_owed: list[int] = []  # probes acknowledged ahead of their answers
         self.advanced_ok = False
         self.init_resync()
 
@@ -148,11 +151,21 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         """Act on one classified response."""
         kind = response.kind
         if kind == "other":
-            return  # unreadable noise (a Resend garbled beyond repair): keep what came before
+            # unreadable noise (a Resend garbled beyond repair): keep what came before;
+            # an unknown command's echo with its "echo:" garbled still marks its ok
+            self._on_echo(response)
+            return
         after_resend = self._expect_resend_ok
         self._expect_resend_ok = False
         error_before = self._last_error
         self._last_error = None
+        renumber = self.renumber
+        if error_before is not None and renumber is not None and renumber.writes and (
+                kind == "error" or (kind == "ok" and not self.config.ok_after_resend)):
+            # a refusal whose Resend was lost to noise, the next answer come instead: one
+            # write of the M110 answered (an earlier one: nothing else answers before the
+            # silence that writes it again), so one ok fewer is still to come
+            renumber.refusals += 1
         if kind == "ok":
             if response.temperatures:
                 self._events.append(Temperature(response))
@@ -180,9 +193,15 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             self._on_start()
 
     def _on_echo(self, response: Response) -> None:
-        garbled = _GARBLED_N.match(response.text)
+        raw = response.raw
+        head = raw[: len(_UNKNOWN)]
+        if len(head) < len(_UNKNOWN) or (head[5] not in "uU" and head[:5] != "echo:"):
+            return  # (fast path: most echoes and noise are nothing of the kind)
+        if edit_distance(head.lower(), _UNKNOWN) > 1:
+            return  # one character changed by noise is still the same message
+        garbled = _GARBLED_N.match(raw, len(_UNKNOWN))
         if garbled and int(garbled.group(1)) in self.history \
-                and not response.text[garbled.end():].startswith("M110"):
+                and not raw[garbled.end():].startswith("M110"):
             # a line of ours whose leading N was garbled ran as an unknown command; its ok
             # belongs to no line of ours (the line is refused by number later). An M110 is
             # left alone: renumbering counts one ok per write of it, and one that did not
@@ -272,6 +291,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.replay_next = None
         self.force_replay = False
         self._late_oks = 0
+        self._answers_owed = []
         if self.renumber is not None:
             self.renumber.sent = False
             self.renumber.writes = self.renumber.refusals = 0

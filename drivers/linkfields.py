@@ -42,6 +42,7 @@ class CoreFields:
     last_poll: float
     probes_unanswered: int
     reconnected_at: float
+    _answers_owed: list[int]  # probes acknowledged ahead of their answers, still to come
     _events: list[Event]
 
     # methods of the core or of another mixin

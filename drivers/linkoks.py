@@ -35,7 +35,14 @@ class Acknowledging(CoreFields):
         probe_answer = bool(response.temperatures)
         if probe_answer:
             self._late_oks = 0  # a probe's answer: any late ok came before it
-        elif self._late_oks:
+            if self._answers_owed:
+                # the answer of a probe acknowledged with the one before it: the printer
+                # has answered up to that probe now, and no line after it
+                del self._answers_owed[0]
+                return
+        elif self._answers_owed:
+            self._answers_owed = []  # answers come in order: those owed came (or were lost)
+        if not probe_answer and self._late_oks:
             self._late_oks -= 1
             return
         if response.queue_free is not None:
@@ -49,7 +56,7 @@ class Acknowledging(CoreFields):
         # acknowledges (firmwares print the last line received or the one executed)
         if self.renumber is not None:
             # the M110 numbers itself apart (a reset's M110 reuses the last line's number)
-            done = self.window.ack_probe() if probe_answer else self.window.ack_one()
+            done = self._ack_probe() if probe_answer else self.window.ack_one()
         else:
             done = self._ack_by_count(probe_answer)
         if not done:
@@ -63,10 +70,26 @@ class Acknowledging(CoreFields):
         for entry in done:
             self.acknowledged(entry)
 
+    def _ack_probe(self) -> list[InFlight]:
+        """An ``ok T:`` in the window's order: the oldest ``M105`` in flight, with the
+        probes right behind it, whose own answers are then owed (see ``_ack_by_count``)."""
+        done = self.window.ack_probe()
+        first = next((k for k, e in enumerate(done) if _is_probe_line((e.command, True))),
+                     None)
+        if first is not None:
+            self._answers_owed = [e.number for e in done[first + 1:] if e.number is not None]
+        return done
+
     def _ack_by_count(self, probe_answer: bool) -> list[InFlight]:
         """A plain ``ok`` is the line's after the last one acknowledged; an ``ok T:`` the
-        first ``M105`` from there (with the probes right behind it, whose answers then
-        acknowledge nothing more).
+        first ``M105`` from there, with the probes right behind it.
+
+        The probes right behind it are done as far as the job goes (nothing but probes
+        since: a pile of probes whose answers were lost resyncs at once), but the printer
+        has not answered them yet: their answers are owed (``_answers_owed``) and come
+        before any other, each acknowledging nothing. Counted for lines after them, each
+        would put the count one line ahead of what the printer answered, and a reset
+        would then renumber past lines never run.
 
         Marlin takes numbered lines strictly in sequence and answers each with one ok, so
         the oks name consecutive lines whatever copies were written. A line dropped from
@@ -83,7 +106,7 @@ class Acknowledging(CoreFields):
             # the port was cut: oks of lines run meanwhile are lost, so the count is behind
             # by an unknown number; the window's order decides (refusals naming the last
             # line held drop the copies of those lines) until it meets the count again
-            done = self.window.ack_probe() if probe_answer else self.window.ack_one()
+            done = self._ack_probe() if probe_answer else self.window.ack_one()
             if any(e.number is not None and e.number >= number for e in done):
                 self._oks_lost = False
             return done
@@ -91,13 +114,16 @@ class Acknowledging(CoreFields):
             while number < self.next_number and not _is_probe_line(history.get(number)):
                 number += 1
             if number >= self.next_number:
-                return self.window.ack_probe()
+                return self._ack_probe()
+            ahead: list[int] = []
             while number + 1 < self.next_number \
                     and _is_probe_line(history.get(number + 1), internal=True):
                 number += 1
+                ahead.append(number)
+            self._answers_owed = ahead
         held = history.get(number)
         if held is None or number >= self.next_number:
-            return self.window.ack_probe() if probe_answer else self.window.ack_one()
+            return self._ack_probe() if probe_answer else self.window.ack_one()
         done = self.window.ack_upto(number)
         if len(done) == 1 and done[0].number == number:
             return done  # the usual case: the oldest line in flight, alone

@@ -60,6 +60,7 @@ class Resync(CoreFields):
             # none from it, so take the acknowledgements back and replay; a renumbering
             # to the last line acknowledged would skip the lines it never took
             self.last_acked_number = number - 1
+            self._answers_owed = [n for n in self._answers_owed if n < number]
         model = self.model
         if error_line is not None:
             model.holds(error_line)
@@ -81,6 +82,8 @@ class Resync(CoreFields):
         if number >= self.next_number:
             return  # the printer has every line sent: nothing to replay
         self.window.shrink()
+        # probes from the refused line on are replayed: their copies' answers are counted
+        self._answers_owed = [n for n in self._answers_owed if n < number]
         dropped = self.window.drop_from(number)
         model.replaying(number, len(dropped) - 1, top=self.next_number - 1)
         self.replay_next = number

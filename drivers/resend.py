@@ -104,7 +104,9 @@ def recover(response: Response) -> Response:
 def _recover_line_error(response: Response) -> Response:
     """An ``Error:`` line whose text differs from a line-error message in one character,
     read as that message; any other error as it is."""
-    body = response.text
+    raw = response.raw
+    # unstripped: a first character turned into a blank by noise keeps its place
+    body = raw[6:] if raw[:6].lower() == "error:" else response.text
     for message in _LINE_ERRORS:
         head = body[: len(message)]
         if len(head) == len(message) and edit_distance(head.lower(), message.lower()) == 1:

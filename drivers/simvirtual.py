@@ -147,6 +147,9 @@ class VirtualPrinter:
         self.to_host = Lane(clock, rate, config.latency_s, self._host_bytes)
         self.split: Callable[[bytes], list[bytes]] | None = None
         self.executed: list[str] = []
+        # commands run without a line number: from a host that numbers every line, the
+        # rest of a line whose first bytes were lost while the board booted after a reset
+        self.unnumbered: list[str] = []
         self.last_n = 0
         self.errors = 0
         self.resets = 0
@@ -288,7 +291,7 @@ class VirtualPrinter:
     def _finish(self, boot: int) -> None:
         if boot != self._boot_id:
             return  # a reset cut the command short
-        command, _ = self._queue.popleft()
+        command, number = self._queue.popleft()
         self._running = False
         code = command.split(" ", 1)[0]
         known = _KNOWN.get(code)
@@ -296,6 +299,8 @@ class VirtualPrinter:
             known = _known(code)
         if known:
             self.executed.append(command)  # an unknown command runs as nothing, as in Marlin
+            if number is None:
+                self.unnumbered.append(command)
         if code == "M105":
             self._ok(TEMPERATURES)
         elif code == "M115":

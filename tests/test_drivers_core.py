@@ -131,6 +131,81 @@ def test_the_ok_of_a_line_taken_after_a_spurious_refusal_is_its_own_not_a_copys(
     assert core.last_acked_number == 4
 
 
+PROBE_ANSWER = "ok T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"
+
+
+def _acked(events) -> list[int]:
+    return [e.number for e in events if isinstance(e, Acked) and e.job]
+
+
+def test_a_probe_acknowledged_with_the_one_before_it_still_owes_its_answer():
+    # the interleaving the hypothesis test found: probes 5 and 6 go out back to back; 5's
+    # answer acknowledges 6 too, job lines 7-10 follow and a probe 11 after silence. 6's
+    # own answer then comes: counted for the first probe from the count on (11), it took
+    # 7-10 as done before the printer ran them, and a board reset renumbered past them
+    core = _connected_core()
+    for i in range(10):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    assert _write_all(core, 0.01) == [1, 2, 3, 4]
+    core.tick(0.07)  # silence: a probe past the window
+    assert _write_all(core, 0.07) == [5]
+    core.tick(0.13)  # still silent: another one, right behind it
+    assert _write_all(core, 0.13) == [6]
+    events = [e for _ in range(4) for e in core.feed("ok", 0.14)]
+    assert _acked(events) == [1, 2, 3, 4]
+    core.feed(PROBE_ANSWER, 0.14)  # 5's answer: 6 is done too (nothing but probes since)
+    assert core.window.numbers() == []
+    assert _write_all(core, 0.14) == [7, 8, 9, 10]
+    core.tick(0.25)
+    assert _write_all(core, 0.25) == [11]
+    assert _acked(core.feed(PROBE_ANSWER, 0.26)) == []  # 6's answer: nothing more is done
+    assert core.window.numbers() == [7, 8, 9, 10, 11]
+    core.feed("start", 0.27)  # the board resets before running 7
+    core.tick(0.30)
+    assert core.next_bytes(0.30) == frame(6, "M110 N6")
+    core.feed("ok", 0.31)
+    assert _write_all(core, 0.31)[:1] == [7]  # 7-10 are replayed, none skipped
+    # the answers owed are answers to probes: a plain ok is never taken for one
+    assert _acked(core.feed("ok", 0.32)) == [7]
+
+
+def test_an_m110_refused_with_its_resend_lost_still_counts_as_answered():
+    # a reset; the M110 is refused (Error, the Resend garbled beyond reading, no ok after
+    # it on this firmware), written again after silence and taken: its first write was
+    # answered, so no ok is still to come for it, and the next ok is the first line's
+    core = _connected_core()
+    core.config = NO_OK_LINK
+    for i in range(10):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    assert _write_all(core, 0.01) == [1, 2, 3, 4]
+    for _ in range(4):
+        core.feed("ok", 0.02)
+    core.feed("start", 0.03)
+    core.tick(0.05)
+    assert core.next_bytes(0.05) == frame(4, "M110 N4")
+    core.feed(f"Error:{ERR_CHECKSUM}0", 0.06)
+    core.feed("Resend: \x11", 0.06)
+    core.tick(1.2)  # no answer: written again
+    assert core.next_bytes(1.2) == frame(4, "M110 N4")
+    core.feed("ok", 1.21)
+    assert _write_all(core, 1.21)[:1] == [5]
+    assert _acked(core.feed("ok", 1.22)) == [5]  # not taken for a second answer to M110
+
+
+def test_an_unknown_command_echo_garbled_still_marks_its_ok_as_nobodys():
+    # line 2's leading N garbled: Marlin runs "F2 ..." as an unknown command and answers
+    # ok; the echo saying so has a character changed too. That ok is no line's
+    for echo in ('echo:Tnknown command: "F2 G1 X1"', 'ecxo:Unknown command: "F2 G1 X1"'):
+        core = _connected_core()
+        for i in range(10):
+            core.queue_job(f"G1 X{i}", 10 + i)
+        assert _write_all(core, 0.01) == [1, 2, 3, 4]
+        assert _acked(core.feed("ok", 0.02)) == [1]
+        core.feed(echo, 0.02)
+        assert _acked(core.feed("ok", 0.02)) == []
+        assert core.last_acked_number == 1
+
+
 class SpuriousRefusals(VirtualPrinter):
     """Refuses, in Marlin's form, lines it has just taken (``at``): the transcript's case."""
 
@@ -211,11 +286,8 @@ def test_spurious_refusals_at_any_rate_stay_exactly_once(p, form, ok_after_resen
 
 # -- interleavings --------------------------------------------------------------------------
 
-# derandomized: the same 40 examples on every run, so the suite is repeatable. A known
-# failure outside them (docs/streaming.md, "Known issue"): with resets at 8 %, a probe's
-# answer counted for the probe right behind it puts the ok count one line ahead
-@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow],
-          derandomize=True, database=None)
+# 40 new examples on every run (a seeded loop over 3,000 such runs: docs/streaming.md)
+@settings(max_examples=40, deadline=None, suppress_health_check=[HealthCheck.too_slow])
 @given(data=st.data(), seed=st.integers(0, 10_000), ok_after_resend=st.booleans(),
        p=st.sampled_from([0.0, 0.03, 0.08]))
 def test_bytes_split_anywhere_and_replies_delayed_anywhere(data, seed, ok_after_resend, p):
@@ -238,8 +310,19 @@ def test_bytes_split_anywhere_and_replies_delayed_anywhere(data, seed, ok_after_
 
     link = LINK if ok_after_resend else NO_OK_LINK
     run = run_core(lines, sim, link, printer_hook=hook, max_seconds=600)
-    assert run.executed == lines
+    assert _once_but_boot_fragments(run.executed, run.printer.unnumbered) == lines
     assert run.acked == lines
+
+
+def _once_but_boot_fragments(executed: list[str], unnumbered: list[str]) -> list[str]:
+    """``executed`` less the first run of each job line a fragment ran too: the rest of a
+    line whose first bytes (its ``N``) a reset's boot swallowed runs unnumbered, and no
+    host can tell which line that was (docs/streaming.md); about one run in 400 at 8 %."""
+    out = list(executed)
+    for command in unnumbered:
+        if out.count(command) > 1:
+            out.remove(command)
+    return out
 
 
 # -- the core as a state machine ------------------------------------------------------------
