@@ -26,7 +26,7 @@ from drivers.streamer import (
 )
 from drivers.transport import open_transport
 
-INTERNAL = ("M110", "M115", "M155", "M105")
+INTERNAL = ("M110", "M115", "M503", "M155", "M105")
 
 # short timeouts so that stalls cost milliseconds with an instant printer; many probes
 # before giving up, so that a loaded machine (the simulator starved of CPU) is not "silent"
