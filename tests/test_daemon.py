@@ -17,6 +17,7 @@ from drivers.protocol import strip_comment
 from hostd.api import ControlClient, ControlError, Snapshot
 from hostd.jobstore import JobStore
 from slicer.arcs import for_printer
+from slicer.entry import entered, last_xy
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -118,10 +119,14 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     plan = SlicePlan.from_file(model, base)
     dense = plan.with_settings(SliceSettings.from_mapping({"infill.density": 0.6}, base=base))
     expected = commands(plan.start_gcode())
+    at = None  # each layer's first travel goes around body 1 from where the last one ended
     for index in range(plan.layer_count):
         source = dense if index >= first_retuned else plan
         left_out = frozenset({1}) if index >= first_cancelled else frozenset()
-        expected += commands(source.layer_gcode(index, left_out))
+        lines, _ = entered(source.layer_gcode(index, left_out), at,
+                           source.entry_region(index, left_out), base.acceleration)
+        at = last_xy(lines)
+        expected += commands(lines)
     expected += commands(dense.end_gcode())
     assert commands_of(hostd.jobs / "done" / "pair.gcode") == expected
     # the changes really changed the G-code

@@ -120,7 +120,8 @@ def test_missing_fields_stay_unknown_and_other_firmware_reports_nothing() -> Non
     assert partial.print_acceleration is None
     assert partial.printing_acceleration() == 800.0  # the axis limit alone
     only = parse("echo:  M204 P1500\nok")
-    assert only.printing_acceleration() == 1500.0 and only.max_acceleration == {}
+    assert only.printing_acceleration() == 1500.0
+    assert only.max_acceleration == {}
     for text in ('// Unknown command:"M503"\nok', 'echo:Unknown command: "M503"\nok', "ok", "",
                  "echo:  M204 Pnan R-5 T\nM2010 X5\nM20 X1\nok"):
         motion = parse(text)
@@ -143,7 +144,8 @@ def test_the_simulated_printer_reports_its_planner_settings_and_the_link_reads_t
             return link, list(sim.executed)
 
     link, executed = asyncio.run(connect(read=False))
-    assert "M503" not in executed and not link.motion.reported
+    assert "M503" not in executed
+    assert not link.motion.reported
     link, executed = asyncio.run(connect(read=True))
     assert "M503" in executed
     assert link.motion.printing_acceleration() == 1700.0
