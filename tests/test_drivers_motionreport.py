@@ -5,6 +5,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
+from test_drivers_streamer import INTERNAL, scripted, stream_scripted
 
 from drivers.linkconfig import StreamerConfig
 from drivers.motionreport import parse_motion_report, report_lines
@@ -151,3 +152,14 @@ def test_the_simulated_printer_reports_its_planner_settings_and_the_link_reads_t
     assert link.motion.printing_acceleration() == 1700.0
     assert link.motion.junction_deviation == pytest.approx(0.013)
     assert link.motion.max_feedrate == {"X": 300.0, "Y": 300.0, "Z": 5.0, "E": 25.0}
+
+
+def test_a_printer_that_never_answers_m503_still_connects_with_nothing_learned() -> None:
+    def silent(number: int | None, command: str) -> list[str] | None:
+        return [] if command == "M503" else None  # dropped: no reply, no ok
+
+    with scripted(silent) as printer:
+        link = asyncio.run(stream_scripted(printer, ["G1 X1 F600", "G1 X2"]))
+        executed = [c for c in printer.executed if c.split()[0] not in INTERNAL]
+    assert not link.motion.reported
+    assert executed == ["G1 X1 F600", "G1 X2"]
