@@ -11,7 +11,13 @@ when its last line is, and only the layers the daemon would have sliced by then
 (``--lookahead`` past the one being sent) have the slicer's estimate; the others are
 guessed from the model's geometry. Nothing depends on the machine's load.
 
-    .venv/bin/python bench/eta.py [--plot docs/eta_error.png] [--set KEY=VALUE ...] [MODEL ...]
+The slicing settings are the benchmark's with the acceleration the daemon would learn
+from the printer: the simulated Marlin's ``M503`` answer (``--printer-acceleration``,
+3000 mm/s² as Marlin's default) read as the link reads it, unless ``--set
+acceleration=...`` chooses one, as ``[slicing]`` would.
+
+    .venv/bin/python bench/eta.py [--plot docs/eta_error.png] [--set KEY=VALUE ...]
+        [--printer-acceleration A] [MODEL ...]
 """
 
 from __future__ import annotations
@@ -27,8 +33,13 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.slice_vs_peers import OUR_SETTINGS
 from drivers.feedsim import simulate_feed
+from drivers.motionreport import parse_motion_report, report_lines
+from drivers.planner import PlannerSettings
 from drivers.protocol import strip_comment
+from drivers.simconfig import SimulatorConfig
+from hostd.config import config_from_mapping
 from hostd.eta import EtaModel
+from hostd.printermotion import with_printer_motion
 from hostd.schedule import LayerSchedule
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings, parse_assignment
@@ -46,7 +57,7 @@ def model_path(name: str) -> Path:
     return shared if shared.exists() else ROOT / "tests" / "data" / name
 
 
-def printed(plan: SlicePlan) -> tuple[list, float, np.ndarray, float]:
+def printed(plan: SlicePlan, printer: PlannerSettings) -> tuple[list, float, np.ndarray, float]:
     """Slice every layer and print the job on the virtual clock: (each layer's LayerCode,
     when the start block was acknowledged, (layers,) when each layer's last line was,
     when the print ended), seconds."""
@@ -59,15 +70,16 @@ def printed(plan: SlicePlan) -> tuple[list, float, np.ndarray, float]:
         ends.append(len(lines))
     lines += [c for c in plan.end_gcode() if strip_comment(c)]
     acks: list[float] = []
-    result = simulate_feed(lines, 0, acks=acks)
+    result = simulate_feed(lines, 0, acks=acks, settings=printer)
     ack = np.array(acks)
     start = float(ack[started - 1]) if started else 0.0
     return codes, start, ack[np.array(ends) - 1], result.print_s
 
 
-def replay(plan: SlicePlan, settings: SliceSettings, lookahead: int) -> dict[str, np.ndarray]:
+def replay(plan: SlicePlan, settings: SliceSettings, lookahead: int,
+           printer: PlannerSettings) -> dict[str, np.ndarray]:
     """The ETAs at each layer's completion, and the truth; see the module docstring."""
-    codes, start, done, end = printed(plan)
+    codes, start, done, end = printed(plan, printer)
     n = plan.layer_count
     schedule = LayerSchedule(plan, settings)
     eta = EtaModel(schedule, n, 0)
@@ -142,19 +154,26 @@ def main() -> None:
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="a slicing setting on top of the benchmark's (repeatable)")
     parser.add_argument("--lookahead", type=int, default=4, help="layers sliced ahead")
+    parser.add_argument("--printer-acceleration", type=float, default=3000.0,
+                        help="the simulated printer's acceleration, mm/s² (its M503)")
     parser.add_argument("models", nargs="*", default=list(MODELS))
     args = parser.parse_args()
-    settings = SliceSettings.from_mapping(
-        dict(parse_assignment(kv) for kv in (*OUR_SETTINGS, *args.set)))
+    mapping = dict(parse_assignment(kv) for kv in (*OUR_SETTINGS, *args.set))
+    printer = SimulatorConfig(acceleration=args.printer_acceleration).planner()
+    motion = parse_motion_report(report_lines(printer))  # what the daemon reads at connect
+    config = config_from_mapping({"slicing": mapping}, ROOT)
+    settings = with_printer_motion(config, mapping, SliceSettings.from_mapping(mapping), motion)
     results = {}
-    print(f"settings: benchmark's + {args.set or 'nothing'}; lookahead {args.lookahead}")
+    print(f"settings: benchmark's + {args.set or 'nothing'}; lookahead {args.lookahead}; "
+          f"printer acceleration {args.printer_acceleration:g} mm/s², slicer's "
+          f"{settings.acceleration:g} mm/s²")
     print(f"{'model':20} {'layers':>6} {'print s':>8} {'slicer s':>8} {'run s':>6}   "
           "max |error| from 10 % on while a minute or more is left: refit / slicer / "
           "mean layer; the refit's largest error in the last minute")
     for name in args.models:
         began = time.monotonic()
         plan = SlicePlan.from_file(model_path(name), settings, BED)
-        data = replay(plan, settings, args.lookahead)
+        data = replay(plan, settings, args.lookahead, printer)
         results[name] = data
         tail = (data["progress"] >= 0.1) & (data["actual"] >= LAST_MINUTE)
         cells = [f"{np.nanmax(np.abs(data[key][tail])) * 100:5.1f} %" for key in COLOURS]

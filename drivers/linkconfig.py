@@ -59,6 +59,8 @@ class StreamerConfig:
     - ``reconnect_attempts`` / ``reconnect_delay_s``: after the port is lost.
     - ``firmware_defaults``: at connect, the firmware's name and ``M115`` capabilities
       choose defaults for the settings not in ``explicit`` (:mod:`drivers.linkprofile`).
+    - ``read_motion``: at connect, ``M503`` asks the printer for its motion settings
+      (accelerations, maximum feedrates, junction deviation: :mod:`drivers.motionreport`).
     - ``explicit``: settings the user chose (``[printer.link]``); never overridden.
     """
 
@@ -81,6 +83,7 @@ class StreamerConfig:
     reconnect_attempts: int = 0
     reconnect_delay_s: float = 1.0
     firmware_defaults: bool = True
+    read_motion: bool = True
     explicit: frozenset[str] = frozenset()
 
     def __post_init__(self) -> None:

@@ -13,6 +13,7 @@ from drivers.linkcore import LinkCore
 from drivers.linkevents import Event
 from drivers.linkprofile import Profile, profile_for, tuned
 from drivers.linkwaiters import Waiters
+from drivers.motionreport import PrinterMotion, parse_motion_report
 from drivers.transport import Transport, TransportError
 
 log = logging.getLogger("drivers.link")
@@ -25,6 +26,7 @@ class Connecting:
     config: StreamerConfig
     core: LinkCore
     profile: Profile | None
+    motion: PrinterMotion
     _transport: Transport
     _reopen: Callable[[], Awaitable[Transport]] | None
     _waiters: Waiters
@@ -53,7 +55,8 @@ class Connecting:
         raise NotImplementedError
 
     async def connect(self) -> None:
-        """Wait for ``start`` (or a timeout), then ``M110 N0``, ``M115`` and auto-report.
+        """Wait for ``start`` (or a timeout), then ``M110 N0``, ``M115``, ``M503`` (the
+        motion settings, :attr:`motion`; with ``read_motion``) and auto-report.
 
         Raises :class:`LinkError` if the printer does not answer in ``connect_timeout_s``.
         """
@@ -73,6 +76,8 @@ class Connecting:
                 await waiter
                 await self._control_line("M115")
                 self._tune()
+                if self.config.read_motion:
+                    await self._read_motion()
                 if "AUTOREPORT_TEMP" in self.capable and self.config.temperature_interval_s > 0:
                     seconds = max(1, round(self.config.temperature_interval_s))
                     await self._control_line(f"M155 S{seconds}")
@@ -92,6 +97,20 @@ class Connecting:
         log.info("printer link: %s (%s); rx_buffer=%d bufsize=%d ok_after_resend=%s%s",
                  profile.name, profile.why, config.rx_buffer, config.bufsize,
                  config.ok_after_resend, f"; firmware defaults applied: {shown}" if shown else "")
+
+    async def _read_motion(self) -> None:
+        """``M503``: the motion settings in its answer, logged (none reported: none kept)."""
+        self.core.transcript = []
+        try:
+            await self._control_line("M503")
+            lines = self.core.transcript
+        finally:
+            self.core.transcript = None
+        self.motion = parse_motion_report(lines)
+        if self.motion.reported:
+            log.info("printer motion settings (M503): %s", self.motion.describe())
+        else:
+            log.info("printer reported no motion settings (M503)")
 
     async def _link_lost(self, reason: str) -> bool:
         """The port failed: report, then try to reopen. True if the link is back."""

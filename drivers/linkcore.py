@@ -71,6 +71,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self._late_oks = 0  # oks of M110s written again, still to come and not counted
         self._answers_owed: list[int] = []  # probes acknowledged ahead of their answers
         self.advanced_ok = False
+        self.transcript: list[str] | None = None  # when a list, every line received goes in
         self.init_resync()
 
     # -- the shell's side -----------------------------------------------------------------
@@ -108,6 +109,8 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         """One line received from the printer (without its line ending)."""
         self.last_rx = now
         self.probes_unanswered = 0
+        if self.transcript is not None:
+            self.transcript.append(text)
         response = self._plain_oks.get(text)
         if response is None:
             response = recover(parse_response(text))

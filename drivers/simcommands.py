@@ -6,6 +6,8 @@ import re
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
+from drivers.motionreport import report_lines
+
 if TYPE_CHECKING:
     from drivers.heater import Heater
     from drivers.simfirmware import Firmware
@@ -20,7 +22,7 @@ _ACCEPTED = frozenset(
     {
         "G10", "G11", "G20", "G21", "G29", "G80", "M17", "M18", "M73", "M84", "M106", "M107",
         "M111", "M117", "M118", "M201", "M203", "M204", "M205", "M206", "M207", "M208", "M209",
-        "M221", "M290", "M300", "M420", "M500", "M501", "M502", "M503", "M851", "M876", "M900",
+        "M221", "M290", "M300", "M420", "M500", "M501", "M502", "M851", "M876", "M900",
         "M999",
     }
 )
@@ -236,6 +238,13 @@ def _firmware_info(fw: Firmware, params: Params) -> bool:
     return True
 
 
+def _report_settings(fw: Firmware, params: Params) -> bool:
+    """M503: the settings as the commands that set them, the planner's from its own."""
+    for line in report_lines(fw.planner.settings):
+        fw.emit(line)
+    return True
+
+
 def _autoreport(fw: Firmware, params: Params) -> bool:
     fw.set_autoreport(_numbers(params).get("S", 0.0))
     return True
@@ -296,6 +305,7 @@ _HANDLERS: dict[str, Handler] = {
     "M105": _report_temperatures,
     "M114": _position,
     "M115": _firmware_info,
+    "M503": _report_settings,
     "M155": _autoreport,
     "M113": _keepalive,
     "M220": _feed_percent,

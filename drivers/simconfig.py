@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, fields
+from dataclasses import dataclass, fields, replace
+
+from drivers.planner import PlannerSettings
 
 # names of the fault probabilities, in the order they are documented
 FAULT_KINDS = (
@@ -61,7 +63,8 @@ class SimulatorConfig:
 
     Other settings: ``rx_buffer`` bytes of receive buffer, ``bufsize`` queued commands,
     ``planner_blocks`` (0 = no planner: a move's ``ok`` waits for the move),
-    ``max_cmd_size`` bytes per line, ``emergency_parser`` (M108/M112/M410 acted on as the
+    ``acceleration`` mm/s² (``M204 P R T`` and the ``M201`` X and Y maxima, reported by
+    ``M503``), ``max_cmd_size`` bytes per line, ``emergency_parser`` (M108/M112/M410 acted on as the
     bytes arrive), ``ok_after_resend`` (False: Marlin 2.0 builds that answer an error with
     ``Resend`` only), ``reset_on_open`` (opening the port resets the board, as DTR does),
     ``boot_delay_s`` (wall time from reset to ``start``; bytes meanwhile are lost),
@@ -75,6 +78,7 @@ class SimulatorConfig:
     rx_buffer: int = 128
     bufsize: int = 4
     planner_blocks: int = 16
+    acceleration: float = 3000.0
     max_cmd_size: int = 96
     advanced_ok: bool = False
     emergency_parser: bool = True
@@ -104,6 +108,8 @@ class SimulatorConfig:
         _check(self.rx_buffer >= 1, "rx_buffer", "must be >= 1 byte")
         _check(self.bufsize >= 1, "bufsize", "must be >= 1 command")
         _check(self.planner_blocks >= 0, "planner_blocks", "must be >= 0 (0 = no planner)")
+        _check(10.0 <= self.acceleration <= 100_000.0, "acceleration",
+               "must be 10..100000 mm/s²")
         _check(self.max_cmd_size >= 8, "max_cmd_size", "must be >= 8 bytes")
         _check(self.boot_delay_s >= 0.0, "boot_delay_s", "must be >= 0")
         _check(self.keepalive_s > 0.0, "keepalive_s", "must be > 0")
@@ -117,6 +123,16 @@ class SimulatorConfig:
     def bytes_per_second(self) -> float:
         """Wire speed in bytes/s (8N1: ten bits a byte); 0.0 for an unlimited wire."""
         return self.baud / 10.0
+
+    def planner(self) -> PlannerSettings:
+        """The settings of the simulated printer's planner: Marlin's defaults with
+        ``planner_blocks`` and ``acceleration`` (printing, travel, retracts, X and Y)."""
+        base = PlannerSettings()
+        a = self.acceleration
+        return replace(base, blocks=max(1, self.planner_blocks), acceleration=a,
+                       travel_acceleration=a, retract_acceleration=a,
+                       max_acceleration=(a, a, base.max_acceleration[2],
+                                         base.max_acceleration[3]))
 
     @classmethod
     def keys(cls) -> tuple[str, ...]:

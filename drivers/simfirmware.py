@@ -17,7 +17,7 @@ from collections.abc import Callable
 from drivers import simcommands
 from drivers.faults import FaultInjector
 from drivers.heater import BED, HOTEND, Heater, format_temperatures
-from drivers.planner import MarlinPlanner, Move, PlannerSettings, move_block
+from drivers.planner import MarlinPlanner, Move, move_block
 from drivers.simclock import SimClock
 from drivers.simconfig import SimulatorConfig
 from drivers.simlines import check_line, spurious_replies
@@ -55,7 +55,7 @@ class Firmware:
         self.hotend = Heater(HOTEND, config.ambient_c)
         self.bed = Heater(BED, config.ambient_c)
         self.motion = Motion()
-        self.planner = MarlinPlanner(PlannerSettings(blocks=max(1, config.planner_blocks)))
+        self.planner = MarlinPlanner(config.planner())
         self.keepalive_s = config.keepalive_s
         self.autoreport_s = 0.0
         self.autoreport_changed = threading.Event()

@@ -37,6 +37,7 @@ from drivers.linkevents import (
 )
 from drivers.linkprofile import Profile
 from drivers.linkwaiters import Waiters
+from drivers.motionreport import PrinterMotion
 from drivers.protocol import Response
 from drivers.tasks import cancel_and_wait
 from drivers.transport import Transport, TransportError
@@ -111,6 +112,7 @@ class Streamer(Connecting):
         self._failed = asyncio.Event()  # set when the core reports the link failed or halted
         self._group: asyncio.Task[None] | None = None
         self.profile: Profile | None = None  # the firmware defaults chosen at connect
+        self.motion = PrinterMotion()  # the motion settings M503 reported at connect
 
     # -- what the core knows ----------------------------------------------------------------
 

@@ -52,10 +52,12 @@ class PrinterConfig:
 
 @dataclass(frozen=True)
 class SimConfig:
-    """The built-in simulated printer (port = "sim"): speed factor and emulated wire speed."""
+    """The built-in simulated printer (port = "sim"): speed factor, emulated wire speed and
+    its acceleration (mm/s², which it reports to ``M503`` as a Marlin board does)."""
 
     time_scale: float = 1.0
     baud: int = 250000
+    acceleration: float = 3000.0
 
 
 @dataclass(frozen=True)
@@ -117,6 +119,8 @@ class Config:
     runner: RunnerConfig = field(default_factory=RunnerConfig)
     notify: NotifyConfig = field(default_factory=NotifyConfig)
     slicing: SliceSettings = field(default_factory=SliceSettings)
+    # the [slicing] keys the file gave (dotted): the others may come from the printer
+    slicing_given: frozenset[str] = frozenset()
 
 
 def load_config(path: str | Path | None = None, cwd: Path | None = None) -> Config:
@@ -169,6 +173,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
         simulator=SimConfig(
             time_scale=sim.number("time_scale", 1.0, 0.0, 1000.0),
             baud=sim.integer("baud", 250000, 0, 10_000_000),
+            acceleration=sim.number("acceleration", 3000.0, 10.0, 100_000.0),
         ),
         mqtt=MqttConfig(
             enabled=mqtt.flag("enabled", False),
@@ -195,6 +200,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             picture=notify.flag("picture", True),
         ),
         slicing=_anchor_files(slicing_settings(data.get("slicing", {}), None, "slicing"), cwd),
+        slicing_given=frozenset(_dotted(data.get("slicing", {}))),
     )
     for section in (jobs, state, printer, sim, mqtt, runner, notify):
         section.refuse_unknown()
@@ -209,6 +215,18 @@ def slicing_settings(
         return SliceSettings.from_mapping(values, base=base)
     except SettingsError as exc:
         raise ConfigError(f"{prefix}.{exc.key}" if prefix else exc.key, exc.reason) from exc
+
+
+def _dotted(values: Mapping[str, Any], prefix: str = "") -> list[str]:
+    """The dotted keys of a (nested) table: ``{"infill": {"density": 0.3}}`` gives
+    ``["infill.density"]``."""
+    keys = []
+    for key, value in values.items():
+        if isinstance(value, Mapping):
+            keys += _dotted(value, f"{prefix}{key}.")
+        else:
+            keys.append(f"{prefix}{key}")
+    return keys
 
 
 def _anchor_files(settings: SliceSettings, cwd: Path) -> SliceSettings:

@@ -138,7 +138,7 @@ class Daemon:
                                    for extra in (".toml", LOAD_SUFFIX)):
             return  # its own settings or load case: the job's pass reads them
         settings = printer_settings(self.config, self.config.slicing.to_mapping(),
-                                    link.capable)
+                                    link.capable, link.motion)
         if self.speculation.begin(path, settings, self.config.printer.bed):
             log.debug("whole-model pass of %s begun while it settles", path.name)
 

@@ -11,6 +11,7 @@ from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer
 from drivers.transport import Transport, open_transport
 from hostd.config import Config
+from hostd.printermotion import motion_note
 
 log = logging.getLogger("hostd.printer")
 
@@ -39,12 +40,14 @@ async def printer_link(
             SimulatorConfig(
                 time_scale=config.simulator.time_scale,
                 baud=config.simulator.baud,
+                acceleration=config.simulator.acceleration,
                 log_path=str(config.state.folder / SIM_LOG),
             )
         )
         port = simulator.start()
-        log.info("simulated printer on %s (time scale %g, baud %d)",
-                 port, config.simulator.time_scale, config.simulator.baud)
+        log.info("simulated printer on %s (time scale %g, baud %d, acceleration %g mm/s²)",
+                 port, config.simulator.time_scale, config.simulator.baud,
+                 config.simulator.acceleration)
     try:
         transport = await open_transport(port, baud)
         if on_boot is not None:
@@ -52,6 +55,7 @@ async def printer_link(
         async with Streamer(transport, config.printer.link) as streamer:
             await streamer.connect()
             log.info("printer connected on %s: %s", port, streamer.firmware or "unknown firmware")
+            log.info("slicing for this printer: %s", motion_note(config, streamer.motion))
             yield streamer
     finally:
         if simulator is not None:

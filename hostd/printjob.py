@@ -11,6 +11,7 @@ import time
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
+from drivers.motionreport import PrinterMotion
 from drivers.streamer import LinkError, Streamer
 from hostd.api import JobStatus
 from hostd.config import Config
@@ -21,6 +22,7 @@ from hostd.jobfolder import split_name, write_text
 from hostd.joblife import JobLife
 from hostd.jobstate import JobError, JobState, Started
 from hostd.jobstore import Job, JobStore
+from hostd.printermotion import with_printer_motion
 from hostd.reentry import resume_line
 from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
@@ -173,7 +175,8 @@ class PrintJob:
             return await asyncio.to_thread(FileSource, Path(job.path))
         # the printer is known before slicing: arcs if its M115 reported Cap:ARCS:1
         # (gcode.arcs = "auto"), and the line budget of its wire (gcode.baud = 0)
-        settings = printer_settings(self.config, job.settings, link.capable)
+        # and the acceleration its M503 reported, unless [slicing] or NAME.toml set one
+        settings = printer_settings(self.config, job.settings, link.capable, link.motion)
         started = time.monotonic()
         # the model is hashed again beside the whole-model pass (hashing leaves the
         # interpreter free), and checked before any layer is sliced
@@ -318,10 +321,13 @@ def _lines(path: Path) -> Iterator[str]:
 
 
 def printer_settings(
-    config: Config, mapping: Mapping[str, object], capable: Iterable[str]
+    config: Config, mapping: Mapping[str, object], capable: Iterable[str],
+    motion: PrinterMotion | None = None,
 ) -> SliceSettings:
     """A job's slicing settings for the connected printer: arcs if its M115 reported
-    ``Cap:ARCS:1`` (``gcode.arcs = "auto"``), and the line budget of its wire."""
+    ``Cap:ARCS:1`` (``gcode.arcs = "auto"``), the line budget of its wire, and the
+    acceleration its ``M503`` reported (:mod:`hostd.printermotion`)."""
     printer = config.printer
     baud = config.simulator.baud if printer.port == "sim" else printer.baud
-    return for_printer(SliceSettings.from_mapping(dict(mapping)), capable, baud)
+    settings = for_printer(SliceSettings.from_mapping(dict(mapping)), capable, baud)
+    return with_printer_motion(config, mapping, settings, motion)

@@ -6,6 +6,9 @@ import threading
 from collections.abc import Mapping
 from typing import Any
 
+import numpy as np
+
+from slicer.entry import entered, last_xy
 from slicer.gcode import fan_command
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
@@ -80,6 +83,28 @@ class LayerSchedule:
                 at = 1 if lines and lines[0].startswith(";LAYER:") else 0
                 lines[at:at] = extra
         return lines
+
+    def entered(self, layer: int, lines: list[str], came_from: np.ndarray | None) -> list[str]:
+        """Layer ``layer``'s ``lines`` with its first travel, from ``came_from`` ((2,) mm,
+        where the layer before ended; None: unknown), around the bodies cancelled by then
+        (:mod:`slicer.entry`); the seconds added go into its estimate."""
+        excluded = self.excluded_at(layer)
+        if not excluded or came_from is None or layer <= 0:
+            return lines
+        plan = self.plan_at(layer)
+        lines, extra = entered(lines, came_from, plan.entry_region(layer, excluded),
+                               plan.settings.acceleration)
+        if extra and layer in self.estimates:
+            seconds, filament = self.estimates[layer]
+            self.estimates[layer] = (seconds + extra, filament)
+        return lines
+
+    def came_from(self, layer: int) -> np.ndarray | None:
+        """Where the nozzle is after layer ``layer`` (X, Y mm), as sliced by this schedule
+        (slicing it again: for the layer before a resumed one); None if it moves nowhere."""
+        if layer < 0:
+            return None
+        return last_xy(self.plan_at(layer).layer_code(layer, self.excluded_at(layer)).lines)
 
     def retune(self, first: int, changed: Mapping[str, Any]) -> SliceSettings:
         """Apply ``changed`` from layer ``first`` on; raises SettingsError when refused."""

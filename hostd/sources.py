@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 import concurrent.futures
 from collections.abc import Iterator
 from pathlib import Path
@@ -11,6 +12,7 @@ import numpy as np
 
 from drivers.protocol import strip_comment
 from hostd.schedule import LayerSchedule
+from slicer.entry import last_xy
 from slicer.errors import ModelError
 from slicer.pipeline import LayerWindow
 from slicer.plan import SlicePlan
@@ -96,6 +98,7 @@ class SlicedSource:
             self.layer_count, depth, first=first, alone=True,
             worth=lambda lines: len(lines) > 1,  # more than its ;LAYER line
         )
+        self._at: np.ndarray | None = None  # where the nozzle is after the last layer taken
 
     def preamble(self) -> list[str]:
         if self.first >= self.layer_count:
@@ -104,7 +107,16 @@ class SlicedSource:
         return list(plan.resume_gcode(self.first) if self.resume else plan.start_gcode())
 
     async def layer(self, index: int) -> list[str]:
-        return await self._window.take_async(index)
+        lines = await self._window.take_async(index)
+        if self.schedule.excluded_at(index) and index > 0:
+            # the first travel goes around the cancelled bodies from where the layer
+            # before ended (after a resume, that layer is sliced again to know where)
+            if self._at is None and index == self.first:
+                self._at = await asyncio.to_thread(self.schedule.came_from, index - 1)
+            lines = await asyncio.to_thread(self.schedule.entered, index, lines, self._at)
+        end = last_xy(lines)
+        self._at = end if end is not None else self._at
+        return lines
 
     def ending(self) -> list[str]:
         return list(self.schedule.plan_at(self.layer_count - 1).end_gcode())

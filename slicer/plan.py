@@ -319,6 +319,21 @@ class SlicePlan:
         """G-code lines of layer ``i`` (starting with ``;LAYER:i``); the same bytes every time."""
         return self.layer_code(i, excluded_bodies).lines
 
+    def entry_region(self, i: int, excluded_bodies: frozenset[int]) -> shapely.Geometry | None:
+        """The region the travel into layer ``i`` keeps out of (:mod:`slicer.entry`): the
+        ``excluded_bodies``' outlines on layer ``i`` and the layer below (where the travel
+        runs), grown by :data:`slicer.detour.MARGIN`; None without any."""
+        i = self._check(i)
+        if not excluded_bodies:
+            return None
+        excluded = list(excluded_bodies)
+        parts = []
+        for layer in range(max(0, i - 1), i + 1):
+            polys = shapely.get_parts(self._geo.outlines[layer])
+            if len(polys):
+                parts.append(polys[np.isin(self._geo.bodies(layer), excluded)])
+        return avoid_region(np.concatenate(parts)) if parts else None
+
     def start_gcode(self) -> list[str]:
         """Heating, homing and modes before layer 0."""
         return gcode.start_block(self.settings)

@@ -16,7 +16,7 @@ import pytest
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).resolve().parent / "data"
 # commands the streamer adds on its own (handshake, temperature reports)
-HOUSEKEEPING = ("M110", "M105", "M115", "M155")
+HOUSEKEEPING = ("M110", "M105", "M115", "M503", "M155")
 # the `hostd` console script, run by this interpreter
 HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
 

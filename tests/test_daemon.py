@@ -6,6 +6,7 @@ import asyncio
 import sqlite3
 import subprocess
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -17,6 +18,7 @@ from drivers.protocol import strip_comment
 from hostd.api import ControlClient, ControlError, Snapshot
 from hostd.jobstore import JobStore
 from slicer.arcs import for_printer
+from slicer.entry import entered, last_xy
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -72,6 +74,21 @@ def commands(lines: list[str]) -> list[str]:
     return [c for c in map(strip_comment, lines) if c]
 
 
+def layer_commands(plan_of: Callable[[int], SlicePlan],
+                   excluded_of: Callable[[int], frozenset[int]], count: int) -> list[str]:
+    """The commands of layers ``0..count-1`` as the daemon joins them: each layer's first
+    travel goes around the cancelled bodies from where the layer before ended."""
+    out: list[str] = []
+    at = None
+    for index in range(count):
+        plan, left_out = plan_of(index), excluded_of(index)
+        lines, _ = entered(plan.layer_gcode(index, left_out), at,
+                           plan.entry_region(index, left_out), plan.settings.acceleration)
+        at = last_xy(lines) if last_xy(lines) is not None else at
+        out += commands(lines)
+    return out
+
+
 def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, tmp_path):
     model = two_bodies(tmp_path / "pair.stl")
     hostd = daemon(sim_config(time_scale=0.01, extra="[runner]\nlookahead = 2\n"))
@@ -118,10 +135,9 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     plan = SlicePlan.from_file(model, base)
     dense = plan.with_settings(SliceSettings.from_mapping({"infill.density": 0.6}, base=base))
     expected = commands(plan.start_gcode())
-    for index in range(plan.layer_count):
-        source = dense if index >= first_retuned else plan
-        left_out = frozenset({1}) if index >= first_cancelled else frozenset()
-        expected += commands(source.layer_gcode(index, left_out))
+    expected += layer_commands(lambda index: dense if index >= first_retuned else plan,
+                               lambda index: frozenset({1}) if index >= first_cancelled
+                               else frozenset(), plan.layer_count)
     expected += commands(dense.end_gcode())
     assert commands_of(hostd.jobs / "done" / "pair.gcode") == expected
     # the changes really changed the G-code

@@ -27,6 +27,7 @@ def test_every_link_setting_is_reachable_from_printer_link():
         "renumber_at": 50_000, "park_gcode": ["G91", "G1 Z5", "G90"], "unpark_gcode": [],
         "ok_after_resend": False, "resync_quiet_s": 0.5, "renumber_retry_s": 2.0,
         "reconnect_attempts": 3, "reconnect_delay_s": 0.5, "firmware_defaults": False,
+        "read_motion": False,
     }
     assert set(values) == set(StreamerConfig.setting_names())
     link = _config(values)

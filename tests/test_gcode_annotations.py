@@ -141,7 +141,9 @@ def test_hostd_slice_writes_thumbnails_labels_and_progress(tmp_path: Path) -> No
 def test_the_daemon_done_file_carries_them_too_equals_hostd_slice_s_and_one_body_has_none(
     daemon, tmp_path: Path
 ) -> None:
-    hostd = daemon(sim_config())
+    # the simulated printer accelerates at 1500 mm/s²: the daemon learns it (M503) at
+    # connect, as no [slicing] acceleration is configured, and its estimates use it
+    hostd = daemon(sim_config(extra="acceleration = 1500\n"))
     model = two_bodies(tmp_path / "pair.stl")
     hostd.drop(model, "pair.stl")
     hostd.drop(small_box(tmp_path / "box.stl"), "cube.stl")
@@ -156,11 +158,13 @@ def test_the_daemon_done_file_carries_them_too_equals_hostd_slice_s_and_one_body
     cube = (done / "cube.gcode").read_text().splitlines()
     assert not any(line.startswith(("M486", "EXCLUDE_OBJECT")) for line in cube)
     check_progress(cube)
-    # hostd slice writes the same file: the same moves, totals (;TIME:, filament), labels, M73
+    assert "acceleration 1500 mm/s² learned from the printer (M503)" in hostd.log()
+    # hostd slice at that acceleration writes the same file: the same moves, totals
+    # (;TIME:, filament), labels, M73 (at its default 1000 mm/s² the times would differ)
     sliced = tmp_path / "sliced.gcode"
-    result = subprocess.run([*HOSTD, "slice", str(model), "-o", str(sliced), "--quiet"],
-                            capture_output=True, text=True, timeout=120,
-                            env={"PYTHONPATH": str(ROOT)})
+    result = subprocess.run([*HOSTD, "slice", str(model), "-o", str(sliced), "--quiet",
+                             "--set", "acceleration=1500"], capture_output=True, text=True,
+                            timeout=120, env={"PYTHONPATH": str(ROOT)})
     assert result.returncode == 0, result.stderr
     assert sliced.read_text().splitlines() == lines
     assert any(line.startswith(";TIME:") for line in lines[:5])

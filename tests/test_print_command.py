@@ -11,7 +11,7 @@ from drivers.simulator import SimulatedPrinter, SimulatorConfig
 from hostd.cli import main
 
 DATA = Path(__file__).parent / "data"
-INTERNAL = ("M110", "M115", "M155", "M105")
+INTERNAL = ("M110", "M115", "M503", "M155", "M105")
 
 
 def _job(executed: list[str]) -> list[str]:

@@ -119,7 +119,7 @@ async def print_job(
 
 
 
-HOUSEKEEPING = ("M110", "M115", "M155", "M105")
+HOUSEKEEPING = ("M110", "M115", "M503", "M155", "M105")
 
 
 def whole_program(plan) -> list[str]:
@@ -246,8 +246,7 @@ def test_a_resume_within_a_layer_sends_the_rest_of_it_after_lifted_moves_back(
             printer.stop()
         return list(printer.executed)
 
-    executed = [c for c in asyncio.run(main()) if c.split()[0] not in ("M110", "M115", "M155",
-                                                                         "M105")]
+    executed = [c for c in asyncio.run(main()) if c.split()[0] not in HOUSEKEEPING]
     commands = [c for c in map(strip_comment, plan.resume_gcode(layer + 1)) if c]
     assert executed[:len(commands)] == commands
     rest = [c for c in map(strip_comment, plan.layer_gcode(layer + 1)) if c]

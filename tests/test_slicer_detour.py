@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import re
 
 import numpy as np
@@ -9,6 +11,8 @@ import pytest
 import shapely
 import trimesh
 
+from hostd.schedule import LayerSchedule
+from hostd.sources import SlicedSource
 from slicer.detour import MARGIN, detours
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
@@ -96,3 +100,63 @@ def test_detours_only_where_the_line_meets_the_region() -> None:
     around = detours(near, b[:1], region)[0]
     path = shapely.LineString(np.vstack([near[0], around, b[0]]))
     assert not shapely.intersects(path, region)
+
+
+def joined(schedule: LayerSchedule, first: int = 0, resume: bool = False) -> list[list[str]]:
+    """Every layer from ``first`` as the daemon takes them, in order (each layer's first
+    travel planned from where the one before ended)."""
+    async def take() -> list[list[str]]:
+        with concurrent.futures.ThreadPoolExecutor(2) as executor:
+            source = SlicedSource(schedule, first, 2, executor, resume)
+            try:
+                return [await source.layer(i) for i in range(first, schedule.layer_count)]
+            finally:
+                source.close()
+
+    return asyncio.run(take())
+
+
+def entry_crossings(plan: SlicePlan, layers: list[list[str]], first: int, body: int,
+                    cancelled_from: int) -> int:
+    """Travels (from the end of one layer into the next included) that cross ``body``'s
+    outline on their layer or the one below, from layer ``cancelled_from`` on."""
+    crossings = 0
+    at = None
+    for index, lines in enumerate(layers, start=first):
+        ends, printing = moves(lines)
+        if at is not None and len(ends) and index >= cancelled_from:
+            path = np.vstack([at, ends])
+            travels = shapely.linestrings(np.stack([path[:-1], path[1:]], axis=1)[~printing])
+            for layer in (index - 1, index):
+                polys, owner = plan.layer_bodies(layer)
+                outline = shapely.union_all(polys[owner == body])
+                crossings += int(shapely.intersects(travels, outline).sum())
+        at = ends[-1] if len(ends) else at
+    return crossings
+
+
+def test_the_travel_into_each_layer_goes_around_a_cancelled_body_too(row_file) -> None:
+    plan = SlicePlan.from_file(row_file, SliceSettings())
+    polys, owner = plan.layer_bodies(3)
+    # the cylinder between the boxes: each layer ends in the right box, starts in the left
+    body = int(owner[np.argsort(shapely.get_coordinates(shapely.centroid(polys))[:, 0])[1]])
+    cancelled_from = 3
+    plain = [plan.layer_gcode(i, frozenset({body}) if i >= cancelled_from else frozenset())
+             for i in range(plan.layer_count)]
+    # sliced on its own, a layer's first travel crosses the body from the last layer's end
+    assert entry_crossings(plan, plain, 0, body, cancelled_from) > 0
+    schedule = LayerSchedule(plan, plan.settings, cancelled=[(body, cancelled_from)])
+    layers = joined(schedule)
+    assert entry_crossings(plan, layers, 0, body, cancelled_from) == 0
+    # only the first travels changed, and the layer's estimate holds the way round
+    for index, (mine, theirs) in enumerate(zip(layers, plain, strict=True)):
+        extra = [line for line in mine if line not in theirs]
+        assert all(line.startswith("G0 ") for line in extra)
+        assert bool(extra) <= (index >= cancelled_from)
+        alone = plan.layer_code(index, schedule.excluded_at(index)).time_s
+        assert (schedule.estimates[index][0] > alone) == bool(extra)
+    assert any(mine != theirs for mine, theirs in zip(layers, plain, strict=True))
+    # a resumed job enters its first layer as the uninterrupted one did
+    resumed = joined(LayerSchedule(plan, plan.settings, cancelled=[(body, cancelled_from)]),
+                     first=5, resume=True)
+    assert resumed == layers[5:]

@@ -9,7 +9,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import DATA, commands_of, executed_job_lines, sim_config
-from test_daemon import commands, two_bodies
+from test_daemon import commands, layer_commands, two_bodies
 
 from hostd.api import ControlClient, ControlError
 from hostd.layerview import parse_layer
@@ -148,9 +148,8 @@ def test_cancel_a_body_from_the_dashboard_and_undo_another(daemon, tmp_path: Pat
     plan = SlicePlan.from_file(model, SliceSettings())
     first = cancelled_from[0]
     expected = commands(plan.start_gcode())
-    for index in range(plan.layer_count):
-        expected += commands(plan.layer_gcode(index, frozenset({1}) if index >= first else
-                                              frozenset()))
+    expected += layer_commands(lambda index: plan, lambda index: frozenset({1})
+                               if index >= first else frozenset(), plan.layer_count)
     expected += commands(plan.end_gcode())
     assert commands_of(done) == expected
     assert 0 < first < plan.layer_count
