@@ -11,7 +11,7 @@ import shapely
 import trimesh
 
 from slicer.arcs import for_printer
-from slicer.budget import budget_moves, line_rate
+from slicer.budget import OUTER_ARC, budget_moves, line_rate
 from slicer.gcode import _pack
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
@@ -106,6 +106,8 @@ def test_arcs_lie_on_the_contour_they_replace_and_extrude_by_length() -> None:
     assert {a[-1] for a in arcs} >= {"WALL-OUTER", "FILL"}
     for start, end, centre, ccw, e, kind in arcs:
         tol = plan.settings.infill_resolution if kind == "FILL" else plan.settings.resolution
+        if kind == "WALL-OUTER":  # the surface's arcs keep closer to the level set
+            tol *= OUTER_ARC
         r = math.dist(start, centre)
         sweep = _sweep(start, end, centre, ccw)
         t = np.linspace(0.0, 1.0, 50)
@@ -209,13 +211,13 @@ def _arc_points(start: np.ndarray, mv, j: int, count: int = 200) -> np.ndarray:
 def _arcs_within(pts: np.ndarray, mv, tol: float) -> int:
     """Check every arc of ``mv`` against the polyline ``pts`` it replaced, both ways (the
     arc's points near the polyline, the polyline's near the circle); the arcs counted."""
-    line = shapely.linestrings(pts)
     index = {tuple(p): i for i, p in enumerate(pts)}
     for j in np.flatnonzero(mv.arc):
         a, b = index[tuple(mv.pts[j - 1])], index[tuple(mv.pts[j])]
+        line = shapely.linestrings(pts[a : b + 1])
         assert shapely.distance(line, shapely.points(_arc_points(mv.pts[j - 1], mv, j))).max() \
             <= tol
-        stretch = shapely.segmentize(shapely.linestrings(pts[a : b + 1]), 0.01)
+        stretch = shapely.segmentize(line, 0.01)
         rel = shapely.get_coordinates(stretch) - mv.centre[j]
         r = math.dist(mv.pts[j - 1], mv.centre[j])
         assert np.abs(np.hypot(rel[:, 0], rel[:, 1]) - r).max() <= tol
@@ -235,6 +237,11 @@ def test_a_wave_curve_takes_few_moves_each_within_the_tolerance() -> None:
     moves = len(mv.pts) - 1
     assert moves <= 38  # 3.8 a wavelength (fitting from fixed midpoints took 4.5)
     assert _arcs_within(pts, mv, tol) >= 15
+    # as an outer wall, at the walls' tolerance: its arcs keep closer to the vertices
+    tol = settings.resolution
+    outer = budget_moves(pts, np.array([0]), np.array([len(pts)]), np.array([60.0]), settings,
+                         exact=np.array([True]))
+    assert _arcs_within(pts, outer, OUTER_ARC * tol) >= 15
 
 
 def test_an_arc_is_checked_along_its_long_segments_not_only_at_points() -> None:
