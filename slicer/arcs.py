@@ -207,7 +207,9 @@ class _Search:
     def candidate(self, rows: np.ndarray, cur: np.ndarray) -> np.ndarray:
         """The end to try next for ``rows`` whose stretches start at ``cur``."""
         reach = np.minimum(cur + self.step[rows], self.hi[rows] - 1)
-        return np.where(self.galloping[rows], reach, (self.lo[rows] + self.hi[rows]) // 2)
+        out: np.ndarray = np.where(self.galloping[rows], reach,
+                                   (self.lo[rows] + self.hi[rows]) // 2)
+        return out
 
     def update(self, rows: np.ndarray, j: np.ndarray, ok: np.ndarray, end: np.ndarray) -> None:
         """Record whether the stretches of ``rows`` ending at ``j`` fit (``ok``)."""
