@@ -11,7 +11,7 @@ import shapely
 import trimesh
 
 from slicer.arcs import for_printer
-from slicer.budget import budget_moves, line_rate
+from slicer.budget import OUTER_ARC, budget_moves, line_rate
 from slicer.gcode import _pack
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
@@ -106,6 +106,8 @@ def test_arcs_lie_on_the_contour_they_replace_and_extrude_by_length() -> None:
     assert {a[-1] for a in arcs} >= {"WALL-OUTER", "FILL"}
     for start, end, centre, ccw, e, kind in arcs:
         tol = plan.settings.infill_resolution if kind == "FILL" else plan.settings.resolution
+        if kind == "WALL-OUTER":  # the surface's arcs keep closer to the level set
+            tol *= OUTER_ARC
         r = math.dist(start, centre)
         sweep = _sweep(start, end, centre, ccw)
         t = np.linspace(0.0, 1.0, 50)
@@ -195,3 +197,59 @@ def test_a_short_fast_run_fits_in_the_planner_and_a_long_one_is_coarsened() -> N
         outer = budget_moves(pts, np.array([0]), np.array([len(pts)]), np.array([100.0]),
                              settings, exact=np.array([True]))
         assert len(outer.pts) == len(pts)  # an outer wall keeps every point
+
+
+def _arc_points(start: np.ndarray, mv, j: int, count: int = 200) -> np.ndarray:
+    """Points along the arc move into ``mv.pts[j]`` from ``start``: (count, 2) mm."""
+    centre = mv.centre[j]
+    r = math.dist(start, centre)
+    a0 = math.atan2(start[1] - centre[1], start[0] - centre[0])
+    ang = a0 + (1 if mv.ccw[j] else -1) * (mv.length[j] / r) * np.linspace(0.0, 1.0, count)
+    return np.column_stack([centre[0] + r * np.cos(ang), centre[1] + r * np.sin(ang)])
+
+
+def _arcs_within(pts: np.ndarray, mv, tol: float) -> int:
+    """Check every arc of ``mv`` against the polyline ``pts`` it replaced, both ways (the
+    arc's points near the polyline, the polyline's near the circle); the arcs counted."""
+    index = {tuple(p): i for i, p in enumerate(pts)}
+    for j in np.flatnonzero(mv.arc):
+        a, b = index[tuple(mv.pts[j - 1])], index[tuple(mv.pts[j])]
+        line = shapely.linestrings(pts[a : b + 1])
+        assert shapely.distance(line, shapely.points(_arc_points(mv.pts[j - 1], mv, j))).max() \
+            <= tol
+        stretch = shapely.segmentize(line, 0.01)
+        rel = shapely.get_coordinates(stretch) - mv.centre[j]
+        r = math.dist(mv.pts[j - 1], mv.centre[j])
+        assert np.abs(np.hypot(rel[:, 0], rel[:, 1]) - r).max() <= tol
+    return int(mv.arc.sum())
+
+
+def test_a_wave_curve_takes_few_moves_each_within_the_tolerance() -> None:
+    # the wave field's curve (10 mm wavelength, 45 degree slope) as sampled: lines at the
+    # inflections, arcs over the crests, each as long as it can be
+    settings = SliceSettings.from_mapping({"gcode.arcs": "on"})
+    tol = settings.infill_resolution
+    a, b = 10.0 / (2 * math.pi), 2 * math.pi / 10.0
+    u = np.arange(0.0, 100.0, 10.0 / 48)
+    pts = np.column_stack([u, a * np.sin(b * u)]) @ np.array([[0.8, 0.6], [-0.6, 0.8]])
+    mv = budget_moves(pts, np.array([0]), np.array([len(pts)]), np.array([60.0]), settings,
+                      loose=np.array([True]))
+    moves = len(mv.pts) - 1
+    assert moves <= 38  # 3.8 a wavelength (fitting from fixed midpoints took 4.5)
+    assert _arcs_within(pts, mv, tol) >= 15
+    # as an outer wall, at the walls' tolerance: its arcs keep closer to the vertices
+    tol = settings.resolution
+    outer = budget_moves(pts, np.array([0]), np.array([len(pts)]), np.array([60.0]), settings,
+                         exact=np.array([True]))
+    assert _arcs_within(pts, outer, OUTER_ARC * tol) >= 15
+
+
+def test_an_arc_is_checked_along_its_long_segments_not_only_at_points() -> None:
+    # a circle of 5 mm; its first segment (16 degrees long, ending 0.09 mm inside) passes
+    # 0.104 mm inside the circle between its midpoint (0.093 mm) and its end
+    settings = SliceSettings.from_mapping({"gcode.arcs": "on", "resolution": 0.1})
+    ang = np.radians(np.concatenate([[0.0, 16.0], np.arange(19.0, 100.0, 3.0)]))
+    radius = np.where(np.arange(len(ang)) == 1, 4.91, 5.0)
+    pts = np.column_stack([radius * np.cos(ang), radius * np.sin(ang)])
+    mv = budget_moves(pts, np.array([0]), np.array([len(pts)]), np.array([60.0]), settings)
+    assert _arcs_within(pts, mv, settings.resolution) >= 1
