@@ -178,6 +178,8 @@ class JobRunner:
             await self.link.pause(self.park.park if self._parked else (), settle=False)
             self.eta.pause(time.monotonic())
             self._set_state(JobState.PAUSED)
+            log.info("job %s %s: paused after layer %d", self.job.id, self.job.name,
+                     self.completed + 1)
             self.life.publish(Paused(self.job.id, self.job.name, self.completed))
 
     async def resume(self) -> None:
@@ -190,6 +192,7 @@ class JobRunner:
             self.eta.resume(time.monotonic())
             self._set_state(JobState.PRINTING if self._print_started is not None
                             else JobState.HEATING)
+            log.info("job %s %s: resumed", self.job.id, self.job.name)
             self.life.publish(Resumed(self.job.id, self.job.name, self.completed))
 
     async def cancel(self) -> None:
@@ -198,6 +201,8 @@ class JobRunner:
         if self._cancelled:
             return
         self._cancelled = True
+        log.info("job %s %s: cancel requested; the lines in flight end it", self.job.id,
+                 self.job.name)
         with contextlib.suppress(LinkError, TransportError):  # a lost link stops the job too
             await self.link.interrupt_wait()
         await self.link.cancel(self.end_gcode, settle=False)

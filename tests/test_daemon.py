@@ -180,7 +180,7 @@ def test_pause_resume_cancel_and_queue_commands(daemon, tmp_path):
     command(socket, "resume")
     hostd.wait_for(lambda: status(socket).job.lines_acked > acked, 10, "printing again")
     command(socket, "cancel")
-    hostd.wait_for(lambda: (hostd.jobs / "failed" / "first.error.txt").exists(), 10, "cancel")
+    hostd.wait_for(lambda: (hostd.jobs / "failed" / "first.error.txt").exists(), 30, "cancel")
     assert "cancelled" in (hostd.jobs / "failed" / "first.error.txt").read_text()
     assert job_state(hostd.state, "1")[0] == "cancelled"
     hostd.wait_for(lambda: (hostd.jobs / "done" / "c.summary.txt").exists(), 120, "c printed")
