@@ -13,10 +13,7 @@ from collections.abc import Mapping
 
 from drivers.motionreport import PrinterMotion
 from hostd.config import Config
-from slicer.settings import SliceSettings
-
-# the range slicer.settings accepts for acceleration, mm/s²
-_LOWEST, _HIGHEST = 10.0, 50_000.0
+from slicer.settings import SliceSettings, setting_range
 
 
 def learned_acceleration(motion: PrinterMotion | None) -> float | None:
@@ -25,7 +22,8 @@ def learned_acceleration(motion: PrinterMotion | None) -> float | None:
     value = motion.printing_acceleration() if motion is not None else None
     if value is None or value <= 0.0:
         return None
-    return min(max(value, _LOWEST), _HIGHEST)
+    lowest, highest = setting_range("acceleration")
+    return min(max(value, lowest or value), highest or value)
 
 
 def acceleration_given(config: Config, mapping: Mapping[str, object]) -> bool:

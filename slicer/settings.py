@@ -245,6 +245,12 @@ _THUMBNAILS = re.compile(rf"(?:{_SIZE}x{_SIZE}(?:,{_SIZE}x{_SIZE})*)?")
 
 SETTING_KEYS: tuple[str, ...] = tuple(_SPECS)
 
+
+def setting_range(key: str) -> tuple[float | None, float | None]:
+    """The lowest and highest value the flat setting ``key`` accepts (None: unbounded)."""
+    spec = _SPECS[key]
+    return spec.low, spec.high
+
 __all__ = [
     "ARC_MODES",
     "INFILL_FIELDS",
@@ -252,4 +258,5 @@ __all__ = [
     "SettingsError",
     "SliceSettings",
     "parse_assignment",
+    "setting_range",
 ]
