@@ -34,25 +34,24 @@ def density_plan(
     log_rho = np.log2(rho)
     peak = float(log_rho[inside].max())
     top = max(0, math.floor(math.log2(gap * spacing / min_gap)))
-    step = spacing
-    ranks = np.zeros(rho.shape)
+
+    def ranks_for(log_s: float, cap: int) -> np.ndarray:
+        return np.clip(np.rint(log_s - log_rho), 0, cap)
+
+    def step_for(log_s: float, cap: int) -> float:
+        return spacing * float(np.mean(np.exp2(-ranks_for(log_s, cap)[inside])))
+
     for _ in range(2):  # the second pass caps the sparsest gaps at the step found
-        def ranks_for(log_s: float, cap: int = top) -> np.ndarray:
-            return np.clip(np.rint(log_s - log_rho), 0, cap)
-
-        def step_for(log_s: float, cap: int = top) -> float:
-            return spacing * float(np.mean(np.exp2(-ranks_for(log_s, cap)[inside])))
-
         lo, hi = peak - top - 1.0, peak
-        if step_for(hi) >= min_gap:
+        if step_for(hi, top) >= min_gap:
             lo = hi
         for _ in range(40):
             mid = 0.5 * (lo + hi)
-            if step_for(mid) >= min_gap:
+            if step_for(mid, top) >= min_gap:
                 lo = mid
             else:
                 hi = mid
-        ranks, step = ranks_for(lo), step_for(lo)
+        ranks, step = ranks_for(lo, top), step_for(lo, top)
         cap = max(0, math.floor(math.log2(gap * spacing / step)))
         if cap >= top:
             break
