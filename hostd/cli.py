@@ -23,6 +23,17 @@ def _add_target(parser: argparse.ArgumentParser) -> None:
     group.add_argument("--socket", metavar="PATH", help="the daemon's control socket")
 
 
+def _jobs(text: str) -> int:
+    """``--jobs N``: a whole number of processes, at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: at least 1 process slices")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     """The argument parser of every subcommand."""
     parser = argparse.ArgumentParser(
@@ -45,6 +56,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--quiet", action="store_true", help="no progress bar")
     p.add_argument("--profile", action="store_true",
                    help="slice in one process and print the time of each stage")
+    p.add_argument("--jobs", type=_jobs, metavar="N",
+                   help="processes slicing layers (default: the CPUs; 1: this one only)")
 
     p = sub.add_parser("tailor", help="Linear, Stress A and B G-codes at equal mass of a "
                        "folder's model and load case, pictures, predicted moduli")

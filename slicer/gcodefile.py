@@ -2,18 +2,15 @@
 
 from __future__ import annotations
 
-import concurrent.futures
 import os
 import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
-from typing import Any
 
 from slicer.annotate import copy_layers, header_extras, object_labels
 from slicer.gcode import GcodeSummary, LayerCode, filament_grams, header_lines
-from slicer.pipeline import LayerWindow
 from slicer.plan import SlicePlan
 
 
@@ -25,6 +22,10 @@ def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCo
     itself uses :func:`iter_layer_texts`, which also spreads the Python work over
     cores.)
     """
+    import concurrent.futures
+
+    from slicer.pipeline import LayerWindow
+
     workers = workers or max(1, os.cpu_count() or 1)
     with concurrent.futures.ThreadPoolExecutor(workers, thread_name_prefix="slice") as pool:
         window: LayerWindow[LayerCode] = LayerWindow(
@@ -36,8 +37,6 @@ def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCo
             window.close()
 
 
-# the plan a forked worker slices (inherited from the parent at fork time)
-_FORKED_PLAN: SlicePlan | None = None
 # layers per task: the skin cache's block, so each block is computed by one worker
 _CHUNK = 16
 # a model with at most this many layers has its first _PROBE layers sliced here
@@ -45,17 +44,10 @@ _CHUNK = 16
 _SMALL = 4 * _CHUNK
 _PROBE = 8
 # below this much work (seconds in one process) forking two workers and
-# collecting their results (about 20 ms with the import) costs more than it saves
+# collecting their results costs more than it saves
 _FORK_WORTH = 0.04
 # seconds the outline cut runs alone before the first layers are sliced beside it
 _CUT_ALONE = 0.05
-
-
-def _slice_chunk(lo: int, hi: int) -> list[tuple[str, float, float]]:
-    """In a forked worker: layers ``lo..hi-1`` as (text, filament mm, time s)."""
-    plan = _FORKED_PLAN
-    assert plan is not None
-    return [_layer_text(plan, i) for i in range(lo, hi)]
 
 
 def _layer_text(plan: SlicePlan, i: int) -> tuple[str, float, float]:
@@ -94,7 +86,6 @@ def iter_layer_texts(
     the rest would take longer than starting them. The bytes are the same
     either way.
     """
-    global _FORKED_PLAN
     workers = workers or max(1, os.cpu_count() or 1)
     n = plan.layer_count
     done = 0
@@ -109,11 +100,6 @@ def iter_layer_texts(
         timed = done - min(done, _PROBE // 2)
         per_layer = (time.perf_counter() - started) / max(timed, 1)
         if per_layer * (n - done) < _FORK_WORTH:
-            workers = 1
-    if workers >= 2 and hasattr(os, "fork"):
-        import multiprocessing
-
-        if "fork" not in multiprocessing.get_all_start_methods():
             workers = 1
     if workers < 2 or not hasattr(os, "fork"):
         for i in range(done, n):
@@ -133,26 +119,9 @@ def iter_layer_texts(
             done += 1
     finally:
         cutter.join()
-    _FORKED_PLAN = plan
-    try:
-        with multiprocessing.get_context("fork").Pool(workers) as pool:
-            tasks = list(_chunks(done, n))
-            window: LayerWindow[list[tuple[str, float, float]]] = LayerWindow(
-                lambda k: _pool_future(pool, _slice_chunk, tasks[k]), len(tasks), 2 * workers
-            )
-            for chunk in window:
-                yield from chunk
-    finally:
-        _FORKED_PLAN = None
+    from slicer.forkslice import forked_layers
 
-
-def _pool_future(pool: Any, function: Callable[..., Any], args: tuple[Any, ...]) -> Any:
-    """A process pool's task as a running ``concurrent.futures.Future``."""
-    future: concurrent.futures.Future[Any] = concurrent.futures.Future()
-    future.set_running_or_notify_cancel()  # its result always comes: it cannot be cancelled
-    pool.apply_async(function, args, callback=future.set_result,
-                     error_callback=future.set_exception)
-    return future
+    yield from forked_layers(lambda i: _layer_text(plan, i), list(_chunks(done, n)), workers)
 
 
 def write_gcode(

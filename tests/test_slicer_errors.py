@@ -94,6 +94,8 @@ def test_cli_exit_codes(tmp_path) -> None:
             "--quiet",
             "--set",
             "infill.density=0.3",
+            "--jobs",
+            "2",
         ],
         capture_output=True,
         text=True,
@@ -134,6 +136,11 @@ def test_cli_exit_codes(tmp_path) -> None:
     )
     assert unknown.returncode == 2
     assert "infill.colour" in unknown.stderr
+    no_jobs = subprocess.run([*HOSTD, "slice", str(DATA / "cube20_xyz.stl"), "-o",
+                              str(tmp_path / "z.gcode"), "--jobs", "0"],
+                             capture_output=True, text=True, check=False)
+    assert no_jobs.returncode == 2
+    assert "--jobs: 0: at least 1 process slices" in no_jobs.stderr
 
 
 def test_cli_reads_slicing_and_bed_from_the_config(tmp_path) -> None:

@@ -10,7 +10,6 @@ from contextlib import contextmanager
 from typing import TextIO
 
 from hostd.cli import UsageError
-from hostd.config import ConfigError, load_config
 from slicer.errors import ModelError
 from slicer.gcodefile import write_gcode
 from slicer.plan import SlicePlan
@@ -26,10 +25,15 @@ def load_settings(config: str | None, assignments: list[str]) -> tuple[SliceSett
     refused); its ``[slicing]`` table and ``[printer].bed`` are used, and
     ``--set`` overrides them. Raises UsageError naming the bad key or file.
     """
-    try:
-        cfg = load_config(config) if config else None
-    except ConfigError as exc:
-        raise UsageError(str(exc)) from exc
+    cfg = None
+    if config:
+        # the daemon's whole configuration (TOML, link settings) is read only when given
+        from hostd.config import ConfigError, load_config
+
+        try:
+            cfg = load_config(config)
+        except ConfigError as exc:
+            raise UsageError(str(exc)) from exc
     settings = cfg.slicing if cfg else SliceSettings()
     bed = tuple(cfg.printer.bed) if cfg else DEFAULT_BED
     try:
@@ -51,11 +55,19 @@ def load_tailored(
     """The model's plan with its load case's analysis (``load``, ``infill.load`` or
     ``NAME.load.toml`` beside the model) and equal mass applied, and the lines
     reporting them. A bad model or load case is bad input (UsageError)."""
+    if not os.path.exists(model):
+        raise UsageError(f"{model}: no such file")
+    if not _tailoring_asked(model, settings, load):
+        # a plain slice: the analysis and the mass search are not even imported
+        try:
+            return SlicePlan.from_file(model, settings, bed), []
+        except ModelError as exc:
+            raise UsageError(f"{model}: {exc}") from exc
+        except SettingsError as exc:
+            raise UsageError(str(exc)) from exc
     from slicer.fea.loadcase import LoadCaseError
     from slicer.fea.tailor import default_cache_dir, tailored_plan
 
-    if not os.path.exists(model):
-        raise UsageError(f"{model}: no such file")
     try:
         plan, tailoring = tailored_plan(model, settings, bed, default_cache_dir(), load)
     except LoadCaseError as exc:  # names its file itself
@@ -65,6 +77,18 @@ def load_tailored(
     except SettingsError as exc:
         raise UsageError(str(exc)) from exc
     return plan, tailoring.lines()
+
+
+def _tailoring_asked(model: str, settings: SliceSettings, load: str | None) -> bool:
+    """Whether :func:`slicer.fea.tailor.tailored_plan` has anything to do: a load case
+    given, set or beside the model, or an equal mass asked for."""
+    from slicer.fea.loadcase import load_path_for
+
+    if load or settings.infill_load:
+        return True
+    if settings.infill_match_mass_of or settings.infill_target_mass_g > 0:
+        return True
+    return load_path_for(model).is_file()
 
 
 class ProgressBar:
@@ -135,7 +159,8 @@ def run(args) -> int:
         plan, tailoring = load_tailored(args.model, settings, bed, getattr(args, "load", None))
         bar = None if args.quiet else ProgressBar(sys.stderr, "slicing")
         try:
-            summary = write_gcode(plan, args.output, bar, workers=1 if profile else None)
+            jobs = getattr(args, "jobs", None)
+            summary = write_gcode(plan, args.output, bar, workers=1 if profile else jobs)
         except OSError as exc:
             raise UsageError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
         elapsed = time.monotonic() - started

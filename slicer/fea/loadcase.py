@@ -2,10 +2,8 @@
 
 from __future__ import annotations
 
-import hashlib
 import math
 import os
-import tomllib
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -65,6 +63,8 @@ class LoadCase:
 
     def key(self) -> str:
         """A stable digest of everything that changes the analysis (for caching)."""
+        import hashlib
+
         digest = hashlib.sha256()
         digest.update(repr((self.youngs_mpa, self.poisson)).encode())
         for region in self.fixed:
@@ -118,6 +118,8 @@ def parse_load_case(
     ``[[fixed]]`` region, no load at all. Geometry (a region that selects no
     face, motion left free) is checked against the mesh by the analysis.
     """
+    import tomllib  # loaded when a load case is read, not by every slice
+
     try:
         data = tomllib.loads(text)
     except tomllib.TOMLDecodeError as exc:

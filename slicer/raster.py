@@ -1,0 +1,153 @@
+"""Small RGBA pictures drawn with numpy and written as PNG with zlib (no imaging library)."""
+
+from __future__ import annotations
+
+import struct
+import zlib
+
+import numpy as np
+from numpy.typing import NDArray
+
+Colour = tuple[int, int, int, int]
+
+
+class Canvas:
+    """An RGBA picture, ``height`` x ``width`` pixels, transparent at first.
+
+    Painting writes an index into a palette per pixel (one number, not four);
+    :attr:`pixels` looks the colours up.
+    """
+
+    def __init__(self, width: int, height: int) -> None:
+        self.width = width
+        self.height = height
+        self.index: NDArray[np.int32] = np.zeros((height, width), dtype=np.int32)
+        self.palette: list[Colour] = [(0, 0, 0, 0)]
+
+    @property
+    def pixels(self) -> NDArray[np.uint8]:
+        """(height, width, 4) uint8 RGBA."""
+        return np.array(self.palette, dtype=np.uint8)[self.index]
+
+    def polygons(self, rings: list[NDArray[np.float64]], fill: Colour, edge: Colour) -> None:
+        """Paint closed rings (each (n, 2) float pixel coordinates, x right, y down) filled
+        with ``fill`` (even-odd within a ring, rings of one call unioned) and their border
+        pixels with ``edge``, over what is there."""
+        rows, lo, hi = self.spans(rings)
+        if len(rows) == 0:
+            return
+        # only the window the spans touch, one pixel wider, is looked at
+        r0, r1 = int(rows.min()), int(rows.max()) + 1
+        c0, c1 = int(lo.min()), int(hi.max())
+        top, left = max(r0 - 1, 0), max(c0 - 1, 0)
+        h, w = min(r1 + 1, self.height) - top, min(c1 + 1, self.width) - left
+        flat = np.zeros(h * w, dtype=np.bool_)
+        length = hi - lo
+        start = (rows - top) * w + (lo - left)
+        offsets = np.cumsum(length) - length
+        flat[np.repeat(start - offsets, length) + np.arange(int(length.sum()))] = True
+        inside = flat.reshape(h, w)
+        core = inside.copy()
+        core[1:, :] &= inside[:-1, :]
+        core[:-1, :] &= inside[1:, :]
+        core[:, 1:] &= inside[:, :-1]
+        core[:, :-1] &= inside[:, 1:]
+        if top == 0:
+            core[0, :] = False
+        if top + h == self.height:
+            core[-1, :] = False
+        if left == 0:
+            core[:, 0] = False
+        if left + w == self.width:
+            core[:, -1] = False
+        window = self.index[top : top + h, left : left + w]
+        self.palette += [fill, edge]
+        window[core] = len(self.palette) - 2
+        window[inside & ~core] = len(self.palette) - 1
+
+    def spans(
+        self, rings: list[NDArray[np.float64]]
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """The pixels whose centres lie inside ``rings`` as runs on rows: (row, first
+        column, column after the last) of each run, empty runs dropped."""
+        starts: list[NDArray[np.float64]] = []
+        ends: list[NDArray[np.float64]] = []
+        ids: list[NDArray[np.int64]] = []
+        for k, ring in enumerate(rings):
+            if len(ring) >= 3:
+                starts.append(ring)
+                ends.append(np.roll(ring, -1, axis=0))
+                ids.append(np.full(len(ring), k, dtype=np.int64))
+        if not starts:
+            empty = np.empty(0, dtype=np.int64)
+            return empty, empty, empty
+        a, b, ring_of = np.concatenate(starts), np.concatenate(ends), np.concatenate(ids)
+        rows, xs, owner = _crossings(a, b, ring_of, self.height)
+        # crossings of one ring on one row, sorted by x, pair up into runs
+        order = np.lexsort((xs, rows, owner))
+        rows, xs = rows[order], xs[order]
+        lo = np.clip(np.ceil(xs[0::2] - 0.5), 0, self.width).astype(np.int64)
+        hi = np.clip(np.ceil(xs[1::2] - 0.5), 0, self.width).astype(np.int64)
+        keep = hi > lo
+        return rows[0::2][keep], lo[keep], hi[keep]
+
+    def halved(self) -> Picture:
+        """The picture at half the size, each pixel the alpha-weighted mean of a 2 x 2 block
+        (a width or height that is odd loses its last column or row)."""
+        h, w = self.height // 2, self.width // 2
+        blocks = self.pixels[: 2 * h, : 2 * w].astype(np.float64).reshape(h, 2, w, 2, 4)
+        alpha = blocks[..., 3:4]
+        weight = alpha.sum(axis=(1, 3))
+        colour = (blocks[..., :3] * alpha).sum(axis=(1, 3)) / np.maximum(weight, 1.0)
+        rgba = np.concatenate([colour, weight / 4.0], axis=-1)
+        return Picture(np.rint(rgba).astype(np.uint8))
+
+
+class Picture:
+    """Finished RGBA pixels, (height, width, 4) uint8."""
+
+    def __init__(self, pixels: NDArray[np.uint8]) -> None:
+        self.pixels = pixels
+        self.height, self.width = pixels.shape[:2]
+
+    def png(self) -> bytes:
+        """The picture as a PNG file (8-bit RGBA, no filter, zlib level 9)."""
+        rows = np.zeros((self.height, 1 + 4 * self.width), dtype=np.uint8)
+        rows[:, 1:] = self.pixels.reshape(self.height, -1)
+        header = struct.pack(">IIBBBBB", self.width, self.height, 8, 6, 0, 0, 0)
+        return b"".join((
+            b"\x89PNG\r\n\x1a\n",
+            _chunk(b"IHDR", header),
+            _chunk(b"IDAT", zlib.compress(rows.tobytes(), 9)),
+            _chunk(b"IEND", b""),
+        ))
+
+
+def _crossings(
+    a: NDArray[np.float64], b: NDArray[np.float64], ring_of: NDArray[np.int64], height: int
+) -> tuple[NDArray[np.int64], NDArray[np.float64], NDArray[np.int64]]:
+    """Where edges ``a[i] -> b[i]`` cross the pixel rows' centre lines ``y = r + 0.5``:
+    (row, x, ring) of each crossing. An edge counts the rows whose centres lie in
+    ``[min y, max y)``, so a ring crosses every row an even number of times."""
+    y0, y1 = np.minimum(a[:, 1], b[:, 1]), np.maximum(a[:, 1], b[:, 1])
+    first = np.clip(np.ceil(y0 - 0.5), 0, height).astype(np.int64)
+    last = np.clip(np.ceil(y1 - 0.5), 0, height).astype(np.int64)  # exclusive
+    n = np.maximum(last - first, 0)
+    edge = np.repeat(np.arange(len(a)), n)
+    if len(edge) == 0:
+        empty = np.empty(0, dtype=np.int64)
+        return empty, np.empty(0, dtype=np.float64), empty
+    offsets = np.cumsum(n) - n
+    rows = first[edge] + np.arange(len(edge)) - offsets[edge]
+    yc = rows + 0.5
+    pa, pb = a[edge], b[edge]
+    t = (yc - pa[:, 1]) / (pb[:, 1] - pa[:, 1])
+    xs = pa[:, 0] + t * (pb[:, 0] - pa[:, 0])
+    return rows, xs, ring_of[edge]
+
+
+def _chunk(kind: bytes, data: bytes) -> bytes:
+    """One PNG chunk: length, type, data, CRC of type and data."""
+    return struct.pack(">I", len(data)) + kind + data + struct.pack(
+        ">I", zlib.crc32(kind + data) & 0xFFFFFFFF
+    )

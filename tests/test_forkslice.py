@@ -1,0 +1,76 @@
+"""Layers sliced in forked workers: the same bytes as in one process, errors carried back."""
+
+from __future__ import annotations
+
+import os
+
+import pytest
+
+from slicer.errors import ModelError
+from slicer.forkslice import forked_layers
+from slicer.gcodefile import _SMALL, _chunks, _layer_text, write_gcode
+from slicer.plan import SlicePlan
+from slicer.settings import SliceSettings
+from tests.slicer_helpers import box_stl
+
+pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+
+
+@pytest.fixture(scope="module")
+def tall_box(tmp_path_factory) -> SlicePlan:
+    # 70 layers: more than the models whose first layers are timed before forking
+    path = box_stl(tmp_path_factory.mktemp("box") / "box.stl", (12.0, 8.0, 14.0))
+    return SlicePlan.from_file(path, SliceSettings())
+
+
+def test_one_and_two_workers_write_the_same_bytes(tall_box: SlicePlan, tmp_path) -> None:
+    assert tall_box.layer_count > _SMALL  # so two workers are forked without a trial first
+    one = write_gcode(tall_box, tmp_path / "one.gcode", workers=1)
+    two = write_gcode(tall_box, tmp_path / "two.gcode", workers=2)
+    assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
+    assert (one.layers, one.filament_mm, one.time_s) == (two.layers, two.filament_mm, two.time_s)
+
+
+def test_forked_layers_come_back_in_order_from_other_processes(tall_box: SlicePlan) -> None:
+    n = tall_box.layer_count
+    here = [_layer_text(tall_box, i) for i in range(20)]
+    pids: list[int] = []
+
+    def layer(i: int) -> tuple[str, float, float]:
+        text, filament, seconds = _layer_text(tall_box, i)
+        return f"{text};pid {os.getpid()}\n", filament, seconds
+
+    forked = list(forked_layers(layer, list(_chunks(0, 20)), 2))
+    assert n > 20
+    assert len(forked) == 20
+    for (text, filament, seconds), (want, want_f, want_s) in zip(forked, here, strict=True):
+        body, pid_line = text.rsplit(";pid ", 1)
+        pids.append(int(pid_line))
+        assert (body, filament, seconds) == (want, want_f, want_s)
+    assert os.getpid() not in pids
+    assert len(set(pids)) == 2  # both workers sliced some
+
+
+def test_a_worker_s_error_is_raised_here_and_the_workers_end() -> None:
+    def layer(i: int) -> tuple[str, float, float]:
+        if i == 9:
+            raise ModelError(f"layer {i} cannot be sliced")
+        return f";{i}\n", 0.0, 0.0
+
+    got: list[str] = []
+    with pytest.raises(ModelError, match="layer 9 cannot be sliced"):
+        for text, _f, _s in forked_layers(layer, [(0, 4), (4, 8), (8, 12), (12, 16)], 2):
+            got.append(text)
+    assert got == [f";{i}\n" for i in range(8)]
+
+
+def test_closing_early_stops_the_workers() -> None:
+    layers = forked_layers(lambda i: (f"{os.getpid()}", 1.0, 0.5), [(k, k + 1) for k in range(60)],
+                           2)
+    pids = {int(next(layers)[0]), int(next(layers)[0])}
+    assert len(pids) == 2
+    assert os.getpid() not in pids
+    layers.close()  # kills and reaps both workers at once, with 58 layers not sliced
+    for pid in pids:
+        with pytest.raises(ChildProcessError):
+            os.waitpid(pid, os.WNOHANG)
