@@ -10,6 +10,9 @@ $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
 	$(BIN)/pip install --quiet --upgrade pip
 	$(BIN)/pip install --quiet -e '.[test]'
+	# bytecode written once, as an installed package has it (PYTHONDONTWRITEBYTECODE
+	# would otherwise leave every `hostd slice` compiling the project's modules anew)
+	$(BIN)/python -m compileall -q hostd slicer drivers tui >/dev/null
 	touch $(STAMP)
 
 # Debian packages the test suite uses (real MQTT brokers: mosquitto, a nats-server

@@ -6,9 +6,10 @@ import os
 
 import pytest
 
+from slicer import gcodefile
 from slicer.errors import ModelError
 from slicer.forkslice import forked_layers
-from slicer.gcodefile import _SMALL, _chunks, _layer_text, write_gcode
+from slicer.gcodefile import _chunks, _layer_text, write_gcode
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tests.slicer_helpers import box_stl
@@ -18,15 +19,27 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 
 @pytest.fixture(scope="module")
 def tall_box(tmp_path_factory) -> SlicePlan:
-    # 70 layers: more than the models whose first layers are timed before forking
     path = box_stl(tmp_path_factory.mktemp("box") / "box.stl", (12.0, 8.0, 14.0))
     return SlicePlan.from_file(path, SliceSettings())
 
 
-def test_one_and_two_workers_write_the_same_bytes(tall_box: SlicePlan, tmp_path) -> None:
-    assert tall_box.layer_count > _SMALL  # so two workers are forked without a trial first
+def test_one_and_two_workers_write_the_same_bytes(
+    tall_box: SlicePlan, tmp_path, monkeypatch
+) -> None:
+    forks: list[int] = []
+    fork = os.fork
+
+    def counted() -> int:
+        forks.append(1)
+        return fork()
+
     one = write_gcode(tall_box, tmp_path / "one.gcode", workers=1)
+    assert forks == []
+    # a box is too quick to fork for: the workers are forced here
+    monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
+    monkeypatch.setattr(os, "fork", counted)
     two = write_gcode(tall_box, tmp_path / "two.gcode", workers=2)
+    assert len(forks) == 2
     assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
     assert (one.layers, one.filament_mm, one.time_s) == (two.layers, two.filament_mm, two.time_s)
 
