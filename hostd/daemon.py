@@ -23,6 +23,7 @@ from hostd.jobfolder import LOAD_SUFFIX, split_name
 from hostd.joblife import JobLife
 from hostd.jobstate import HubState, Interrupted, PrinterError
 from hostd.jobstore import Job, JobStore
+from hostd.loadcheck import load_analysis_modules
 from hostd.printer import printer_link
 from hostd.printjob import PrintJob, printer_settings
 from hostd.sources import warm_up
@@ -94,7 +95,7 @@ class Daemon:
                 group.create_task(self._until_stopped(), name="signals")
                 group.create_task(self._serve_optional(), name="services")
                 watcher = Watcher(self.config.jobs.folder, self.config.jobs.settle_s, self._take,
-                                  on_still=self._still)
+                                  on_still=self._still, on_seen=_seen)
                 group.create_task(watcher.run(self._stop), name="watcher")
                 group.create_task(self._print_loop(executor), name="printer")
         except* _Stop:
@@ -127,7 +128,9 @@ class Daemon:
 
     def _still(self, path: Path) -> None:
         """A model has held still for half its settle time: when it will be the next job
-        on an idle printer, begin its whole-model pass now (see :mod:`hostd.speculate`)."""
+        on an idle printer, begin its whole-model pass now (see :mod:`hostd.speculate`);
+        a load case beside it is checked now, whatever the printer does."""
+        self.intake.check_ahead(path)
         link = self.link
         if link is None or self.current is not None or self.store.queued():
             return
@@ -282,6 +285,13 @@ class Daemon:
 
             with contextlib.suppress(OSError):
                 sdnotify.notify(message)
+
+
+def _seen(path: Path) -> None:
+    """A job name newly seen in the folder: a load case's job will need the analysis'
+    modules, loaded from now on while it and its model settle."""
+    if path.name.lower().endswith(LOAD_SUFFIX):
+        load_analysis_modules()
 
 
 def _heater(reading: tuple[float, float | None] | None, last: Temperature) -> Temperature:

@@ -4,12 +4,10 @@ from __future__ import annotations
 
 import asyncio
 import hashlib
-import importlib
 import logging
 import os
 import shutil
 import stat
-import threading
 import tomllib
 import uuid
 from pathlib import Path
@@ -18,10 +16,9 @@ from hostd.config import Config, ConfigError, slicing_settings
 from hostd.jobfolder import LOAD_SUFFIX, free_stem, leaves_folder, move, split_name
 from hostd.jobstate import Queued
 from hostd.jobstore import Job, JobStore
+from hostd.loadcheck import LoadChecks, load_analysis_modules
 from hostd.outcomes import Outcomes
 from hostd.status import StatusHub
-from slicer.errors import ModelError
-from slicer.settings import SliceSettings
 
 log = logging.getLogger("hostd.intake")
 
@@ -40,11 +37,12 @@ class Intake:
         self.jobs_folder = config.jobs.folder
         self.area = config.state.folder / "jobs"
         self.outcomes = Outcomes(self.jobs_folder, self.area, store, hub)
+        self.load_checks = LoadChecks(config.state.folder / "fea")
 
     async def take(self, path: Path) -> Job | None:
         """Check ``path`` and queue it as a job, or send it to failed/ with the reason."""
         if path.name.lower().endswith(LOAD_SUFFIX):
-            _load_analysis_modules()  # its model's job will need them: load them meanwhile
+            load_analysis_modules()  # its model's job will need them: load them meanwhile
             return self._lone_load(path)
         stem, suffix = split_name(path.name)
         override = path.with_name(f"{stem}.toml")
@@ -54,8 +52,9 @@ class Intake:
             self._check(path)
             settings = self._settings(override) if kind == "stl" else {}
             if kind == "stl" and (load.exists() or load.is_symlink()):
-                await asyncio.to_thread(_check_load, path, load, settings,
-                                        self.config.state.folder / "fea")
+                reason = await self.load_checks.refusal(path, load, settings)
+                if reason is not None:
+                    raise Rejected(reason)
             digest = await asyncio.to_thread(_sha256, path)
         except Rejected as exc:
             job = self.store.add(path.name, str(path), str(path), kind, "", {})
@@ -72,6 +71,19 @@ class Intake:
         log.info("job %s: %s queued (sha256 %s)", job.id, job.name, digest[:12])
         self.outcomes.life.publish(Queued(job.id, job.name))
         return job
+
+    def check_ahead(self, path: Path) -> None:
+        """Begin checking the load case of a model that is settling (nothing for a model
+        without one, or whose settings are refused: its take reports that)."""
+        stem, suffix = split_name(path.name)
+        load = path.with_name(f"{stem}{LOAD_SUFFIX}")
+        if suffix != ".stl" or not load.is_file():
+            return
+        try:
+            settings = self._settings(path.with_name(f"{stem}.toml"))
+        except Rejected:
+            return
+        self.load_checks.begin(path, load, settings)
 
     def _lone_load(self, path: Path) -> None:
         """A settled load case: taken later with its model, or failed when there is none."""
@@ -162,49 +174,6 @@ class Intake:
                     target = self.jobs_folder / f"{free_stem(self.jobs_folder, stem)}{suffix}"
                 move(path, target)
             incoming.rmdir()
-
-
-_ANALYSIS_MODULES = threading.Lock()  # held while (or once) they are being loaded
-
-
-def _load_analysis_modules() -> None:
-    """Load the analysis' modules on a worker thread, once: a load case arrives before
-    its model settles, so the stress job does not wait for the imports (seconds on a
-    small board); a daemon that never sees a load case never loads them."""
-
-    def load() -> None:
-        for name in ("slicer.fea.field", "slicer.fea.tailor", "slicer.fields.stress",
-                     "slicer.fields.stress_data"):
-            importlib.import_module(name)
-
-    if _ANALYSIS_MODULES.acquire(blocking=False):  # never released: once per process
-        threading.Thread(target=load, name="fea-import", daemon=True).start()
-
-
-def _check_load(model: Path, load: Path, settings: dict[str, object], cache: Path) -> None:
-    """Refuse a job whose load case (``NAME.load.toml``) cannot be analysed: Rejected
-    with the case's own reason. A model that cannot be read is left to the slicing,
-    which fails the job with the model's reason. A case already analysed (its result
-    in ``cache``) is known good: only its file is read again."""
-    from slicer.fea.field import check_case, field_path  # loaded only when needed
-    from slicer.fea.loadcase import LoadCaseError
-    from slicer.fea.tailor import optimal_volume
-
-    if load.is_symlink() or not load.is_file():
-        raise Rejected(f"{load.name} must be a plain file")
-    chosen = SliceSettings.from_mapping(settings)
-    try:
-        known = field_path(model, load, cache, chosen.fea_mesh_size,
-                           chosen.fea_youngs_modulus_mpa, chosen.fea_poisson_ratio,
-                           optimal_volume(chosen))[0]
-        if known.is_file():
-            return
-        check_case(model, load, chosen.fea_mesh_size, chosen.fea_youngs_modulus_mpa,
-                   chosen.fea_poisson_ratio)
-    except LoadCaseError as exc:
-        raise Rejected(str(exc)) from exc
-    except ModelError:
-        return
 
 
 def _sha256(path: Path) -> str:

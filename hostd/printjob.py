@@ -7,6 +7,7 @@ import concurrent.futures
 import contextlib
 import logging
 import os
+import threading
 import time
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
@@ -27,14 +28,13 @@ from hostd.reentry import resume_line
 from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
-from hostd.speculate import Speculation
+from hostd.speculate import MadeAhead, Speculation
 from hostd.status import StatusHub
 from slicer.annotate import annotate_file
 from slicer.arcs import for_printer
 from slicer.errors import ModelError
 from slicer.fea.tailor import Tailoring, find_load_case, tailored_plan
 from slicer.gcode import header_lines, summarize
-from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
 log = logging.getLogger("hostd.job")
@@ -76,6 +76,9 @@ class PrintJob:
         self.warned: list[str] = []  # the model's warnings logged so far
         self.tailoring: Tailoring | None = None  # the analysis and equal mass, for the summary
         self.analysis_file = ""  # the field file an analysis beside the print is writing
+        # an analysis beside the print begins once the printer laid the first filament
+        # (or a layer needs its field, or the job ends): see `tailored_plan`
+        self.analysis_hold = threading.Event()
         stem, _suffix = split_name(job.name)
         self.home = Path(job.path).parent
         self.partial = self.home / f"{stem}.gcode.part"
@@ -87,6 +90,12 @@ class PrintJob:
         CancelledError (the daemon stopping) leaves the job interrupted at its last
         checkpoint. LinkError leaves it interrupted too, and is raised again.
         """
+        try:
+            return await self._run(link)
+        finally:
+            self.analysis_hold.set()  # an analysis held for this job is not held forever
+
+    async def _run(self, link: Streamer) -> str:
         job = self.store.get(self.job.id)
         job = self.life.enter(job.id, JobState.SLICING,
                               status=JobStatus(id=job.id, name=job.name, layer=max(job.layer, 0)))
@@ -185,11 +194,12 @@ class PrintJob:
         ahead = await self._made_ahead(job, settings)
         try:
             if ahead is not None:
-                plan, tailoring = ahead, Tailoring(None, None)
+                plan, tailoring = ahead.plan, Tailoring(None, None)
             else:
                 plan, tailoring = await asyncio.to_thread(
                     tailored_plan, Path(job.path), settings, self.config.printer.bed,
                     self.config.state.folder / "fea", None, background=True,
+                    hold=self.analysis_hold,
                 )
         except ModelError as exc:  # a file still being written may not parse yet
             error = exc
@@ -201,6 +211,7 @@ class PrintJob:
             plan, tailoring = await asyncio.to_thread(
                 tailored_plan, Path(job.path), settings, self.config.printer.bed,
                 self.config.state.folder / "fea", None, background=True,
+                hold=self.analysis_hold,
             )
         elif error is not None:
             raise error
@@ -220,21 +231,23 @@ class PrintJob:
             plan, settings, self.store.settings_changes(job.id),
             self.store.cancelled_objects(job.id),
         )
+        if ahead is not None and ahead.plan is plan and ahead.first_layer is not None:
+            self.schedule.made_ahead(0, ahead.first_layer)
         return SlicedSource(self.schedule, first, self.config.runner.lookahead, self.executor,
-                            resume)
+                            resume, on_started=self.analysis_hold.set)
 
-    async def _made_ahead(self, job: Job, settings: SliceSettings) -> SlicePlan | None:
-        """The whole-model pass begun while the file settled, if it fits this job."""
+    async def _made_ahead(self, job: Job, settings: SliceSettings) -> MadeAhead | None:
+        """The whole-model pass (and layer 0) begun while the file settled, if it fits
+        this job."""
         if self.speculation is None:
             return None
         bed = self.config.printer.bed
         ahead = await self.speculation.take(Path(job.path), settings, bed)
         if ahead is None or find_load_case(job.path, settings) is not None:
             return None
-        plan, took = ahead
         log.info("job %s %s: whole-model pass made while the file settled (%.2f s)",
-                 job.id, job.name, took)
-        return plan
+                 job.id, job.name, ahead.seconds)
+        return ahead
 
     def _waiting(self) -> str | None:
         """``"analysis"`` while a layer waits for the stress analysis running beside the

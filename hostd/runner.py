@@ -154,6 +154,7 @@ class JobRunner:
         self._parked = False  # the pause in force lifted the nozzle
         self._commands = asyncio.Lock()  # pause and resume, one at a time
         self._cancelled = False
+        self._extruded = False  # the printer acknowledged an extruding move of this run
         self._last_seq = -1  # JobLine.seq of the newest job line acknowledged
         self.output_error: str | None = None
         self._started = time.monotonic()
@@ -313,6 +314,11 @@ class JobRunner:
         tag = ack.tag
         if not isinstance(tag, JobLine):
             return
+        if not self._extruded and tag.layer >= 0 and _extrudes(ack.command):
+            self._extruded = True
+            log.info("job %s %s: first extruding move acknowledged (layer %d)", self.job.id,
+                     self.job.name, tag.layer)
+            self.source.started()
         self.lines_acked += 1
         self._last_seq = tag.seq
         self._check_marks()
@@ -422,6 +428,23 @@ class JobRunner:
         else:
             self.hub.update(job=self.status())
         self.state = state
+
+
+def _extrudes(command: str) -> bool:
+    """True for a move in X or Y that lays filament (``G1``-``G3`` with a positive ``E``)."""
+    words = command.split()
+    if not words or words[0] not in ("G1", "G2", "G3"):
+        return False
+    axes = {word[0] for word in words[1:]}
+    if not axes & {"X", "Y"}:
+        return False
+    for word in words[1:]:
+        if word[0] == "E":
+            try:
+                return float(word[1:]) > 0
+            except ValueError:
+                return False
+    return False
 
 
 def _clock(seconds: float) -> str:

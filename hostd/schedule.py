@@ -8,6 +8,7 @@ from typing import Any
 
 import numpy as np
 
+from slicer import gcode
 from slicer.entry import entered, last_xy
 from slicer.gcode import fan_command
 from slicer.plan import SlicePlan
@@ -39,6 +40,13 @@ class LayerSchedule:
         # layer -> (the slicer's estimated seconds, filament mm) of each layer sliced here
         self.estimates: dict[int, tuple[float, float]] = {}
         self.lines: dict[int, int] = {}  # layer -> its command lines (the same layers)
+        # layer -> its code made before the job began (base settings, every body)
+        self._ahead: dict[int, gcode.LayerCode] = {}
+
+    def made_ahead(self, layer: int, code: gcode.LayerCode) -> None:
+        """Layer ``layer``'s code, made by the base plan with every body before the job
+        began (:mod:`hostd.speculate`): used once, if the layer is still sliced so."""
+        self._ahead[layer] = code
 
     @property
     def layer_count(self) -> int:
@@ -73,7 +81,10 @@ class LayerSchedule:
         new values are set right after the ``;LAYER:`` line (the slicer sets them
         only in the start block).
         """
-        code = self.plan_at(layer).layer_code(layer, self.excluded_at(layer))
+        code = self._ahead.pop(layer, None)
+        if code is None or self.settings_at(layer) != self.base_settings or (
+                self.excluded_at(layer)):
+            code = self.plan_at(layer).layer_code(layer, self.excluded_at(layer))
         self.estimates[layer] = (code.time_s, code.filament_mm)
         self.lines[layer] = sum(1 for line in code.lines if line[:1] not in ("", ";"))
         lines = list(code.lines)

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures
-from collections.abc import Iterator
+import threading
+from collections.abc import Callable, Iterator
 from pathlib import Path
 from typing import Protocol
 
@@ -56,6 +57,11 @@ class LayerSource(Protocol):
         """Lines after the last layer."""
         ...
 
+    def started(self) -> None:
+        """The printer acknowledged the job's first extruding move: work held back so
+        as not to delay it may begin."""
+        ...
+
     @property
     def ready_ahead(self) -> int:
         """Layers already made and waiting to be streamed."""
@@ -78,7 +84,10 @@ class SlicedSource:
     `hostd slice` use too: a layer is submitted only when one is taken, so memory
     holds at most ``depth`` layers however many the model has. Until a layer with
     something to print is made, layers are sliced one at a time: no other layer
-    competes with the one the printer waits for.
+    competes with the one the printer waits for. The layers after the first are
+    then held back until the printer acknowledged the first extruding move
+    (:meth:`started`) or the next layer is asked for: slicing them in the pool's
+    threads would take the interpreter from the lines the printer waits for.
     """
 
     def __init__(
@@ -88,14 +97,20 @@ class SlicedSource:
         depth: int,
         executor: concurrent.futures.Executor,
         resume: bool,
+        on_started: Callable[[], None] | None = None,
     ) -> None:
+        """``on_started``: called once from :meth:`started`, for other work held back."""
         self.schedule = schedule
+        self._on_started = on_started
         self.layer_count = schedule.layer_count
         self.first = first
         self.resume = resume
+        self._executor = executor
+        self._lock = threading.Lock()
+        # layers asked for while held back, with the futures the window was given
+        self._held: list[tuple[int, concurrent.futures.Future[list[str]]]] | None = []
         self._window: LayerWindow[list[str]] = LayerWindow(
-            lambda index: executor.submit(schedule.layer_gcode, index),
-            self.layer_count, depth, first=first, alone=True,
+            self._submit, self.layer_count, depth, first=first, alone=True,
             worth=lambda lines: len(lines) > 1,  # more than its ;LAYER line
         )
         self._at: np.ndarray | None = None  # where the nozzle is after the last layer taken
@@ -106,7 +121,34 @@ class SlicedSource:
         plan = self.schedule.plan_at(self.first)
         return list(plan.resume_gcode(self.first) if self.resume else plan.start_gcode())
 
+    def _submit(self, index: int) -> concurrent.futures.Future[list[str]]:
+        """Slice layer ``index`` in the pool, or hold it back (see the class)."""
+        with self._lock:
+            if self._held is not None and index != self.first:
+                waiting: concurrent.futures.Future[list[str]] = concurrent.futures.Future()
+                self._held.append((index, waiting))
+                return waiting
+        return self._executor.submit(self.schedule.layer_gcode, index)
+
+    def started(self) -> None:
+        with self._lock:
+            held, self._held = self._held, None
+            then, self._on_started = self._on_started, None
+        if then is not None:
+            then()
+        for index, waiting in held or ():
+            if not waiting.set_running_or_notify_cancel():
+                continue  # dropped by close()
+            try:
+                made = self._executor.submit(self.schedule.layer_gcode, index)
+            except RuntimeError as exc:  # the pool is shutting down
+                waiting.set_exception(exc)
+                continue
+            made.add_done_callback(lambda done, into=waiting: _pass_on(done, into))
+
     async def layer(self, index: int) -> list[str]:
+        if index != self.first:
+            self.started()  # the first layer is streamed: hold nothing back any longer
         lines = await self._window.take_async(index)
         if self.schedule.excluded_at(index) and index > 0:
             # the first travel goes around the cancelled bodies from where the layer
@@ -179,6 +221,9 @@ class FileSource:
     def ending(self) -> list[str]:
         return []
 
+    def started(self) -> None:
+        pass
+
     @property
     def ready_ahead(self) -> int:
         return 1
@@ -189,6 +234,18 @@ class FileSource:
 
     def close(self) -> None:
         self._chunks.close()
+
+
+def _pass_on(
+    done: concurrent.futures.Future[list[str]], into: concurrent.futures.Future[list[str]]
+) -> None:
+    """Give ``into`` the outcome of ``done``."""
+    if done.cancelled():
+        into.set_exception(concurrent.futures.CancelledError())
+    elif done.exception() is not None:
+        into.set_exception(done.exception())
+    else:
+        into.set_result(done.result())
 
 
 def _is_text(line: str) -> bool:

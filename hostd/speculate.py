@@ -1,9 +1,10 @@
 """The whole-model pass begun while a dropped model settles, taken by its job if nothing changed.
 
 A dropped file is taken once it has held still for ``jobs.settle_s``; the
-printer then waits for the whole-model pass before the first layer. When the
-printer is idle and nothing else waits, that pass can begin halfway through the
-settle time instead, from the file as it is then. The job takes the result only
+printer then waits for the whole-model pass and the first layer. When the
+printer is idle and nothing else waits, that pass and layer 0's G-code can
+begin halfway through the settle time instead, from the file as it is then.
+The job takes the result only
 if the file is the very one that was read (same device, inode, size and
 modification time: moving it into the job's folder keeps all four) and the
 settings are the same; otherwise the pass is made again, as without this. The
@@ -18,7 +19,9 @@ import os
 import time
 from dataclasses import dataclass
 from pathlib import Path
+from typing import NamedTuple
 
+from slicer.gcode import LayerCode
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -43,12 +46,21 @@ def is_plain(settings: SliceSettings) -> bool:
             and not settings.infill_match_mass_of and settings.infill_target_mass_g <= 0)
 
 
+class MadeAhead(NamedTuple):
+    """What was made while the file settled: the plan, the seconds its whole-model pass
+    took, and layer 0's G-code (no body left out; None if slicing it failed)."""
+
+    plan: SlicePlan
+    seconds: float
+    first_layer: LayerCode | None
+
+
 @dataclass
 class _Pass:
     key: Identity
     settings: SliceSettings
     bed: tuple[float, float, float]
-    future: asyncio.Future[tuple[SlicePlan, float] | None]
+    future: asyncio.Future[MadeAhead | None]
 
 
 class Speculation:
@@ -82,9 +94,9 @@ class Speculation:
 
     async def take(
         self, path: Path, settings: SliceSettings, bed: tuple[float, float, float]
-    ) -> tuple[SlicePlan, float] | None:
-        """The plan made ahead for exactly this file and these settings, with the seconds
-        its pass took; None when there is none (the caller makes the pass itself)."""
+    ) -> MadeAhead | None:
+        """The plan (and layer 0) made ahead for exactly this file and these settings;
+        None when there is none (the caller makes the pass itself)."""
         held, self._pass = self._pass, None
         if held is None or (held.settings, held.bed) != (settings, bed):
             return None
@@ -96,10 +108,11 @@ class Speculation:
 def _whole_model_pass(
     fd: int, name: str, key: Identity, settings: SliceSettings,
     bed: tuple[float, float, float],
-) -> tuple[SlicePlan, float] | None:
+) -> MadeAhead | None:
     """The plan of the file open as ``fd`` (closed here) if it still is ``key`` after it
-    was read, else None. Read through the descriptor, the file may be moved meanwhile
-    (a rename keeps its bytes and its identity)."""
+    was read, else None; with it layer 0's G-code, the first thing the printer waits
+    for. Read through the descriptor, the file may be moved meanwhile (a rename keeps
+    its bytes and its identity)."""
     started = time.monotonic()
     try:
         if identity(fd) != key:
@@ -112,10 +125,16 @@ def _whole_model_pass(
         return None
     finally:
         os.close(fd)
-    return plan, time.monotonic() - started
+    seconds = time.monotonic() - started
+    try:  # the same call the job's schedule makes for layer 0: the same bytes
+        first: LayerCode | None = plan.layer_code(0) if plan.layer_count else None
+    except Exception:  # the job slices it again and reports what is wrong
+        log.debug("layer 0 of %s ahead of its job failed", name, exc_info=True)
+        first = None
+    return MadeAhead(plan, seconds, first)
 
 
-def _quiet(future: asyncio.Future[tuple[SlicePlan, float] | None]) -> None:
+def _quiet(future: asyncio.Future[MadeAhead | None]) -> None:
     """Retrieve an abandoned pass's outcome so that nothing is logged for it."""
     if not future.cancelled():
         future.exception()

@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 import logging
 import os
+import sys
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass
@@ -20,9 +21,21 @@ log = logging.getLogger("hostd.watcher")
 
 OnSettled = Callable[[Path], Awaitable[None]]
 
-# how far a file's change time may lag the moment of the change: file times are taken
-# from the kernel's coarse clock, which moves in ticks of up to 10 ms
-_STAMP_GRAIN_S = 0.01
+# Linux's CLOCK_REALTIME_COARSE (not in the time module), which file times are taken from
+_REALTIME_COARSE = 5
+
+
+def _stamp_grain() -> float:
+    """How far a file's change time may lag the moment of the change: one tick of the
+    kernel's coarse clock (its resolution: 4 ms at 250 Hz), 10 ms where unknown."""
+    try:
+        tick = time.clock_getres(_REALTIME_COARSE) if sys.platform == "linux" else 0.0
+    except OSError:
+        tick = 0.0
+    return tick if 0.0 < tick <= 0.01 else 0.01
+
+
+_STAMP_GRAIN_S = _stamp_grain()
 # how often a settled file that a writer still holds open is looked at again (s)
 _HELD_RECHECK_S = 0.25
 
@@ -45,17 +58,20 @@ class Watcher:
     job names are passed on too, so that the intake can refuse them with a reason.
     The folder is scanned again every ``rescan_s`` seconds in case an event was missed.
     ``on_still(path)`` is called when a file has held still for half its settle time
-    (again after each change), so that work on it may begin before it is taken.
+    (again after each change), so that work on it may begin before it is taken;
+    ``on_seen(path)`` when a job name first appears (it must return at once).
     """
 
     def __init__(
         self, folder: Path, settle_s: float, on_settled: OnSettled, rescan_s: float = 10.0,
         on_still: Callable[[Path], None] | None = None,
+        on_seen: Callable[[Path], None] | None = None,
     ) -> None:
         self.folder = folder
         self.settle_s = settle_s
         self.on_settled = on_settled
         self.on_still = on_still  # a file held still for half its settle time
+        self.on_seen = on_seen  # a job name newly seen
         self.rescan_s = rescan_s
         self._pending: dict[Path, _Seen] = {}
         self._held: set[Path] = set()  # settled files a writer still holds open (logged once)
@@ -95,6 +111,11 @@ class Watcher:
         if path not in self._pending:
             self._pending[path] = _Seen(None, time.monotonic())
             self._wake.set()
+            if self.on_seen is not None:
+                try:
+                    self.on_seen(path)
+                except Exception:  # work begun ahead is optional; taking the file is not
+                    log.exception("work ahead on %s failed", path.name)
 
     async def _watch(self, stop: asyncio.Event) -> None:
         async for changes in awatch(

@@ -121,6 +121,38 @@ def test_the_lattice_is_read_as_interpolated_in_3d_and_a_layer_waits_for_it(
     assert np.allclose(got[0], expected, rtol=1e-9, atol=1e-9)
 
 
+def test_a_held_analysis_begins_once_a_layer_needs_its_field(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch
+) -> None:
+    from slicer.fea import field
+
+    bar = trimesh.creation.box((30.0, 10.0, 3.0))
+    bar.apply_translation([15.0, 5.0, 1.5])
+    stl = write_mesh(bar, tmp_path / "bar.stl")
+    (tmp_path / "bar.load.toml").write_text(
+        "[[fixed]]\nbox = [[0, 0, 0], [0, 10, 3]]\n"
+        "[[force]]\nbox = [[30, 0, 0], [30, 10, 3]]\nnewtons = [100, 0, 0]\n")
+    hold = threading.Event()
+    begun: list[bool] = []  # for each analysis begun: was it released by then
+    solve = field.solve_field
+    monkeypatch.setattr(field, "solve_field",
+                        lambda *args: begun.append(hold.is_set()) or solve(*args))
+    settings = SliceSettings.from_mapping({"fea.mesh_size": 1.0})
+    try:
+        plan, tailoring = tailored_plan(stl, settings, BED, tmp_path / "fea", background=True,
+                                        hold=hold)
+        assert tailoring.running is not None
+        plan.layer_gcode(0)  # a bottom skin needs no field: nothing releases the analysis
+        assert begun == []
+        assert not hold.is_set()
+        middle = plan.layer_count // 2
+        assert "FILL" in "".join(plan.layer_gcode(middle))  # waited for the field
+        assert begun == [True]
+        assert tailoring.running.result().path.is_file()
+    finally:
+        hold.set()  # never leave the analyses' worker waiting
+
+
 def test_the_optimal_density_sets_the_line_density_itself() -> None:
     # densest where the density is 1 (lines a line width apart at most), a quarter
     # as dense where it is a quarter, two octaves; the mean spacing is the target's

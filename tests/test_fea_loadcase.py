@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import asyncio
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ import pytest
 import trimesh
 from conftest import sim_config
 
+from hostd.loadcheck import LoadChecks
 from slicer.fea.field import analyse_arrays, check_case
 from slicer.fea.loadcase import LoadCaseError, parse_load_case
 
@@ -94,6 +96,32 @@ def test_check_case_refuses_a_load_file_whose_model_is_missing(tmp_path: Path) -
     load.write_text(BAR)
     with pytest.raises(LoadCaseError, match=r"part\.load\.toml: its model part\.stl is missing"):
         check_case(tmp_path / "part.stl", load)
+
+
+def test_a_check_begun_while_the_files_settle_counts_only_for_the_same_files(
+    tmp_path: Path,
+) -> None:
+    stl, load = tmp_path / "bar.stl", tmp_path / "bar.load.toml"
+    bar_mesh().export(stl)
+    load.write_text(BAR)
+    no_face = BAR.replace("[[30, 0, 0], [30, 10, 3]]", "[[50, 0, 0], [51, 10, 3]]")
+
+    async def scenario() -> list[str | None]:
+        checks = LoadChecks(tmp_path / "fea")
+        checks.begin(stl, load, {})
+        good = await checks.refusal(stl, load, {})
+        checks.begin(stl, load, {})
+        load.write_text(no_face)  # the case changed after its check began
+        changed = await checks.refusal(stl, load, {})
+        checks.begin(stl, load, {})
+        again = await checks.refusal(stl, load, {})
+        return [good, changed, again]
+
+    good, changed, again = asyncio.run(scenario())
+    assert good is None
+    assert changed is not None
+    assert "selects no face" in changed
+    assert again == changed
 
 
 DAEMON_CASES = {

@@ -18,7 +18,7 @@ from drivers.simconfig import SimulatorConfig
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer, StreamerConfig
 from drivers.transport import open_transport
-from hostd.runner import JobRunner, open_output
+from hostd.runner import JobRunner, _extrudes, open_output
 from hostd.schedule import LayerSchedule
 from hostd.sources import SlicedSource
 from hostd.status import StatusHub
@@ -76,7 +76,7 @@ async def print_job(
     job = store.add("dogbone.stl", str(MODEL), str(MODEL), "stl", "00", settings.to_mapping())
     store.transition(job.id, "slicing")
     hub = StatusHub()
-    seen: dict = {"ahead": [], "sliced_at_first_send": None}
+    seen: dict = {"ahead": [], "sliced_at_first_send": None, "sliced_at_first_extrusion": None}
     printer = SimulatedPrinter(SimulatorConfig(time_scale=time_scale, baud=0))
     path = printer.start()
     executor = concurrent.futures.ThreadPoolExecutor(2)
@@ -94,6 +94,9 @@ async def print_job(
             async def send(command: str, tag: object = None) -> int:
                 if seen["sliced_at_first_send"] is None and not command.startswith(("M1", "G28")):
                     seen["sliced_at_first_send"] = len(schedule.sliced)
+                if seen["sliced_at_first_extrusion"] is None and _extrudes(command):
+                    with schedule._count_lock:
+                        seen["sliced_at_first_extrusion"] = sorted(schedule.sliced)
                 seen["ahead"].append(source.ready_ahead)
                 return await original_send(command, tag)
 
@@ -141,6 +144,9 @@ def test_layers_are_sliced_just_ahead_and_checkpointed_as_acknowledged(tmp_path:
     # never the whole file first: streaming began with at most the lookahead sliced
     assert seen["sliced_at_first_send"] is not None
     assert seen["sliced_at_first_send"] <= 3
+    # and the layers after the first wait until the printer took its first extruding
+    # move: nothing competes with the lines it waits for
+    assert seen["sliced_at_first_extrusion"] == [0]
     assert max(seen["ahead"]) <= 3  # bounded: backpressure
     # checkpoints in order: layers, line counts and file offsets never go back; a newer
     # one replaces one not yet written, and the last records the last layer

@@ -8,6 +8,7 @@ import pytest
 import trimesh
 
 from hostd.schedule import LayerSchedule
+from slicer.gcode import LayerCode
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
@@ -57,3 +58,21 @@ def test_retunes_that_change_the_geometry_or_break_a_range_are_refused(plan: Sli
     with pytest.raises(SettingsError):
         schedule.retune(3, {"no_such_key": 1})
     assert schedule.changes == []
+
+
+def test_a_layer_made_ahead_is_used_once_and_only_if_sliced_as_then(plan: SlicePlan) -> None:
+    made = plan.layer_code(0)
+    marked = LayerCode([*made.lines, ";MADE AHEAD"], made.filament_mm, made.time_s, made.z_line)
+    schedule = LayerSchedule(plan, SliceSettings())
+    schedule.made_ahead(0, marked)
+    assert schedule.layer_gcode(0) == marked.lines
+    assert schedule.layer_gcode(0) == made.lines  # once: then sliced as usual
+    schedule.made_ahead(0, marked)
+    schedule.cancel_body(1, 0)  # layer 0 no longer has every body
+    without = schedule.layer_gcode(0)
+    assert ";MADE AHEAD" not in without
+    assert without != made.lines
+    retuned = LayerSchedule(plan, SliceSettings())
+    retuned.made_ahead(0, marked)
+    retuned.retune(0, {"infill.density": 0.5})
+    assert ";MADE AHEAD" not in retuned.layer_gcode(0)

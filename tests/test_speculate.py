@@ -8,7 +8,7 @@ from pathlib import Path
 
 from conftest import DATA
 
-from hostd.speculate import Speculation
+from hostd.speculate import MadeAhead, Speculation
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -26,7 +26,7 @@ def test_the_plan_made_ahead_follows_the_file_into_its_job_folder(tmp_path) -> N
     path = dropped(tmp_path)
     settings = SliceSettings()
 
-    async def scenario() -> tuple[SlicePlan, float] | None:
+    async def scenario() -> MadeAhead | None:
         ahead = Speculation()
         assert ahead.begin(path, settings, BED)
         assert not ahead.begin(path, settings, BED)  # once per version of the file
@@ -37,11 +37,14 @@ def test_the_plan_made_ahead_follows_the_file_into_its_job_folder(tmp_path) -> N
 
     made = asyncio.run(scenario())
     assert made is not None
-    plan, seconds = made
+    plan, seconds, first_layer = made
     assert seconds >= 0.0
     fresh = SlicePlan.from_file(DATA / "cube20_xyz.stl", settings, BED)
     assert [plan.layer_gcode(i) for i in range(plan.layer_count)] == [
         fresh.layer_gcode(i) for i in range(fresh.layer_count)]
+    # layer 0 was made ahead too, as the job's own slicing makes it
+    assert first_layer is not None
+    assert first_layer.lines == fresh.layer_gcode(0)
 
 
 def test_a_changed_file_or_other_settings_are_sliced_again(tmp_path) -> None:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import dataclasses
 import os
+import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass
@@ -101,6 +102,7 @@ def tailored_plan(
     load: str | os.PathLike[str] | None = None,
     measure: Callable[[SlicePlan], float] = extruded_grams,
     background: bool = False,
+    hold: threading.Event | None = None,
 ) -> tuple[SlicePlan, Tailoring]:
     """The model's plan with the analysis applied (when it has a load case, see
     :func:`find_load_case`) and its mass matched (when the settings ask; ``measure``
@@ -109,13 +111,16 @@ def tailored_plan(
     With ``background`` (and no equal mass asked, which needs the field to slice
     every layer), an analysis not cached yet runs on a worker thread and the plan
     is returned at once: layers without sparse infill (the bottom skins) slice
-    without it, and the first layer that needs the field waits for it.
+    without it, and the first layer that needs the field waits for it. With
+    ``hold``, that analysis begins only once ``hold`` is set (by the caller, or by
+    the first layer that waits for the field): the first layers are not slowed
+    by it.
     """
     field = None
     case = find_load_case(model, settings, load)
     if case is not None and background and not _wants_mass(settings):
-        from slicer.fea.field import field_path, read_field_file, solve_field
-        from slicer.fields.stress_pending import announce
+        from slicer.fea.field import field_path, read_field_file
+        from slicer.fields import stress_pending
 
         optimal = optimal_volume(settings)
         path, loadcase, vertices, faces, size = field_path(
@@ -125,15 +130,26 @@ def tailored_plan(
             settings, infill_field="stress", infill_file=str(path), infill_load=str(case))
         if path.is_file():
             return SlicePlan.from_file(model, settings, bed), Tailoring(read_field_file(path), None)
-        running = _BACKGROUND.submit(solve_field, path, loadcase, vertices, faces, size,
-                                     optimal)
-        announce(path, running)
+        if hold is not None:
+            stress_pending.hold(path, hold)
+        running = _BACKGROUND.submit(_solve_when_released, hold, path, loadcase, vertices,
+                                     faces, size, optimal)
+        stress_pending.announce(path, running)
         return SlicePlan.from_file(model, settings, bed), Tailoring(None, None, running)
     if case is not None:
         settings, field = with_analysis(model, settings, case, cache_dir)
     plan = SlicePlan.from_file(model, settings, bed)
     plan, mass = match_mass(plan, measure)
     return plan, Tailoring(field, mass)
+
+
+def _solve_when_released(hold: threading.Event | None, *args: object) -> FieldFile:
+    """:func:`slicer.fea.field.solve_field` once ``hold`` (if any) is set."""
+    if hold is not None:
+        hold.wait()
+    from slicer.fea.field import solve_field
+
+    return solve_field(*args)  # type: ignore[arg-type]
 
 
 def optimal_volume(settings: SliceSettings) -> float:

@@ -19,6 +19,15 @@ _PENDING: dict[str, Future[FieldFile]] = {}
 _PENDING_LOCK = threading.Lock()
 # field files a layer is waiting for right now: path -> layers waiting
 _WAITING: dict[str, int] = {}
+# computations held back until released (see `hold`): path -> what releases them
+_HOLDS: dict[str, threading.Event] = {}
+
+
+def hold(path: str | Path, release: threading.Event) -> None:
+    """Say that the computation of ``path`` waits for ``release``: a layer that comes to
+    wait for the file (:func:`waiting`) sets it, so no layer waits for a held one."""
+    with _PENDING_LOCK:
+        _HOLDS[str(path)] = release
 
 
 def announce(path: str | Path, future: Future[FieldFile]) -> None:
@@ -31,6 +40,7 @@ def announce(path: str | Path, future: Future[FieldFile]) -> None:
 
 def _forget(path: str, future: Future[FieldFile]) -> None:
     with _PENDING_LOCK:
+        _HOLDS.pop(path, None)
         if _PENDING.get(path) is future and not future.exception():
             del _PENDING[path]
 
@@ -52,6 +62,9 @@ def waiting(path: str | os.PathLike[str]) -> Iterator[None]:
     key = str(path)
     with _PENDING_LOCK:
         _WAITING[key] = _WAITING.get(key, 0) + 1
+        held = _HOLDS.get(key)
+    if held is not None:
+        held.set()  # a layer needs the field: the computation may wait no longer
     try:
         yield
     finally:
