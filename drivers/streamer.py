@@ -344,12 +344,12 @@ class Streamer(Connecting):
         """Write every line the core hands out now.
 
         Called by the writer task when woken, and directly by ``send()`` and the reader
-        (which saves a wake-up of the writer for each line). One write at a time: while
-        one is under way (a transport whose write suspends), a caller only leaves the
-        rest to the writer task, so bytes go out in the order the core handed them out.
+        (which saves a wake-up of the writer for each line). One writer at a time, so
+        bytes go out in the order the core handed them out: while a write is under way
+        (a transport whose write suspends) another caller returns at once, and the one
+        writing asks the core again after each write, so it sees whatever changed.
         """
         if self._writing:
-            self._wake.set()
             return
         self._writing = True
         try:
