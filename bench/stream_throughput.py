@@ -4,6 +4,7 @@ Run from the repository root::
 
     .venv/bin/python -m bench.stream_throughput [--lines 5000] [--bauds 115200 250000]
         [--latencies-ms 0 1 4] [--noisy-lines 20000] [--fault-lines 100000] [--skip-wire]
+        [--repeat 1]
 
 The simulated printer runs in its own process (``hostd simulate``) with its wire limited
 to the baud rate and a one-way link latency (USB frames and the firmware's loop: 0 is an
@@ -11,7 +12,16 @@ ideal link, about 1 ms a USB-serial adapter, more an FTDI one with its latency t
 the host's CPU time measured here is the host's alone. For each speed and latency the
 table gives lines per second of the windowed streamer and of a send-one, wait-for-ok host
 on the same simulator, the wire's line rate (baud / 10 bytes per second over the mean
-framed line length), the ratios, and the host CPU use while streaming.
+framed line length), the ratios, and the CPU while streaming: the host's share of a core
+and its CPU time per line (all of the streaming process's threads; the simulator is not
+in it), the simulated printer's CPU time per line (its process, every thread), which
+tells a slower printer model from a slower host when rates move, and the send-and-wait
+host's CPU time per line: one write, one read and two event-loop wake-ups per line, the
+least any asyncio host spends, a yardstick of the machine (its load) taken in the same run.
+
+The wire table also runs against another revision's link, for comparisons on the same
+machine and load: unpack that revision (``git archive REV | tar -x -C DIR``) and run this
+file by its path from DIR with ``PYTHONPATH=.`` (the simulated printer is DIR's too).
 
 A second table streams to the virtual-clock Marlin (``drivers.simvirtual``, the same rules
 on simulated time: the figures do not depend on the machine's load) at 250000 baud with 1 ms
@@ -27,17 +37,18 @@ from __future__ import annotations
 import argparse
 import asyncio
 import math
+import os
 import subprocess
 import sys
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
-from drivers.linkconfig import StreamerConfig as LinkConfig
 from drivers.protocol import frame, parse_response
-from drivers.simconfig import SimulatorConfig
-from drivers.simlinkrun import run_core, run_send_and_wait
 from drivers.streamer import Streamer, StreamerConfig
 from drivers.transport import Transport, open_transport
+
+# (the virtual-clock tables import what they need when they run, so that the wire table
+# also runs, file given by path, against an older revision's drivers on PYTHONPATH)
 
 
 def curved_perimeter(n: int, segment_mm: float = 0.3, radius_mm: float = 40.0) -> list[str]:
@@ -54,12 +65,14 @@ def curved_perimeter(n: int, segment_mm: float = 0.3, radius_mm: float = 40.0) -
 
 @dataclass(frozen=True)
 class Run:
-    """One measured stream: lines, wall seconds, host CPU seconds, framed bytes."""
+    """One measured stream: lines, wall seconds, host CPU seconds, framed bytes, and the
+    simulated printer's CPU seconds meanwhile (NaN where the platform cannot tell)."""
 
     lines: int
     wall_s: float
     cpu_s: float
     framed_bytes: int
+    sim_cpu_s: float = math.nan
 
     @property
     def rate(self) -> float:
@@ -85,6 +98,16 @@ class SimProcess:
         self.path = self.proc.stdout.readline().strip()
         if not self.path:
             raise RuntimeError("hostd simulate printed no device path")
+
+    def cpu_s(self) -> float:
+        """CPU seconds the simulator process has used so far (every thread; NaN when
+        ``/proc`` cannot tell)."""
+        try:
+            with open(f"/proc/{self.proc.pid}/stat", encoding="ascii") as f:
+                fields = f.read().rsplit(")", 1)[1].split()
+        except OSError:
+            return math.nan
+        return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
     def stop(self) -> None:
         """Terminate the simulator and wait for it."""
@@ -158,7 +181,9 @@ def measure(
     for method in (windowed, one_at_a_time):
         sim = SimProcess(baud, time_scale, latency_ms)
         try:
-            results.append(asyncio.run(method(sim.path, baud, lines)))
+            before = sim.cpu_s()  # (includes its start and the host's connection: small)
+            run = asyncio.run(method(sim.path, baud, lines))
+            results.append(replace(run, sim_cpu_s=sim.cpu_s() - before))
         finally:
             sim.stop()
     return results[0], results[1]
@@ -166,6 +191,10 @@ def measure(
 
 def noisy_table(lines: list[str]) -> list[str]:
     """Rows of core vs send-and-wait rates on the virtual clock, clean and noisy."""
+    from drivers.linkconfig import StreamerConfig as LinkConfig
+    from drivers.simconfig import SimulatorConfig
+    from drivers.simlinkrun import run_core, run_send_and_wait
+
     base = {"baud": 250000, "latency_s": 0.001, "seed": 3}
     rows = [f"{'noise':>14} {'ok after':>8} {'core l/s':>9} {'% clean':>8} "
             f"{'send-wait l/s':>13} {'core/s&w':>8} {'resent':>7} {'exact':>6}"]
@@ -193,6 +222,10 @@ def noisy_table(lines: list[str]) -> list[str]:
 
 def fault_suite_rate(count: int) -> str:
     """Wall-clock lines/s of the core through every fault kind at 1 % (virtual clock)."""
+    from drivers.linkconfig import StreamerConfig as LinkConfig
+    from drivers.simconfig import SimulatorConfig
+    from drivers.simlinkrun import run_core
+
     kinds = ("corrupt_rx", "corrupt_tx", "drop_ok", "resend", "refuse", "busy")
     sim = SimulatorConfig(baud=250000, latency_s=0.001, keepalive_s=0.05, seed=5,
                           **{f"p_{k}": 0.01 for k in kinds})
@@ -223,6 +256,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="lines through the fault suite on the core (0: skip)")
     parser.add_argument("--skip-wire", action="store_true",
                         help="skip the table on the pty simulator")
+    parser.add_argument("--repeat", type=int, default=1,
+                        help="measure each speed and latency this many times (a row each)")
     args = parser.parse_args(argv)
     if args.noisy_lines:
         rows = noisy_table(curved_perimeter(args.noisy_lines))
@@ -235,9 +270,10 @@ def main(argv: list[str] | None = None) -> int:
     lines = curved_perimeter(args.lines)
     header = (f"{'baud':>7} {'latency':>7} {'wire l/s':>9} {'window l/s':>10} {'% wire':>7} "
               f"{'1-at-a-time l/s':>15} {'% wire':>7} {'speedup':>7} {'host CPU':>9} "
-              f"{'bytes/line':>10}")
+              f"{'host us/l':>9} {'sim us/l':>8} {'1-a-t host us/l':>15} {'bytes/line':>10}")
     rows = []
-    for baud, latency in [(b, lat) for b in args.bauds for lat in args.latencies_ms]:
+    cases = [(b, lat) for b in args.bauds for lat in args.latencies_ms]
+    for baud, latency in cases * max(1, args.repeat):
         win, base = measure(baud, lines, args.time_scale, latency)
         mean_len = win.framed_bytes / win.lines
         wire = baud / 10 / mean_len
@@ -245,7 +281,9 @@ def main(argv: list[str] | None = None) -> int:
             f"{baud:>7} {latency:>5g}ms {wire:>9.1f} "
             f"{win.rate:>10.1f} {100 * win.rate / wire:>6.1f}% "
             f"{base.rate:>15.1f} {100 * base.rate / wire:>6.1f}% {win.rate / base.rate:>6.2f}x "
-            f"{100 * win.cpu_share:>8.1f}% {mean_len:>10.1f}"
+            f"{100 * win.cpu_share:>8.1f}% {1e6 * win.cpu_s / win.lines:>9.0f} "
+            f"{1e6 * win.sim_cpu_s / win.lines:>8.0f} {1e6 * base.cpu_s / base.lines:>15.0f} "
+            f"{mean_len:>10.1f}"
         )
         print(f"measured {baud} baud, {latency:g} ms latency", file=sys.stderr)
     print(f"{args.lines} short G1 moves (0.3 mm at 200 mm/s), simulated printer "

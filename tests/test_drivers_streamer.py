@@ -239,6 +239,45 @@ def test_acknowledged_tags_are_the_lines_the_printer_executed_in_order_across_re
     assert tags == list(range(len(lines)))
 
 
+class SuspendingWrites:
+    """A transport whose write yields to the event loop before writing (a wrapper that
+    does I/O of its own would): the streamer's reader, writer and ``send()`` then write
+    concurrently, and the bytes must still leave in the order the core handed them out."""
+
+    def __init__(self, inner) -> None:
+        self.inner = inner
+        self.name = inner.name
+
+    async def write(self, data: bytes) -> None:
+        await asyncio.sleep(0)
+        await self.inner.write(data)
+
+    async def readline(self) -> str:
+        return await self.inner.readline()
+
+    async def close(self) -> None:
+        await self.inner.close()
+
+
+def test_a_transport_whose_write_suspends_gets_every_line_once_in_order():
+    lines = job(300)
+
+    async def run(sim: SimulatedPrinter) -> Streamer:
+        transport = SuspendingWrites(await open_transport(sim.path, 250000))
+        async with Streamer(transport, FAST) as link:  # type: ignore[arg-type]
+            await link.connect()
+            for line in lines:
+                await link.send(line)
+            await link.drain()
+        return link
+
+    with SimulatedPrinter(sim_config(p_corrupt_rx=0.05, seed=4)) as sim:
+        link = asyncio.run(run(sim))
+        executed = job_lines(list(sim.executed))
+    assert link.stats.resends > 0  # replays went out beside new lines
+    assert executed == lines
+
+
 def test_at_the_wire_limit_the_receive_buffer_never_overflows():
     lines = job(1500)
     # a probe goes out past the window: on a loaded machine the simulator may be starved
