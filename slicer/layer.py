@@ -147,8 +147,10 @@ def layer_paths(
         sparse = fill
     skin, sparse = _solid_small_regions(skin, sparse, settings.infill_solid_below_area)
     shortest = _MIN_PATH * w
-    narrow, skin = skinfill.split_narrow(skin, w)
-    skin_lines, skin = skinfill.along(narrow, skin, fill, w)
+    skin_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
+    if skinfill.wanted(settings):
+        narrow, skin = skinfill.split_narrow(skin, w)
+        skin_lines, skin = skinfill.along(narrow, skin, fill, w)
     skin_stacks = _stacks(skin, settings.infill_angle, ctx.index, w, shortest)
     sparse_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
     if isinstance(field, LinearField):

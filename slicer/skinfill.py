@@ -6,6 +6,10 @@ short as its width, two moves each; filled with inward offsets of the band
 (half a line in from its edge, a line apart, the concentric field's paths),
 it is a few long smooth lines that arcs and the line budget take in few
 moves. Parts wider than :data:`NARROW` lines somewhere keep the hatch.
+
+It is done when the G-code is made for a wire (arcs on, or the link's baud
+known: :func:`wanted`), where lines cost: it doubles the CPU time of a
+layer's toolpaths on sloped models (3DBenchy), which a batch slice keeps.
 """
 
 from __future__ import annotations
@@ -13,7 +17,9 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from slicer.arcs import arcs_wanted
 from slicer.fields.paths import finish
+from slicer.settings import SliceSettings
 
 # skin parts that an inward offset by half this many line widths empties are filled along
 # their length
@@ -26,6 +32,11 @@ _REACH = 0.25
 _GAP = 0.25
 # arcs of offset corners: segments per quarter circle
 _QUAD_SEGS = 6
+
+
+def wanted(settings: SliceSettings) -> bool:
+    """Whether narrow skin is filled along its length: arcs on, or ``gcode.baud`` known."""
+    return arcs_wanted(settings) or settings.gcode_baud > 0
 
 
 def split_narrow(skin: np.ndarray, w: float) -> tuple[np.ndarray, np.ndarray]:
@@ -71,19 +82,25 @@ def along(
     wide = wide.copy()
     depth = (np.arange(int(NARROW)) + 0.5) * w
     regions = narrow[has]
-    rings = shapely.boundary(
-        shapely.buffer(fill[has][:, None], -depth[None, :], quad_segs=_QUAD_SEGS))
-    zones = np.column_stack(
-        [shapely.buffer(regions, _REACH * w, quad_segs=_QUAD_SEGS)]
-        + [regions] * (len(depth) - 1))
-    kept = shapely.intersection(rings, zones)
+    # level k can run inside a band only where the band is more than its depth wide: the
+    # levels no band of the island reaches are not made (most bands take one line)
+    reach = ~shapely.is_empty(shapely.buffer(regions[:, None], -0.5 * depth[None, 1:],
+                                             quad_segs=_QUAD_SEGS))
+    needed = np.column_stack([np.ones(len(has), dtype=bool), reach])
+    row_of, level = np.nonzero(needed)
+    zone0 = shapely.buffer(regions, _REACH * w, quad_segs=_QUAD_SEGS)
+    rings = shapely.boundary(shapely.buffer(fill[has][row_of], -depth[level],
+                                            quad_segs=_QUAD_SEGS))
+    pieces = shapely.intersection(rings, np.where(level == 0, zone0[row_of], regions[row_of]))
+    parts, source = shapely.get_parts(pieces, return_index=True)
+    line = (shapely.get_type_id(parts) == 1) & (shapely.length(parts) > 0.0)
+    parts, part_row = parts[line], row_of[source[line]]
     for row, i in enumerate(has):
-        lines = shapely.get_parts(kept[row])
-        lines = lines[(shapely.get_type_id(lines) == 1) & (shapely.length(lines) > 0.0)]
+        lines = parts[part_row == row]
         if len(lines):
             # neighbouring levels lie exactly a line apart: only closer ones (where a
             # level folds on itself) are kept apart
-            lines = shapely.get_parts(finish(lines, zones[row, 0], _APART * w))
+            lines = shapely.get_parts(finish(lines, zone0[row], _APART * w))
         if len(lines):
             coords, index = shapely.get_coordinates(lines, return_index=True)
             out[i] = np.split(coords, np.flatnonzero(np.diff(index)) + 1)

@@ -138,6 +138,34 @@ def test_arc_output_is_the_same_alone_and_in_sequence() -> None:
         assert again.layer_gcode(i) == run[i]
 
 
+def _skin_lines(blocks: list[list[str]]) -> int:
+    """Commands under ``;TYPE:SKIN`` in the layers' G-code."""
+    count, kind = 0, ""
+    for block in blocks:
+        for line in block:
+            if line.startswith(";TYPE:"):
+                kind = line[6:]
+            elif kind == "SKIN" and line.startswith(("G1 ", "G2 ", "G3 ")):
+                count += 1
+    return count
+
+
+def test_a_cones_skin_bands_alone_and_in_sequence_in_fewer_lines() -> None:
+    # a 45-degree cone's shell above its bottom layers is narrow bands: filled along their
+    # length for a wire, hatched across without one
+    mesh = trimesh.creation.cone(radius=6.0, height=5.0, sections=64)
+    settings = SliceSettings.from_mapping({"gcode.arcs": "on"})
+    layers = range(4, 12)
+    first = SlicePlan.from_mesh(mesh.vertices, mesh.faces, settings)
+    run = {i: first.layer_gcode(i) for i in layers}
+    again = SlicePlan.from_mesh(mesh.vertices, mesh.faces, settings)
+    for i in reversed(layers[::3]):
+        assert again.layer_gcode(i) == run[i]
+    hatched = first.with_settings(SliceSettings.from_mapping({"gcode.arcs": "off"}))
+    across = _skin_lines([hatched.layer_gcode(i) for i in layers])
+    assert 0 < _skin_lines(list(run.values())) < 0.6 * across
+
+
 def test_the_wire_budget_coarsens_only_fast_runs() -> None:
     base = {"gcode.arcs": "off", "print_speed": 150.0, "wall_speed": 150.0}
     free = _plan(**base)
