@@ -18,7 +18,6 @@ import numpy as np
 import shapely
 
 from slicer.arcs import arcs_wanted
-from slicer.fields.paths import finish
 from slicer.settings import SliceSettings
 
 # skin parts that an inward offset by half this many line widths empties are filled along
@@ -75,6 +74,9 @@ def along(
     (k, 2) mm per island, and ``wide`` ((p,) the skin left to the hatch) with what the
     lines leave uncovered added (bands away from the domain's edge, strips wider than
     ``2 _GAP`` lines), so the skin stays solid."""
+    # the paths' tidying needs scipy, which a layer without narrow skin never loads
+    from slicer.fields.paths import finish
+
     out: list[list[np.ndarray]] = [[] for _ in range(len(narrow))]
     has = [i for i, g in enumerate(narrow) if g is not None and not g.is_empty]
     if not has:
