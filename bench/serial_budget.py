@@ -16,6 +16,7 @@ Usage (from the repository root):
     .venv/bin/python bench/serial_budget.py            # bunny; linear, wave; 100, 150 mm/s
     .venv/bin/python bench/serial_budget.py --full     # every shared model, field and speed
     .venv/bin/python bench/serial_budget.py --models candle_stand --fields wave --speeds 60
+    .venv/bin/python bench/serial_budget.py --targets --models cube20_xyz   # the underrun targets
 """
 
 from __future__ import annotations
@@ -41,6 +42,8 @@ MODELS = ROOT.parent / "shared" / "models"
 OUT = ROOT / "bench" / "out"
 BAUDS = (115200, 250000)
 SPEEDS = (60.0, 100.0, 150.0)
+# the issue's no-underrun conditions: (mm/s, baud)
+TARGETS = ((100.0, 115200), (150.0, 250000))
 DEFAULT = {"models": ("bunny",), "fields": ("linear", "wave"), "speeds": (100.0, 150.0)}
 SKIP_MODELS = ("bad_triangle_soup",)
 # our settings equal to the peers' (see bench/peers.py)
@@ -146,6 +149,9 @@ def main(argv: list[str] | None = None) -> int:
                         help="our resolution, mm (default: the setting's default)")
     parser.add_argument("--lines-only", action="store_true",
                         help="count lines against PrusaSlicer's only (no feed simulation)")
+    parser.add_argument("--targets", action="store_true",
+                        help="ours with arcs fed at 100 mm/s over 115200 baud and 150 mm/s over "
+                             "250000 only (the no-underrun targets), with the outer-wall IoU")
     parser.add_argument("--out", type=Path, default=OUT / "serial_budget.json")
     args = parser.parse_args(argv)
     every = sorted(p.stem for p in MODELS.glob("*.stl") if p.stem not in SKIP_MODELS)
@@ -157,6 +163,9 @@ def main(argv: list[str] | None = None) -> int:
               else list(SPEEDS) if args.full else list(DEFAULT["speeds"]))
     if args.lines_only:
         return _lines_only(models, fields, speeds, args.out)
+    if args.targets:
+        pairs = [t for t in TARGETS if not args.speeds or t[0] in speeds]
+        return _targets(models, fields, pairs, args.out)
     rows: list[Row] = []
     ious: list[dict[str, object]] = []
     with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
@@ -230,6 +239,37 @@ def _lines_only(models: list[str], fields: list[str], speeds: list[float], out: 
         print(f"  {r['model']} {r['field']} {r['speed']:g} mm/s: {r['ours']} > {r['prusaslicer']}")
     out.parent.mkdir(parents=True, exist_ok=True)
     out.write_text(json.dumps({"lines": table}, indent=1))
+    print(f"written {out}")
+    return 0
+
+
+def _targets(
+    models: list[str], fields: list[str], pairs: list[tuple[float, int]], out: Path
+) -> int:
+    """Ours with arcs and the wire's budget fed at each (speed, baud) of ``pairs`` alone:
+    lines, underruns, stalls, and the outer-wall IoU against ours without arcs."""
+    rows: list[Row] = []
+    ious: list[dict[str, object]] = []
+    with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
+        work = Path(tmp)
+        for stem in models:
+            geometry = SlicePlan.from_file(MODELS / f"{stem}.stl", SliceSettings.from_mapping(OURS),
+                                           bed=(200.0, 200.0, 200.0))
+            for field in fields:
+                for speed, baud in pairs:
+                    base = {**_field_settings(field, work), "print_speed": speed,
+                            "wall_speed": speed}
+                    arcs = _slice(geometry, {**base, "gcode.arcs": "on", "gcode.baud": baud})
+                    rows += _feed_rows(arcs, (stem, field, speed), "a", (baud,))
+                    plain = _slice(geometry, {**base, "gcode.arcs": "off"})
+                    agreement = gcodeparse.wall_agreement(
+                        gcodeparse.parse_moves(arcs), gcodeparse.parse_moves(plain), align=False)
+                    ious.append({"model": stem, "field": field, "speed": speed, "baud": baud,
+                                 "outer_wall_iou": round(agreement.mean_iou, 5)})
+                    print(f"  outer-wall IoU (a) against (b): {agreement.mean_iou:.5f}", flush=True)
+    _summary(rows, ious)
+    out.parent.mkdir(parents=True, exist_ok=True)
+    out.write_text(json.dumps({"rows": [asdict(r) for r in rows], "iou": ious}, indent=1))
     print(f"written {out}")
     return 0
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer import geom, loops, order
+from slicer import geom, loops, order, skinfill
 from slicer.fields.base import InfillField, LayerContext
 from slicer.fields.linear import LinearField, hatch_many, line_frame
 from slicer.settings import SliceSettings
@@ -147,6 +147,10 @@ def layer_paths(
         sparse = fill
     skin, sparse = _solid_small_regions(skin, sparse, settings.infill_solid_below_area)
     shortest = _MIN_PATH * w
+    skin_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
+    if skinfill.wanted(settings):
+        narrow, skin = skinfill.split_narrow(skin, w)
+        skin_lines, skin = skinfill.along(narrow, skin, fill, w)
     skin_stacks = _stacks(skin, settings.infill_angle, ctx.index, w, shortest)
     sparse_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
     if isinstance(field, LinearField):
@@ -166,6 +170,10 @@ def layer_paths(
         for kind, ring in loops.order_loops(rings[k], pos):
             items.append(Path(kind, ring, width if kind == WALL_OUTER else None))
             pos = ring[-1]
+        if skin_lines[k]:  # narrow skin, along its length
+            ordered, pos = order.order_open_paths(skin_lines[k], pos)
+            items.append((SKIN, len(runs)))
+            runs.append((np.concatenate(ordered), np.cumsum([len(c) for c in ordered]), k))
         for kind, stacks in ((SKIN, skin_stacks), (FILL, sparse_stacks)):
             if stacks is not None:
                 block, pos = order.walk_stacks(stacks, k, pos)

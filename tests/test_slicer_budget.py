@@ -12,6 +12,8 @@ import trimesh
 
 from slicer.arcs import for_printer
 from slicer.budget import OUTER_ARC, budget_moves, line_rate
+from slicer.fields.base import LayerContext, get_field
+from slicer.fields.wave import mean_stretch
 from slicer.gcode import _pack
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
@@ -136,6 +138,34 @@ def test_arc_output_is_the_same_alone_and_in_sequence() -> None:
         assert again.layer_gcode(i) == run[i]
 
 
+def _skin_lines(blocks: list[list[str]]) -> int:
+    """Commands under ``;TYPE:SKIN`` in the layers' G-code."""
+    count, kind = 0, ""
+    for block in blocks:
+        for line in block:
+            if line.startswith(";TYPE:"):
+                kind = line[6:]
+            elif kind == "SKIN" and line.startswith(("G1 ", "G2 ", "G3 ")):
+                count += 1
+    return count
+
+
+def test_a_cones_skin_bands_alone_and_in_sequence_in_fewer_lines() -> None:
+    # a 45-degree cone's shell above its bottom layers is narrow bands: filled along their
+    # length for a wire, hatched across without one
+    mesh = trimesh.creation.cone(radius=6.0, height=5.0, sections=64)
+    settings = SliceSettings.from_mapping({"gcode.arcs": "on"})
+    layers = range(4, 12)
+    first = SlicePlan.from_mesh(mesh.vertices, mesh.faces, settings)
+    run = {i: first.layer_gcode(i) for i in layers}
+    again = SlicePlan.from_mesh(mesh.vertices, mesh.faces, settings)
+    for i in reversed(layers[::3]):
+        assert again.layer_gcode(i) == run[i]
+    hatched = first.with_settings(SliceSettings.from_mapping({"gcode.arcs": "off"}))
+    across = _skin_lines([hatched.layer_gcode(i) for i in layers])
+    assert 0 < _skin_lines(list(run.values())) < 0.6 * across
+
+
 def test_the_wire_budget_coarsens_only_fast_runs() -> None:
     base = {"gcode.arcs": "off", "print_speed": 150.0, "wall_speed": 150.0}
     free = _plan(**base)
@@ -222,6 +252,31 @@ def _arcs_within(pts: np.ndarray, mv, tol: float) -> int:
         r = math.dist(mv.pts[j - 1], mv.centre[j])
         assert np.abs(np.hypot(rel[:, 0], rel[:, 1]) - r).max() <= tol
     return int(mv.arc.sum())
+
+
+def test_the_wave_fields_curves_take_one_arc_a_half_wave() -> None:
+    # the wave field's half-waves are circular arcs: each becomes one G2/G3, and the
+    # arcs lie on the field's level sets
+    settings = SliceSettings.from_mapping({"infill.field": "wave", "gcode.arcs": "on"})
+    domain = shapely.box(0.0, 0.0, 40.0, 30.0)
+    ctx = LayerContext(0, 0.2, domain, domain.bounds, settings)
+    field = get_field(settings)
+    paths = shapely.get_parts(field.paths(domain.buffer(-0.6), ctx, 2.0))
+    pts, starts, ends = _pack([shapely.get_coordinates(p) for p in paths])
+    mv = budget_moves(pts, starts, ends, np.full(len(paths), 60.0), settings,
+                      loose=np.ones(len(paths), dtype=bool))
+    half_waves = shapely.length(paths).sum() / (5.0 * mean_stretch(1.0))
+    moves = len(mv.pts) - len(paths)
+    assert moves <= half_waves + 2 * len(paths)  # the clipped ends may take two more
+    assert mv.arc.sum() >= 0.8 * half_waves
+    _arcs_within(pts, mv, settings.infill_resolution)
+    ends_of_arcs = mv.pts[mv.arc]
+    on = field.sample(ends_of_arcs[:, 0], ends_of_arcs[:, 1], ctx)
+    mids = np.array([_arc_points(mv.pts[j - 1], mv, j, 3)[1] for j in np.flatnonzero(mv.arc)])
+    mid_values = field.sample(mids[:, 0], mids[:, 1], ctx)
+    # an arc's middle on its end's level set within the tolerance (the field's gradient is
+    # at most sqrt(2) at the 45-degree inflections)
+    assert np.abs(mid_values - on).max() <= math.sqrt(2.0) * settings.infill_resolution
 
 
 def test_a_wave_curve_takes_few_moves_each_within_the_tolerance() -> None:

@@ -111,7 +111,7 @@ def test_paths_avoid_a_hole_and_never_cross_the_walls(name: str, stress_csv: Pat
     assert paths.distance(shapely.Point(20, 15)) > 6.0 + settings.line_width
 
 
-def test_wave_level_sets_are_the_sine_curves_of_the_field() -> None:
+def test_wave_level_sets_are_the_arc_waves_of_the_field() -> None:
     domain = shapely.box(0, 0, 40, 40)
     settings = settings_for("wave", 0.2)
     ctx = layer(domain, settings, index=2)

@@ -8,6 +8,7 @@ import numpy as np
 import pytest
 import shapely
 
+from slicer import skinfill
 from slicer.skins import _OPEN, SkinCache, _domains, skin_regions
 
 FILL = 0.8  # mm from an outline to its infill domain
@@ -131,3 +132,41 @@ def test_steep_sides_get_no_hair_thin_skin_shallow_ones_a_band() -> None:
     domain = _domains(outlines[12:13], FILL)[0]
     # the band under the next three layers' edges: 1.5 mm wide along the domain's edge
     assert band.area == pytest.approx(domain.area - domain.buffer(-1.5).area, rel=0.05)
+
+
+def test_a_narrow_band_of_skin_is_filled_along_its_length() -> None:
+    # a sloped shell's band: between the infill domain's edge (a 10 mm circle) and the
+    # cover of the layer above (a 9 mm circle off centre), 0.5-1.5 mm wide; and a wide part
+    w = 0.4
+    fill = shapely.Point(0, 0).buffer(10.0, quad_segs=32)
+    band = fill.difference(shapely.Point(0.5, 0).buffer(9.0, quad_segs=32))
+    square = shapely.box(-3, -3, 3, 3)
+    skin = np.array([shapely.multipolygons([band]), shapely.multipolygons([square])],
+                    dtype=object)
+    fills = np.array([fill, shapely.box(-5, -5, 5, 5)], dtype=object)
+    narrow, wide = skinfill.split_narrow(skin, w)
+    assert narrow[0].equals(band)
+    assert wide[0] is None
+    assert narrow[1] is None
+    assert wide[1].equals(skin[1])
+    lines, rest = skinfill.along(narrow, wide, fills, w)
+    assert lines[1] == []
+    assert rest[1].equals(skin[1])
+    # a few long lines around the band (hatched across it was ~150 chords)
+    assert 1 <= len(lines[0]) <= 6
+    assert min(len(c) for c in lines[0]) > 10
+    paths = np.array([shapely.linestrings(c) for c in lines[0]], dtype=object)
+    # each on a level set of the distance to the domain's edge, half a line plus whole ones in
+    depth = shapely.distance(shapely.boundary(fill), shapely.points(np.concatenate(lines[0])))
+    k = (depth - 0.5 * w) / w
+    assert np.allclose(k, np.round(k), atol=0.01)
+    # the band is solid: the lines, and the hatch of what they leave, cover it, but for
+    # strips thinner than half a line along the cover's edge
+    covered = shapely.union_all(shapely.buffer(paths, 0.5 * w))
+    if rest[0] is not None:
+        covered = covered.union(rest[0])
+    assert shapely.intersection(covered, band).area >= 0.93 * band.area
+    assert shapely.intersection(covered, band).area <= band.area
+    # and no line is laid over another
+    beads = shapely.buffer(paths, 0.45 * w)
+    assert shapely.union_all(beads).area >= 0.97 * shapely.area(beads).sum()
