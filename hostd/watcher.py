@@ -224,9 +224,12 @@ def _changed_at(signature: tuple[int, int, int, int] | None, now: float, settle_
     """
     if signature is None:
         return now
-    # file times come from a coarse clock, up to one of its ticks behind the exact time
+    # file times come from a coarse clock, up to one of its ticks behind the exact time:
+    # the change is taken to be one tick after its stamp, even when that is a moment
+    # from now, so that files stamped in the same tick settle together (and are taken
+    # in the order of their names, not of when each was first looked at)
     age = time.time() - signature[3] / 1e9 - _STAMP_GRAIN_S
-    return now - age if 0.0 <= age <= settle_s else now
+    return now - age if -_STAMP_GRAIN_S <= age <= settle_s else now
 
 
 def _mtime(seen: _Seen) -> int:

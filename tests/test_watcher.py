@@ -15,7 +15,7 @@ from hostd.filecheck import open_for_writing
 from hostd.intake import Intake
 from hostd.jobstore import JobStore
 from hostd.status import StatusHub
-from hostd.watcher import Watcher
+from hostd.watcher import _STAMP_GRAIN_S, Watcher, _changed_at
 
 DATA = Path(__file__).parent / "data"
 CUBE = DATA / "cube20_xyz.stl"
@@ -247,3 +247,15 @@ def test_writers_are_found_under_proc_and_readers_are_not(tmp_path: Path) -> Non
         assert open_for_writing(moved)
         handle.write(b"endsolid x\n")
     assert not open_for_writing(moved)
+
+
+def test_files_stamped_in_one_tick_settle_together_however_late_each_is_looked_at():
+    # a file looked at within a tick of its stamp and one looked at later must get the
+    # same settle start, else the later-stamped file can settle (and be queued) first
+    stamp = time.time_ns()
+    signature = (10, stamp, 0o100644, stamp)
+    early = _changed_at(signature, time.monotonic(), 1.0)
+    while time.time() < stamp / 1e9 + 3 * _STAMP_GRAIN_S:
+        time.sleep(0.001)
+    late = _changed_at(signature, time.monotonic(), 1.0)
+    assert abs(late - early) < 0.001
