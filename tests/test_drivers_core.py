@@ -6,6 +6,7 @@ from __future__ import annotations
 import itertools
 import math
 import os
+import re
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -204,6 +205,71 @@ def test_an_unknown_command_echo_garbled_still_marks_its_ok_as_nobodys():
         core.feed(echo, 0.02)
         assert _acked(core.feed("ok", 0.02)) == []
         assert core.last_acked_number == 1
+
+
+@pytest.mark.parametrize("echo", ['\x0e1r M110 N12', '\x0e12 M11\x10 N12'])
+def test_an_m110_run_as_an_unknown_command_answers_its_write_once(echo):
+    # hypothesis found it (seed=29, ok_after_resend=False, p=0.08): after a reset the M110's
+    # leading N is garbled, Marlin runs the line as an unknown command and answers ok, and
+    # the echo saying so is garbled too (a digit, or the M110 in it). That ok answers the
+    # M110's write: taken for nobody's as well, the renumbering went on waiting for it as
+    # a late ok, swallowed the first line's ok, stayed a line behind and, at the next
+    # reset, replayed a line the printer had run
+    core = _connected_core()
+    core.config = NO_OK_LINK
+    for i in range(20):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    while core.last_acked_number < 12:
+        _write_all(core, 0.01)
+        core.feed("ok", 0.02)
+    core.feed("start", 0.03)  # lines 13... still in flight are lost
+    core.tick(0.05)
+    assert core.next_bytes(0.05) == frame(core.renumber.line, "M110 N12")
+    core.feed(f'echo:Unknown command: "{echo}"', 0.06)
+    core.feed("ok", 0.06)
+    assert core.renumber is None  # the M110's write answered: renumbered
+    assert _write_all(core, 0.07)[:1] == [13]
+    assert _acked(core.feed("ok", 0.08)) == [13]  # the first line's ok is its own
+
+
+class GarbledRenumber(VirtualPrinter):
+    """Resets as lines 40 and 80 start; the M110 after the first reset arrives with its
+    ``N`` garbled (it runs as an unknown command, which sets no line number) and the echo
+    of it with a digit garbled:
+    the hypothesis example's chain, without the rest of its noise."""
+
+    reset_at = (40, 80)
+    garbled = False
+
+    def _start_next(self) -> None:
+        # (the power-on is the first reset: each scripted one fires once)
+        if self.resets <= len(self.reset_at) \
+                and self._queue[0][1] == self.reset_at[self.resets - 1]:
+            self._reset()
+            return
+        super()._start_next()
+
+    def _process_line(self, raw: bytes) -> None:
+        if b"M110" in raw and self.resets == 2 and not self.garbled:
+            self.garbled = True
+            before = self.last_n
+            super()._process_line(b"\x0e" + raw[1:])
+            self.last_n = before  # Marlin runs it as nothing: its line number stays as it was
+            return
+        super()._process_line(raw)
+
+    def emit(self, line: str) -> None:
+        super().emit(re.sub(r'(Unknown command: "\x0e\d*)\d', r"\1r", line))
+
+
+def test_a_garbled_renumbering_then_a_reset_runs_every_line_once():
+    lines = spiral(120)
+    run = run_core(lines, wire(ok_after_resend=False), NO_OK_LINK,
+                   printer_class=GarbledRenumber)
+    assert run.printer.resets == 3  # power-on and the two scripted resets
+    assert run.printer.garbled
+    assert run.executed == lines
+    assert run.acked == lines
 
 
 class SpuriousRefusals(VirtualPrinter):
