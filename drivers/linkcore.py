@@ -163,11 +163,13 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         error_before = self._last_error
         self._last_error = None
         renumber = self.renumber
-        if error_before is not None and renumber is not None and renumber.writes and (
-                kind == "error" or (kind == "ok" and not self.config.ok_after_resend)):
-            # a refusal whose Resend was lost to noise, the next answer come instead: one
-            # write of the M110 answered (an earlier one: nothing else answers before the
-            # silence that writes it again), so one ok fewer is still to come
+        if error_before is not None and renumber is not None and renumber.writes \
+                and kind != "resend" and not (kind == "ok" and self.config.ok_after_resend):
+            # a refusal whose Resend was lost to noise, the next readable line come instead
+            # (an answer, or a busy echo of the next write): one write of the M110 answered
+            # (an earlier one: nothing else answers before the silence that writes it
+            # again), so one ok fewer is still to come. (An ok on a firmware that sends one
+            # after a Resend is that ok: ``on_lost_resend`` counts the refusal.)
             renumber.refusals += 1
         if kind == "ok":
             if response.temperatures:
