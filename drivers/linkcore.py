@@ -204,20 +204,25 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             return  # (fast path: most echoes and noise are nothing of the kind)
         if edit_distance(head.lower(), _UNKNOWN) > 1:
             return  # one character changed by noise is still the same message
-        renumber = self.renumber
-        if renumber is not None and renumber.writes:
-            # while renumbering nothing but the M110 is written: the echo is of a write of
-            # it, whatever noise did to the echo, and is left alone (renumbering counts one
-            # ok per write of it; one that did not take shows as refused lines, which
-            # renumber again). Marking that ok as nobody's too would count it twice: the
-            # first ok of the new numbering would be taken for it, a line behind for good
+        body = raw[len(_UNKNOWN):]
+        is_m110 = "M110" in body or any(edit_distance(word, "M110") <= 1
+                                        for word in body.split()[:3])
+        if self.renumber is not None:
+            # after a reset the M110 is the only line written, but the rest of a line
+            # written while the board booted (its N lost) may still run as an unknown
+            # command: that ok is nobody's, an M110's echo (whatever noise did to its
+            # digits, or to the M110 in it: "\x0e9r M110 N92") is left to the renumbering,
+            # which counts one ok per write of it. Either taken for the other, the count
+            # went a line off: a reset then replayed a line that ran, or lost one
+            if not is_m110:
+                self._expect_resend_ok = True
             return
         garbled = _GARBLED_N.match(raw, len(_UNKNOWN))
-        if garbled and int(garbled.group(1)) in self.history \
-                and "M110" not in raw[garbled.start(1):]:
+        if garbled and int(garbled.group(1)) in self.history and not is_m110:
             # a line of ours whose leading N was garbled ran as an unknown command; its ok
             # belongs to no line of ours (the line is refused by number later). An M110 is
-            # left alone, as above (noise may have hit the digits before it: `\x0e9r M110`)
+            # left alone: renumbering counts one ok per write of it, and one that did not
+            # take shows as refused lines, which renumber again
             self._expect_resend_ok = True
 
     def _on_start(self) -> None:

@@ -38,7 +38,11 @@ class Resync(CoreFields):
         if self.renumber is not None:
             self._refused_during_renumber(error_before)
             return
-        low = min([*self.window.numbers(), self.last_acked_number + 1, self.next_number])
+        # a probe acknowledged ahead of its answer (owed) may still be refused: the
+        # printer can ask for it (left out, a request for it was read as a garbled one
+        # for the line after, refused by number in a loop that only a reset ended)
+        low = min([*self.window.numbers(), *self._answers_owed, self.last_acked_number + 1,
+                   self.next_number])
         candidates = range(low, self.next_number + 1)
         number = resolve_resend(response.digits, candidates, error_line)
         if number is None:

@@ -382,17 +382,22 @@ def test_bytes_split_anywhere_and_replies_delayed_anywhere(data, seed, ok_after_
 
     link = LINK if ok_after_resend else NO_OK_LINK
     run = run_core(lines, sim, link, printer_hook=hook, max_seconds=600)
-    assert _once_but_boot_fragments(run.executed, run.printer.unnumbered) == lines
+    assert _once_but_boot_fragments(run.executed, run.printer.unnumbered, lines) == lines
     assert run.acked == lines
 
 
-def _once_but_boot_fragments(executed: list[str], unnumbered: list[str]) -> list[str]:
+def _once_but_boot_fragments(executed: list[str], unnumbered: list[str],
+                             job: list[str]) -> list[str]:
     """``executed`` less the first run of each job line a fragment ran too: the rest of a
     line whose first bytes (its ``N``) a reset's boot swallowed runs unnumbered, and no
-    host can tell which line that was (docs/streaming.md); about one run in 400 at 8 %."""
+    host can tell which line that was (docs/streaming.md); about one run in 400 at 8 %.
+    Such a rest with a bit flipped on the wire as well runs as no line of the job at all
+    (a probe's `` M105`` as ``M305``, seed 1894 of the seeded loop): it is left out too.
+    Every command in ``unnumbered`` ran from such a rest: the host numbers every line."""
     out = list(executed)
+    lines = set(job)
     for command in unnumbered:
-        if out.count(command) > 1:
+        if out.count(command) > 1 or command not in lines:
             out.remove(command)
     return out
 
