@@ -205,20 +205,24 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         if edit_distance(head.lower(), _UNKNOWN) > 1:
             return  # one character changed by noise is still the same message
         body = raw[len(_UNKNOWN):]
-        is_m110 = "M110" in body or any(edit_distance(word, "M110") <= 1
-                                        for word in body.split()[:3])
-        if self.renumber is not None:
+        renumber = self.renumber
+        if renumber is not None:
             # after a reset the M110 is the only line written, but the rest of a line
             # written while the board booted (its N lost) may still run as an unknown
             # command: that ok is nobody's, an M110's echo (whatever noise did to its
-            # digits, or to the M110 in it: "\x0e9r M110 N92") is left to the renumbering,
-            # which counts one ok per write of it. Either taken for the other, the count
-            # went a line off: a reset then replayed a line that ran, or lost one
+            # digits, "\x0e9r M110 N92", or to the M110 in it when the value after it is
+            # intact) is left to the renumbering, which counts one ok per write of it.
+            # Either taken for the other, the count went a line off: a reset then
+            # replayed a line that ran, or lost one
+            words = body.split(maxsplit=3)
+            is_m110 = "M110" in body or (
+                len(words) > 2 and edit_distance(words[1], "M110") <= 1
+                and words[2].split("*")[0].rstrip('"') == f"N{renumber.value}")
             if not is_m110:
                 self._expect_resend_ok = True
             return
         garbled = _GARBLED_N.match(raw, len(_UNKNOWN))
-        if garbled and int(garbled.group(1)) in self.history and not is_m110:
+        if garbled and int(garbled.group(1)) in self.history and "M110" not in body:
             # a line of ours whose leading N was garbled ran as an unknown command; its ok
             # belongs to no line of ours (the line is refused by number later). An M110 is
             # left alone: renumbering counts one ok per write of it, and one that did not

@@ -249,6 +249,21 @@ def test_an_m110_refused_with_its_resend_lost_still_counts_as_answered(between):
     assert _acked(core.feed("ok", 1.22)) == [5]  # not taken for a second answer to M110
 
 
+def test_a_line_110_run_as_an_unknown_command_is_not_taken_for_an_m110():
+    # seed 1793 of the seeded loop: "^110 G1 ..." is line 110 with its N garbled, whose
+    # first word is one character from "M110"; its ok is nobody's, not an M110's
+    core = _connected_core()
+    for i in range(130):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    while core.last_acked_number < 109:
+        _write_all(core, 0.01)
+        core.feed("ok", 0.02)
+    assert core.window.numbers()[0] == 110
+    core.feed('echo:Unknown command: "^110 G1 X109"', 0.03)
+    assert _acked(core.feed("ok", 0.03)) == []
+    assert core.last_acked_number == 109
+
+
 def test_an_unknown_command_echo_garbled_still_marks_its_ok_as_nobodys():
     # line 2's leading N garbled: Marlin runs "F2 ..." as an unknown command and answers
     # ok; the echo saying so has a character changed too. That ok is no line's
