@@ -222,12 +222,21 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
                 self._expect_resend_ok = True
             return
         garbled = _GARBLED_N.match(raw, len(_UNKNOWN))
-        if garbled and int(garbled.group(1)) in self.history and "M110" not in body:
+        if garbled and "M110" not in body and (
+                int(garbled.group(1)) in self.history or self._recent_command(
+                    raw[garbled.end():].split("*")[0].rstrip('"').strip())):
             # a line of ours whose leading N was garbled ran as an unknown command; its ok
             # belongs to no line of ours (the line is refused by number later). An M110 is
             # left alone: renumbering counts one ok per write of it, and one that did not
             # take shows as refused lines, which renumber again
             self._expect_resend_ok = True
+
+    def _recent_command(self, text: str) -> bool:
+        """Whether ``text`` is the command of one of the last lines written (an echo whose
+        line number noise changed too, ``F198 G1 ...`` for line 118, names it so)."""
+        history = self.history
+        top = self.next_number - 1
+        return any(history.get(n, ("",))[0] == text for n in range(top, max(0, top - 64), -1))
 
     def _on_start(self) -> None:
         if self.state == LinkState.CONNECTING and not self.handshaking:
