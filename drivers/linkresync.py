@@ -54,6 +54,13 @@ class Resync(CoreFields):
         if error_before is None and not self._confirm_unannounced(number):
             return
         if number <= self.last_acked_number:
+            if implied:
+                # only the Error's Last Line names it (its Resend lost): a digit of it
+                # changed by noise ("Last Line: 3?" for 35) would take back every
+                # acknowledgement since and replay lines that ran. The printer refuses
+                # the next line too, with a Resend that says
+                self.stats.implausible_resends += 1
+                return
             far = self.last_acked_number - number > self.window.max_lines + 4
             if number not in self.history or (far and number == 1):
                 # the printer lost its line number (a reset whose banner was lost)

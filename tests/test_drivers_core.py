@@ -264,6 +264,23 @@ def test_a_line_110_run_as_an_unknown_command_is_not_taken_for_an_m110():
     assert core.last_acked_number == 109
 
 
+def test_an_error_whose_last_line_noise_changed_takes_back_no_acknowledgement():
+    # seed 4524 of the seeded loop: "Error:checksum mismatch, Last Line: 3?" (35 garbled),
+    # its Resend unreadable, then the ok after it: the request it implied (4) took back
+    # 30 acknowledgements and lines 4-31 ran twice. Only a readable Resend may do that
+    core = _connected_core()
+    for i in range(10):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    assert _write_all(core, 0.01) == [1, 2, 3, 4]
+    core.feed("ok", 0.02)
+    core.feed("ok", 0.02)
+    core.feed(f"Error:{ERR_CHECKSUM}1\x93", 0.03)
+    core.feed("Resend: \x11", 0.03)
+    core.feed("ok", 0.03)
+    assert core.last_acked_number == 2
+    assert 2 not in _write_all(core, 0.03)
+
+
 def test_an_unknown_command_echo_garbled_still_marks_its_ok_as_nobodys():
     # line 2's leading N garbled: Marlin runs "F2 ..." as an unknown command and answers
     # ok; the echo saying so has a character changed too. That ok is no line's
