@@ -221,10 +221,14 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             if not is_m110:
                 self._expect_resend_ok = True
             return
+        if "M110" in body:
+            return
         garbled = _GARBLED_N.match(raw, len(_UNKNOWN))
-        if garbled and "M110" not in body and (
-                int(garbled.group(1)) in self.history or self._recent_command(
-                    raw[garbled.end():].split("*")[0].rstrip('"').strip())):
+        rests = body.split(maxsplit=1)[1:]  # after the first word ("O>4 G1 ...": a digit hit)
+        if garbled:
+            rests.append(raw[garbled.end():])
+        if (garbled and int(garbled.group(1)) in self.history) or any(
+                self._recent_command(rest.split("*")[0].rstrip('"').strip()) for rest in rests):
             # a line of ours whose leading N was garbled ran as an unknown command; its ok
             # belongs to no line of ours (the line is refused by number later). An M110 is
             # left alone: renumbering counts one ok per write of it, and one that did not

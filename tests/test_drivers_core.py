@@ -284,9 +284,10 @@ def test_an_error_whose_last_line_noise_changed_takes_back_no_acknowledgement():
 def test_an_unknown_command_echo_garbled_still_marks_its_ok_as_nobodys():
     # line 2's leading N garbled: Marlin runs "F2 ..." as an unknown command and answers
     # ok; the echo saying so has a character changed too. That ok is no line's
-    # (or one of its digits: seed 4262 of the seeded loop, "F198 G1 ..." for line 118)
+    # (or one of its digits: seeds 4262 and 5726 of the seeded loop, "F198 G1 ..." for
+    # line 118, "O>4 G1 ..." for line 64)
     for echo in ('echo:Tnknown command: "F2 G1 X1"', 'ecxo:Unknown command: "F2 G1 X1"',
-                 'echo:Unknown command: "F7 G1 X1"'):
+                 'echo:Unknown command: "F7 G1 X1"', 'echo:Unknown command: "F> G1 X1"'):
         core = _connected_core()
         for i in range(10):
             core.queue_job(f"G1 X{i}", 10 + i)
