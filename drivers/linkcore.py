@@ -163,11 +163,13 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         error_before = self._last_error
         self._last_error = None
         renumber = self.renumber
-        if error_before is not None and renumber is not None and renumber.writes and (
-                kind == "error" or (kind == "ok" and not self.config.ok_after_resend)):
-            # a refusal whose Resend was lost to noise, the next answer come instead: one
-            # write of the M110 answered (an earlier one: nothing else answers before the
-            # silence that writes it again), so one ok fewer is still to come
+        if error_before is not None and renumber is not None and renumber.writes \
+                and kind != "resend" and not (kind == "ok" and self.config.ok_after_resend):
+            # a refusal whose Resend was lost to noise, the next readable line come instead
+            # (an answer, or a busy echo of the next write): one write of the M110 answered
+            # (an earlier one: nothing else answers before the silence that writes it
+            # again), so one ok fewer is still to come. (An ok on a firmware that sends one
+            # after a Resend is that ok: ``on_lost_resend`` counts the refusal.)
             renumber.refusals += 1
         if kind == "ok":
             if response.temperatures:
@@ -202,14 +204,43 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             return  # (fast path: most echoes and noise are nothing of the kind)
         if edit_distance(head.lower(), _UNKNOWN) > 1:
             return  # one character changed by noise is still the same message
+        body = raw[len(_UNKNOWN):]
+        renumber = self.renumber
+        if renumber is not None:
+            # after a reset the M110 is the only line written, but the rest of a line
+            # written while the board booted (its N lost) may still run as an unknown
+            # command: that ok is nobody's, an M110's echo (whatever noise did to its
+            # digits, "\x0e9r M110 N92", or to the M110 in it when the value after it is
+            # intact) is left to the renumbering, which counts one ok per write of it.
+            # Either taken for the other, the count went a line off: a reset then
+            # replayed a line that ran, or lost one
+            words = body.split(maxsplit=3)
+            is_m110 = "M110" in body or (
+                len(words) > 2 and edit_distance(words[1], "M110") <= 1
+                and words[2].split("*")[0].rstrip('"') == f"N{renumber.value}")
+            if not is_m110:
+                self._expect_resend_ok = True
+            return
+        if "M110" in body:
+            return
         garbled = _GARBLED_N.match(raw, len(_UNKNOWN))
-        if garbled and int(garbled.group(1)) in self.history \
-                and not raw[garbled.end():].startswith("M110"):
+        rests = body.split(maxsplit=1)[1:]  # after the first word ("O>4 G1 ...": a digit hit)
+        if garbled:
+            rests.append(raw[garbled.end():])
+        if (garbled and int(garbled.group(1)) in self.history) or any(
+                self._recent_command(rest.split("*")[0].rstrip('"').strip()) for rest in rests):
             # a line of ours whose leading N was garbled ran as an unknown command; its ok
             # belongs to no line of ours (the line is refused by number later). An M110 is
             # left alone: renumbering counts one ok per write of it, and one that did not
             # take shows as refused lines, which renumber again
             self._expect_resend_ok = True
+
+    def _recent_command(self, text: str) -> bool:
+        """Whether ``text`` is the command of one of the last lines written (an echo whose
+        line number noise changed too, ``F198 G1 ...`` for line 118, names it so)."""
+        history = self.history
+        top = self.next_number - 1
+        return any(history.get(n, ("",))[0] == text for n in range(top, max(0, top - 64), -1))
 
     def _on_start(self) -> None:
         if self.state == LinkState.CONNECTING and not self.handshaking:

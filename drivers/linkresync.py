@@ -38,7 +38,11 @@ class Resync(CoreFields):
         if self.renumber is not None:
             self._refused_during_renumber(error_before)
             return
-        low = min([*self.window.numbers(), self.last_acked_number + 1, self.next_number])
+        # a probe acknowledged ahead of its answer (owed) may still be refused: the
+        # printer can ask for it (left out, a request for it was read as a garbled one
+        # for the line after, refused by number in a loop that only a reset ended)
+        low = min([*self.window.numbers(), *self._answers_owed, self.last_acked_number + 1,
+                   self.next_number])
         candidates = range(low, self.next_number + 1)
         number = resolve_resend(response.digits, candidates, error_line)
         if number is None:
@@ -50,6 +54,13 @@ class Resync(CoreFields):
         if error_before is None and not self._confirm_unannounced(number):
             return
         if number <= self.last_acked_number:
+            if implied:
+                # only the Error's Last Line names it (its Resend lost): a digit of it
+                # changed by noise ("Last Line: 3?" for 35) would take back every
+                # acknowledgement since and replay lines that ran. The printer refuses
+                # the next line too, with a Resend that says
+                self.stats.implausible_resends += 1
+                return
             far = self.last_acked_number - number > self.window.max_lines + 4
             if number not in self.history or (far and number == 1):
                 # the printer lost its line number (a reset whose banner was lost)
