@@ -179,7 +179,8 @@ def _dump(probe: _Probe, path: Path, reason: str) -> None:
             out.write("\n== transport\n" + _fields(transport, 1000) + "\n")
             with contextlib.suppress(Exception):
                 lines = transport._lines
-                out.write(f"lines waiting: {lines.qsize() if hasattr(lines, 'qsize') else len(lines)}\n")
+                waiting = lines.qsize() if hasattr(lines, "qsize") else len(lines)
+                out.write(f"lines waiting: {waiting}\n")
         if loop is not None:
             with contextlib.suppress(Exception):
                 registered = {fd: (key.events, key.data)

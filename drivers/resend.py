@@ -51,6 +51,13 @@ def resolve_resend(
         return error_last_line + 1
     if clean and requested in pool:
         return requested
+    if clean and error_last_line is not None and requested == error_last_line + 1:
+        # the error and the request agree on a line that cannot be asked for: the printer
+        # lost its numbering (a reset whose banner was lost, an M110 run as something
+        # else), which no repair explains. Read as a garbled request for a line on the
+        # wire ("1" for 41), it was answered by replaying that line, refused the same way,
+        # for ever (the caller decides, from the line named)
+        return None
     scored = sorted((edit_distance(digits, str(n)), n) for n in pool)
     best_distance, best = scored[0]
     if best_distance > max_distance:

@@ -503,6 +503,44 @@ def test_the_state_is_an_explicit_enum_and_halts_on_kill():
     assert any(not isinstance(e, Acked) for e in events)
 
 
+def test_a_probe_due_during_a_replay_lets_no_more_than_the_receive_buffer_past_the_window():
+    # the stall seen under load (bench/stall_hunt.py): lines 1-4 in flight, their oks lost;
+    # a long silence sends a probe past the window at each probe interval, each a numbered
+    # line; the printer then refuses the first probe. The replay waits for room that only
+    # a probe's answer can show; a probe due lets it pass the window. It used to let all
+    # of it pass at once: the probes of the silence, hundreds of lines under load, into a
+    # 128-byte receive buffer, whose overflow was refused and replayed the same way again
+    core = _connected_core()
+    for i in range(4):
+        core.queue_job(f"G1 X{i} Y{i}", 10 + i)
+    t = 0.01
+    assert _write_all(core, t) == [1, 2, 3, 4]
+    for _ in range(30):
+        t += LINK.probe_after_s * (core.probes_unanswered + 1)
+        core.tick(t)
+        _write_all(core, t)
+    assert core.next_number > 30  # the probes of the silence, numbered
+    t += 0.001
+    core.feed(f"Error:{ERR_CHECKSUM}4", t)
+    core.feed("Resend: 5", t)
+    core.feed("ok", t)
+    assert core.replay_next == 5
+    replayed: list[bytes] = []
+    while (data := core.next_bytes(t)) is not None:
+        replayed.append(data)
+    for _ in range(3):  # silence again: probes due, each lets a receive buffer's worth out
+        t += LINK.probe_after_s * (core.probes_unanswered + 1)
+        core.tick(t)
+        burst = []
+        while (data := core.next_bytes(t)) is not None:
+            burst.append(data)
+        assert burst  # the replay goes on
+        assert sum(map(len, burst)) <= LINK.rx_buffer
+        replayed += burst
+    numbers = [int(data.split(b" ", 1)[0][1:]) for data in replayed]
+    assert numbers == list(range(5, 5 + len(numbers)))  # in order, each once
+
+
 def test_the_window_shrinks_on_refusals_and_grows_back_on_clean_oks():
     core = _connected_core()
     for i in range(40):

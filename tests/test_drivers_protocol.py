@@ -200,6 +200,13 @@ def test_resend_exact_and_confirmed_by_last_line():
     assert resolve_resend("103", range(100, 105), error_last_line=5) == 103
 
 
+def test_a_request_its_error_confirms_is_never_repaired_into_another_line():
+    # "Last Line: 0" and "Resend: 1" agree: the printer lost its numbering. Read as "41"
+    # with a digit lost, the link replayed 41, refused the same way, for ever
+    assert resolve_resend("1", range(40, 44), error_last_line=0) is None
+    assert resolve_resend("1", range(40, 44)) == 41  # without the error, a digit lost
+
+
 def test_ambiguous_repair_is_refused():
     assert resolve_resend("1", range(10, 20)) is None
 
