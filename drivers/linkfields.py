@@ -37,7 +37,6 @@ class CoreFields:
     paused: bool
     cancelled: bool
     force_replay: bool
-    forced_bytes: int
     fenced: bool
     last_rx: float
     last_poll: float

@@ -77,7 +77,6 @@ class Watching(CoreFields):
         self.stats.probes += 1
         if self.replay_next is not None:
             self.force_replay = True
-            self.forced_bytes = 0
         queued = next((c for c in self.control if c.probe), None)
         if queued is not None:
             queued.force = True

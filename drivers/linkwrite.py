@@ -46,8 +46,7 @@ class Control:
 class Writing(CoreFields):
     """Mixin of :class:`~drivers.linkcore.LinkCore`: the writer's decisions."""
 
-    force_replay = False  # a probe is due: the replay passes the window, then the probe
-    forced_bytes = 0  # bytes the replay wrote past the window since the probe was due
+    force_replay = False  # a probe is due: one replayed line passes the window
     fenced = False  # a probe written after every other line has been answered
     _framed: tuple[int, str, bytes] | None = None  # the next job line, framed
 
@@ -160,14 +159,13 @@ class Writing(CoreFields):
             if not self.force_replay:
                 return None
             # a probe is due and the window looks full (an ok lost: the count stays a line
-            # behind): the replay passes it, but by no more than the printer's receive
-            # buffer holds until the next probe is due. Letting the whole replay pass at
-            # once wrote hundreds of lines (the probes of a long silence, each numbered)
-            # into a 128-byte buffer; the overflow was refused, replayed and overflowed
-            # again, for ever (bench/stall_hunt.py, docs/streaming.md)
-            if self.forced_bytes and self.forced_bytes + len(data) > self.config.rx_buffer:
-                return None
-            self.forced_bytes += len(data)
+            # behind; or the printer is slow, and its receive buffer is full): one line
+            # passes it, as the probe itself would, and each later probe due lets one
+            # more. Letting the whole replay pass at once wrote hundreds of lines (the
+            # probes of a long silence, each numbered) into a 128-byte buffer; the
+            # overflow was refused, replayed and overflowed again, for ever
+            # (bench/stall_hunt.py, docs/streaming.md)
+            self.force_replay = False
         self.replay_next = number + 1 if number + 1 < self.next_number else None
         if self.replay_next is None:
             self.force_replay = False
