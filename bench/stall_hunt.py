@@ -315,6 +315,16 @@ def _one_run(args: argparse.Namespace, worker: int, run: int, rng: random.Random
                     and link.core.acked == len(lines))
     if link is not None and not result["ok"] and not result["stalled"]:
         result["error"] = result.get("error") or "executed lines differ from the job"
+        done = _job_lines(executed)
+        first = next((i for i, (a, b) in enumerate(zip(done, lines, strict=False))
+                      if a != b),
+                     min(len(done), len(lines)))
+        target = out_dir / f"fail-{worker}-{run}.txt"
+        target.write_text(f"{result['error']}; first difference at job line {first}\n"
+                          f"executed: {done[max(0, first - 3):first + 4]!r}\n"
+                          f"job: {lines[max(0, first - 3):first + 4]!r}\n"
+                          f"every command run: {len(executed)}\n")
+        result["dump"] = str(target)
     return result
 
 
