@@ -110,6 +110,7 @@ class Streamer(Connecting):
         self._wake = asyncio.Event()
         self._progress = asyncio.Event()
         self._failed = asyncio.Event()  # set when the core reports the link failed or halted
+        self._writing = False  # a write of what the core hands out is under way
         self._group: asyncio.Task[None] | None = None
         self.profile: Profile | None = None  # the firmware defaults chosen at connect
         self.motion = PrinterMotion()  # the motion settings M503 reported at connect
@@ -218,7 +219,9 @@ class Streamer(Connecting):
         token, future = self._waiters.new()
         self._tags.queued(token, tag)
         self.core.queue_job(command, token)
-        self._wake.set()
+        # written at once when the window has room (the future is then done and awaiting
+        # it does not suspend); otherwise the line waits in the core for an ok to free room
+        await self._write_ready()
         return await future
 
     async def drain(self) -> None:
@@ -325,8 +328,10 @@ class Streamer(Connecting):
                 if not await self._link_lost(str(exc)):
                     return
                 continue
-            self._dispatch(self.core.feed(text, loop.time()))
-            self._wake.set()
+            self._dispatch(self.core.feed(text, loop.time()), wake=False)
+            # what the reply let go (the room an ok freed, a replay) is written at once,
+            # not one loop iteration later by the writer task
+            await self._write_ready()
             self._progress.set()
 
     async def _write_loop(self) -> None:
@@ -336,15 +341,29 @@ class Streamer(Connecting):
             await self._write_ready()
 
     async def _write_ready(self) -> None:
-        """Write every line the core hands out now."""
-        loop = asyncio.get_running_loop()
-        while (data := self.core.next_bytes(loop.time())) is not None:
-            self._dispatch(self.core.take_events())
-            try:
-                await self._transport.write(data)
-            except TransportError:
-                return  # the reader reports the failure
-        self._dispatch(self.core.take_events())
+        """Write every line the core hands out now.
+
+        Called by the writer task when woken, and directly by ``send()`` and the reader
+        (which saves a wake-up of the writer for each line). One writer at a time, so
+        bytes go out in the order the core handed them out: while a write is under way
+        (a transport whose write suspends) another caller returns at once, and the one
+        writing asks the core again after each write, so it sees whatever changed.
+        """
+        if self._writing:
+            return
+        self._writing = True
+        try:
+            core = self.core
+            loop = asyncio.get_running_loop()
+            while (data := core.next_bytes(loop.time())) is not None:
+                self._dispatch(core.take_events(), wake=False)
+                try:
+                    await self._transport.write(data)
+                except TransportError:
+                    return  # the reader reports the failure
+            self._dispatch(core.take_events(), wake=False)
+        finally:
+            self._writing = False
 
     async def _watch_loop(self) -> None:
         loop = asyncio.get_running_loop()
@@ -370,8 +389,9 @@ class Streamer(Connecting):
             self.core.emergency(command)
             self._wake.set()
 
-    def _dispatch(self, events: list[Event]) -> None:
-        """Carry out what the core decided."""
+    def _dispatch(self, events: list[Event], *, wake: bool = True) -> None:
+        """Carry out what the core decided; ``wake`` the writer task after (not needed
+        when the caller is writing what the core hands out anyway)."""
         if not events:
             return
         for event in events:
@@ -397,7 +417,8 @@ class Streamer(Connecting):
                 self._failed.set()
             elif isinstance(event, Started):
                 self._started.set()
-        self._wake.set()
+        if wake:
+            self._wake.set()
         self._progress.set()
 
     def _check_alive(self) -> None:

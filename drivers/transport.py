@@ -6,12 +6,12 @@ import asyncio
 import contextlib
 import errno
 import os
+from collections import deque
 from types import TracebackType
 
 import serial
 
 _READ_CHUNK = 4096
-_EOF = object()
 
 
 class TransportError(ConnectionError):
@@ -32,7 +32,9 @@ class Transport:
         self._port = port
         self._loop = loop
         self._fd = port.fileno()
-        self._lines: asyncio.Queue[str | object] = asyncio.Queue()
+        self._lines: deque[str] = deque()  # received, not yet read
+        self._readers: list[asyncio.Future[None]] = []  # readline() calls waiting for a line
+        self._ended = False  # closed or failed: once the lines received are read, it raises
         self._partial = bytearray()
         self._out = bytearray()
         self._writing = False
@@ -63,15 +65,24 @@ class Transport:
         self._flush()
 
     async def readline(self) -> str:
-        """The next line received, without its line ending (``\\r`` stripped too)."""
-        if self._error is not None and self._lines.empty():
-            raise self._error
-        item = await self._lines.get()
-        if item is _EOF:
-            self._lines.put_nowait(_EOF)
-            raise self._error or TransportError(f"{self.name}: transport closed")
-        assert isinstance(item, str)
-        return item
+        """The next line received, without its line ending (``\\r`` stripped too).
+
+        Lines received before the transport closed or failed are still returned; then it
+        raises :class:`TransportError`. A line already received is returned without
+        suspending.
+        """
+        lines = self._lines
+        while not lines:
+            if self._ended:
+                raise self._error or TransportError(f"{self.name}: transport closed")
+            waiter = self._loop.create_future()
+            self._readers.append(waiter)
+            try:
+                await waiter
+            finally:
+                if waiter in self._readers:  # cancelled: no longer waiting
+                    self._readers.remove(waiter)
+        return lines.popleft()
 
     async def close(self) -> None:
         """Stop watching the port and close it; pending ``readline()`` calls fail."""
@@ -81,7 +92,7 @@ class Transport:
         self._detach()
         with contextlib.suppress(OSError, serial.SerialException):
             self._port.close()
-        self._lines.put_nowait(_EOF)
+        self._end()
 
     async def __aenter__(self) -> Transport:
         return self
@@ -108,14 +119,20 @@ class Transport:
             self._fail(TransportError(f"{self.name}: port closed by the other end"))
             return
         self.bytes_read += len(data)
-        self._partial += data
-        while True:
-            end = self._partial.find(b"\n")
-            if end < 0:
-                break
-            raw = bytes(self._partial[:end])
-            del self._partial[: end + 1]
-            self._lines.put_nowait(raw.decode("ascii", "replace").rstrip("\r"))
+        partial = self._partial
+        partial += data
+        if b"\n" not in data:
+            return
+        *complete, rest = partial.split(b"\n")
+        partial[:] = rest
+        self._lines.extend(raw.decode("ascii", "replace").rstrip("\r") for raw in complete)
+        self._wake_readers()
+
+    def _wake_readers(self) -> None:
+        readers, self._readers = self._readers, []
+        for waiter in readers:
+            if not waiter.done():
+                waiter.set_result(None)
 
     def _flush(self) -> None:
         while self._out:
@@ -149,7 +166,11 @@ class Transport:
         self._detach()
         with contextlib.suppress(OSError, serial.SerialException):
             self._port.close()
-        self._lines.put_nowait(_EOF)
+        self._end()
+
+    def _end(self) -> None:
+        self._ended = True
+        self._wake_readers()
 
     def _detach(self) -> None:
         with contextlib.suppress(ValueError, OSError):
