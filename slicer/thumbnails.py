@@ -47,17 +47,19 @@ def thumbnail_png(plan: SlicePlan, width: int, height: int) -> bytes:
     fit = min((w * 0.92) / span[0], (h * 0.92) / span[1])
     offset = np.array([w, h]) / 2 - (lo + hi) / 2 * fit
     canvas = Canvas(w, h)
+    groups, fills, edges = [], [], []
     for rank, i in enumerate(picks.tolist()):
         z = plan.layer_z(i)
         shade = 0.55 + 0.45 * (rank + 1) / len(picks)
-        fill = (int(235 * shade), int(120 * shade), int(30 * shade), 255)
-        edge = (int(120 * shade), int(55 * shade), int(10 * shade), 255)
-        rings = []
-        for poly in shapely.get_parts(plan.outline(i)):
-            ring = shapely.get_coordinates(poly.exterior)
-            xyz = np.column_stack([ring, np.full(len(ring), z)])
-            rings.append(_project(xyz) * fit + offset)
-        canvas.polygons(rings, fill, edge)
+        fills.append((int(235 * shade), int(120 * shade), int(30 * shade), 255))
+        edges.append((int(120 * shade), int(55 * shade), int(10 * shade), 255))
+        exteriors = shapely.get_exterior_ring(shapely.get_parts(plan.outline(i)))
+        coords, ring_of = shapely.get_coordinates(exteriors, return_index=True)
+        xyz = np.column_stack([coords, np.full(len(coords), z)])
+        screen = _project(xyz) * fit + offset
+        groups.append(np.split(screen, np.flatnonzero(np.diff(ring_of)) + 1) if len(coords)
+                      else [])
+    canvas.layers(groups, fills, edges)
     return canvas.halved().png()
 
 
