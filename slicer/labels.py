@@ -10,6 +10,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
+from slicer.geom import sorted_unique
+
 if TYPE_CHECKING:
     from slicer.plan import SlicePlan
 
@@ -37,7 +39,8 @@ class ObjectLabels:
         plan = self.plan
         n = plan.layer_count
         parts: list[list[shapely.Geometry]] = [[] for _ in range(self.count)]
-        for i in np.unique(np.linspace(0, n - 1, min(n, _SAMPLED_LAYERS)).astype(int)).tolist():
+        sampled = np.linspace(0, n - 1, min(n, _SAMPLED_LAYERS)).astype(int)
+        for i in sorted_unique(sampled).tolist():
             polys, bodies = plan.layer_bodies(i)
             for poly, body in zip(polys.tolist(), bodies.tolist(), strict=True):
                 parts[body].append(poly)

@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
+from slicer.geom import sorted_unique
 from slicer.raster import Canvas
 
 if TYPE_CHECKING:
@@ -37,7 +38,7 @@ def thumbnail_png(plan: SlicePlan, width: int, height: int) -> bytes:
     scale_up = 2
     w, h = width * scale_up, height * scale_up
     n = plan.layer_count
-    picks = np.unique(np.linspace(0, n - 1, min(n, _LAYERS_DRAWN)).round().astype(int))
+    picks = sorted_unique(np.linspace(0, n - 1, min(n, _LAYERS_DRAWN)).round().astype(int))
     xmin, ymin, xmax, ymax = plan.bounds
     ztop = plan.layer_z(n - 1) if n else 1.0
     corners = np.array([[x, y, z] for x in (xmin, xmax) for y in (ymin, ymax) for z in (0, ztop)])
