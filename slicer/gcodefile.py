@@ -59,7 +59,7 @@ def _layer_text(
     """Layer ``i`` as (G-code text, filament mm, time s), its bodies' moves bracketed
     when ``labels`` are given."""
     code = plan.layer_code(i)
-    lines = code.lines if labels is None else labels.label_layer(i, code.lines)
+    lines = code.lines if labels is None else labels.label_layer(i, code.lines, code.extrusions)
     return "\n".join(lines) + "\n", code.filament_mm, code.time_s
 
 

@@ -57,19 +57,22 @@ class ObjectLabels:
                          f"CENTER={centre.x:.3f},{centre.y:.3f} POLYGON=[{polygon}]")
         return lines
 
-    def label_layer(self, i: int, lines: list[str]) -> list[str]:
+    def label_layer(
+        self, i: int, lines: list[str], extrusions: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> list[str]:
         """Layer ``i``'s lines with each body's extruding moves between its start and end.
 
         Every extruding move is given to the body whose outline is nearest its
         midpoint; a run of moves of one body is opened by ``M486 S<b>`` and
         ``EXCLUDE_OBJECT_START NAME=...`` and closed after its last extrusion by
         ``EXCLUDE_OBJECT_END`` and ``M486 S-1``. Travels and retractions
-        between bodies stay outside the brackets.
+        between bodies stay outside the brackets. ``extrusions``: what
+        :func:`extruding_moves` gives for ``lines``, when known already.
         """
         polys, bodies = self.plan.layer_bodies(i)
         if not len(polys):
             return lines
-        ext, points = extruding_moves(lines)
+        ext, points = extrusions if extrusions is not None else extruding_moves(lines)
         if not len(ext):
             return lines
         owner = _nearest_body(polys, bodies, points, self.plan.outline(i))
@@ -128,14 +131,22 @@ def _nearest_body(
 def extruding_moves(lines: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the moves that extrude while moving in X/Y, (k,) int64, and each one's
     midpoint (start and end averaged), (k, 2) float64 mm. Absolute X Y, relative E."""
-    count = len(lines)
     x, y, e = _move_words(lines)
+    return moves_from(x, y, e > 0)
+
+
+def moves_from(
+    x: np.ndarray, y: np.ndarray, extruding: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`extruding_moves` from each line's X and Y (NaN where it has none) and
+    whether its E is positive, (n,) each."""
+    count = len(x)
     fx, fy = _fill_forward(x), _fill_forward(y)
     px, py = np.roll(fx, 1), np.roll(fy, 1)
     if count:
         px[0], py[0] = np.nan, np.nan
     moved = (~np.isnan(x) | ~np.isnan(y)) & ((fx != px) | (fy != py))
-    ext = np.flatnonzero((e > 0) & moved & ~np.isnan(fx) & ~np.isnan(fy))
+    ext = np.flatnonzero(extruding & moved & ~np.isnan(fx) & ~np.isnan(fy))
     sx = np.where(np.isnan(px[ext]), fx[ext], px[ext])
     sy = np.where(np.isnan(py[ext]), fy[ext], py[ext])
     points = np.column_stack([(sx + fx[ext]) / 2, (sy + fy[ext]) / 2])

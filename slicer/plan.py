@@ -305,11 +305,13 @@ class SlicePlan:
         code = gcode.layer_code(
             i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings,
             self._avoid(i, excluded_bodies),
+            extrusions=self.settings.gcode_labels and self.body_count >= 2,
         )
         if key is not None:
             with self._repeats_lock:
                 self._repeats[key] = gcode.LayerCode(
-                    list(code.lines), code.filament_mm, code.time_s, code.z_line
+                    list(code.lines), code.filament_mm, code.time_s, code.z_line,
+                    code.extrusions,
                 )
                 while len(self._repeats) > _REPEATS:
                     self._repeats.popitem(last=False)
