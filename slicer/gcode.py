@@ -17,6 +17,7 @@ from numpy.typing import NDArray
 
 from slicer.budget import Moves, budget_moves
 from slicer.detour import detours
+from slicer.geom import private_copy
 from slicer.labels import moves_from
 from slicer.layer import FILL, SUPPORT, WALL_OUTER, Path
 from slicer.layertime import layer_time
@@ -402,7 +403,7 @@ def _travels_leave(
     lines = shapely.linestrings(np.stack([a, b], axis=1))
     zero = np.all(a == b, axis=1)
     # a private, prepared copy: the outline may be shared with other threads
-    area = shapely.from_wkb(shapely.to_wkb(outline))
+    area = private_copy(outline)
     shapely.prepare(area)
     covered = np.zeros(len(a), dtype=bool)
     if shapely.get_type_id(area) in (_POLYGON, _MULTIPOLYGON):

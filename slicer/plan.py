@@ -23,6 +23,7 @@ from slicer.detour import avoid_region
 from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.fields.linear import LinearField
+from slicer.geom import private_copy
 from slicer.layer import LayerRegions, Path, fill_distance, layer_paths
 from slicer.lazycut import LazyOutlines
 from slicer.mesh import PlacedMesh, prepare, read_stl
@@ -412,7 +413,7 @@ def _private(g: shapely.Geometry | None) -> shapely.Geometry | None:
     geometries build their indexes lazily and must not be shared across threads)."""
     if g is None:
         return None
-    return shapely.from_wkb(shapely.to_wkb(g))
+    return private_copy(g)
 
 
 def _multi(polys: np.ndarray) -> shapely.Geometry:
