@@ -29,6 +29,7 @@ import numpy as np
 import shapely
 
 from slicer.arcs import Arcs, arcs_wanted, fit_arcs
+from slicer.geom import sorted_unique
 from slicer.settings import SliceSettings
 
 # bytes a move line takes on the wire with its line number and checksum (about 30
@@ -108,7 +109,7 @@ def _pieces(
     cuts = [starts, ends - 1]
     if arcs is not None and len(arcs):
         cuts += [arcs.first, arcs.last]
-    brk = np.unique(np.concatenate(cuts))
+    brk = sorted_unique(np.concatenate(cuts))
     path = np.searchsorted(starts, brk, "right") - 1
     same = path[1:] == path[:-1]
     pa, pb = brk[:-1][same], brk[1:][same]
@@ -145,7 +146,7 @@ def _simplified(
     xyz = np.column_stack([pts[idx], idx.astype(np.float64)])
     geoms = shapely.linestrings(xyz, indices=owner)
     simple = np.empty(len(geoms), dtype=object)
-    for tol in np.unique(tols[lines]).tolist():
+    for tol in sorted_unique(tols[lines]).tolist():
         sel = tols[lines] == tol
         simple[sel] = shapely.simplify(geoms[sel], tol, preserve_topology=False)
     kept = shapely.get_coordinates(simple, include_z=True)[:, 2]

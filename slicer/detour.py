@@ -12,6 +12,8 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from slicer.geom import private_copy
+
 # how far travels keep from a cancelled body's outline, mm
 MARGIN = 1.0
 # the ring walked lies this much further out, so it never touches the region
@@ -34,7 +36,7 @@ def detours(a: np.ndarray, b: np.ndarray, region: shapely.Geometry | None) -> li
     if region is None or len(a) == 0:
         return out
     lines = shapely.linestrings(np.stack([a, b], axis=1))
-    area = shapely.from_wkb(shapely.to_wkb(region))  # a private copy to prepare
+    area = private_copy(region)  # a private copy to prepare
     shapely.prepare(area)
     hit = np.flatnonzero(shapely.intersects(lines, area))
     if not len(hit):

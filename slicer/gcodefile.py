@@ -11,6 +11,7 @@ from pathlib import Path
 
 from slicer.annotate import copy_layers, header_extras, object_labels
 from slicer.gcode import GcodeSummary, LayerCode, filament_grams, header_lines
+from slicer.labels import ObjectLabels
 from slicer.plan import SlicePlan
 
 
@@ -52,10 +53,14 @@ _FORK_WORTH = 0.15
 _CUT_ALONE = 0.05
 
 
-def _layer_text(plan: SlicePlan, i: int) -> tuple[str, float, float]:
-    """Layer ``i`` as (G-code text, filament mm, time s)."""
+def _layer_text(
+    plan: SlicePlan, i: int, labels: ObjectLabels | None = None
+) -> tuple[str, float, float]:
+    """Layer ``i`` as (G-code text, filament mm, time s), its bodies' moves bracketed
+    when ``labels`` are given."""
     code = plan.layer_code(i)
-    return "\n".join(code.lines) + "\n", code.filament_mm, code.time_s
+    lines = code.lines if labels is None else labels.label_layer(i, code.lines, code.extrusions)
+    return "\n".join(lines) + "\n", code.filament_mm, code.time_s
 
 
 def _chunks(lo: int, n: int) -> Iterator[tuple[int, int]]:
@@ -75,9 +80,10 @@ def _chunks(lo: int, n: int) -> Iterator[tuple[int, int]]:
 
 
 def iter_layer_texts(
-    plan: SlicePlan, workers: int | None = None
+    plan: SlicePlan, workers: int | None = None, labels: ObjectLabels | None = None
 ) -> Iterator[tuple[str, float, float]]:
-    """Every layer as (G-code text, filament mm, time s), in order.
+    """Every layer as (G-code text, filament mm, time s), in order, labelled by
+    ``labels`` when given (in the workers, so the labelling is spread over cores too).
 
     Most of a layer's work is Python and numpy holding the interpreter lock,
     so threads barely overlap; forked worker processes (which inherit the
@@ -97,7 +103,7 @@ def iter_layer_texts(
         while done < min(_PROBE, n):
             if done == _PROBE // 2:
                 started = time.perf_counter()
-            yield _layer_text(plan, done)
+            yield _layer_text(plan, done, labels)
             done += 1
         timed = done - min(done, _PROBE // 2)
         per_layer = (time.perf_counter() - started) / max(timed, 1)
@@ -105,7 +111,7 @@ def iter_layer_texts(
             workers = 1
     if workers < 2 or not hasattr(os, "fork"):
         for i in range(done, n):
-            yield _layer_text(plan, i)
+            yield _layer_text(plan, i, labels)
         return
     # outlines are cut lazily; cut them all once here so the workers inherit
     # them instead of each cutting the blocks its layers and their skins need;
@@ -117,13 +123,15 @@ def iter_layer_texts(
         # lock the cutting threads need between their array operations
         cutter.join(_CUT_ALONE)
         while done < n and cutter.is_alive():
-            yield _layer_text(plan, done)
+            yield _layer_text(plan, done, labels)
             done += 1
     finally:
         cutter.join()
     from slicer.forkslice import forked_layers
 
-    yield from forked_layers(lambda i: _layer_text(plan, i), list(_chunks(done, n)), workers)
+    yield from forked_layers(
+        lambda i: _layer_text(plan, i, labels), list(_chunks(done, n)), workers
+    )
 
 
 def write_gcode(
@@ -147,9 +155,8 @@ def write_gcode(
     lengths: list[int] = []
     times: list[float] = []
     with tempfile.TemporaryFile("w+", encoding="ascii", newline="\n") as body:
-        for i, (text, layer_filament, layer_time) in enumerate(iter_layer_texts(plan, workers)):
-            if labels is not None:
-                text = "\n".join(labels.label_layer(i, text.splitlines())) + "\n"
+        layers = iter_layer_texts(plan, workers, labels)
+        for i, (text, layer_filament, layer_time) in enumerate(layers):
             body.write(text)
             lengths.append(len(text))
             times.append(layer_time)

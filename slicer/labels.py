@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import itertools
 import math
 import re
 from typing import TYPE_CHECKING
@@ -9,12 +10,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
+from slicer.geom import sorted_unique
+
 if TYPE_CHECKING:
     from slicer.plan import SlicePlan
 
-# one move as this slicer writes it: G0..G3, then F, X, Y, Z, I/J, E in that order
-_MOVE = re.compile(
-    r"G([0-3])(?: F\S+)?(?: X(-?[\d.]+))?(?: Y(-?[\d.]+))?(?: Z\S+)?(?: [IJ]\S+)*(?: E(-?[\d.]+))?"
+# one line: a move as this slicer writes it (G0..G3, then F, X, Y, Z, I/J, E in that
+# order), X, Y and E captured, or any other line (nothing captured); every line matches
+# once, so one ``findall`` over a layer's text gives one (X, Y, E) per line
+_LINE = re.compile(
+    r"^(?:G[0-3](?: F\S+)?(?: X(-?[\d.]+))?(?: Y(-?[\d.]+))?(?: Z\S+)?(?: [IJ]\S+)*"
+    r"(?: E(-?[\d.]+))?)?[^\n]*\n",
+    re.M,
 )
 _SAMPLED_LAYERS = 24  # layers whose outlines make a body's footprint
 
@@ -32,7 +39,8 @@ class ObjectLabels:
         plan = self.plan
         n = plan.layer_count
         parts: list[list[shapely.Geometry]] = [[] for _ in range(self.count)]
-        for i in np.unique(np.linspace(0, n - 1, min(n, _SAMPLED_LAYERS)).astype(int)).tolist():
+        sampled = np.linspace(0, n - 1, min(n, _SAMPLED_LAYERS)).astype(int)
+        for i in sorted_unique(sampled).tolist():
             polys, bodies = plan.layer_bodies(i)
             for poly, body in zip(polys.tolist(), bodies.tolist(), strict=True):
                 parts[body].append(poly)
@@ -49,25 +57,25 @@ class ObjectLabels:
                          f"CENTER={centre.x:.3f},{centre.y:.3f} POLYGON=[{polygon}]")
         return lines
 
-    def label_layer(self, i: int, lines: list[str]) -> list[str]:
+    def label_layer(
+        self, i: int, lines: list[str], extrusions: tuple[np.ndarray, np.ndarray] | None = None
+    ) -> list[str]:
         """Layer ``i``'s lines with each body's extruding moves between its start and end.
 
         Every extruding move is given to the body whose outline is nearest its
         midpoint; a run of moves of one body is opened by ``M486 S<b>`` and
         ``EXCLUDE_OBJECT_START NAME=...`` and closed after its last extrusion by
         ``EXCLUDE_OBJECT_END`` and ``M486 S-1``. Travels and retractions
-        between bodies stay outside the brackets.
+        between bodies stay outside the brackets. ``extrusions``: what
+        :func:`extruding_moves` gives for ``lines``, when known already.
         """
         polys, bodies = self.plan.layer_bodies(i)
         if not len(polys):
             return lines
-        ext, points = extruding_moves(lines)
+        ext, points = extrusions if extrusions is not None else extruding_moves(lines)
         if not len(ext):
             return lines
-        tree = shapely.STRtree(polys)
-        nearest = tree.query_nearest(shapely.points(points), all_matches=False)
-        owner = np.empty(len(ext), dtype=np.int64)
-        owner[nearest[0]] = bodies[nearest[1]]
+        owner = _nearest_body(polys, bodies, points, self.plan.outline(i))
         change = np.flatnonzero(np.diff(owner)) + 1
         starts = np.concatenate([[0], change])
         ends = np.concatenate([change, [len(ext)]]) - 1
@@ -84,34 +92,80 @@ class ObjectLabels:
         return out
 
 
+def _nearest_body(
+    polys: np.ndarray, bodies: np.ndarray, points: np.ndarray, outline: shapely.Geometry
+) -> np.ndarray:
+    """The body of the polygon nearest each point, (k,) int64: ``polys`` (p,) shapely
+    polygons, ``bodies`` (p,) int64, ``points`` (k, 2) mm, ``outline`` the polygons' union.
+
+    A point inside exactly one polygon of a valid outline (polygons' interiors apart)
+    is at distance zero from it and from no other: that polygon's body, found by a
+    point-in-polygon test; the others (outside all, or the outline not valid) by a
+    nearest-neighbour search over the polygons.
+    """
+    owner = np.empty(len(points), dtype=np.int64)
+    rest = np.arange(len(points))
+    if len(polys) > 1 and shapely.is_valid(outline):
+        hits = np.zeros(len(points), dtype=np.int64)
+        x, y = points[:, 0], points[:, 1]
+        boxes = shapely.bounds(polys)
+        for k, (x0, y0, x1, y1) in enumerate(boxes.tolist()):
+            near = np.flatnonzero((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1))
+            if len(near) == 0:
+                continue
+            shapely.prepare(polys[k])
+            inside = near[shapely.contains_xy(polys[k], x[near], y[near])]
+            hits[inside] += 1
+            owner[inside] = bodies[k]
+        rest = np.flatnonzero(hits != 1)
+    elif len(polys) == 1:
+        owner[:] = bodies[0]
+        return owner
+    if len(rest):
+        tree = shapely.STRtree(polys)
+        nearest = tree.query_nearest(shapely.points(points[rest]), all_matches=False)
+        owner[rest[nearest[0]]] = bodies[nearest[1]]
+    return owner
+
+
 def extruding_moves(lines: list[str]) -> tuple[np.ndarray, np.ndarray]:
     """Indices of the moves that extrude while moving in X/Y, (k,) int64, and each one's
     midpoint (start and end averaged), (k, 2) float64 mm. Absolute X Y, relative E."""
-    matches = [_MOVE.match(line) for line in lines]
-    count = len(lines)
-    x = np.full(count, np.nan)
-    y = np.full(count, np.nan)
-    e = np.zeros(count)
-    for k, match in enumerate(matches):
-        if match is None:
-            continue
-        gx, gy, ge = match.group(2, 3, 4)
-        if gx is not None:
-            x[k] = float(gx)
-        if gy is not None:
-            y[k] = float(gy)
-        if ge is not None:
-            e[k] = float(ge)
+    x, y, e = _move_words(lines)
+    return moves_from(x, y, e > 0)
+
+
+def moves_from(
+    x: np.ndarray, y: np.ndarray, extruding: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`extruding_moves` from each line's X and Y (NaN where it has none) and
+    whether its E is positive, (n,) each."""
+    count = len(x)
     fx, fy = _fill_forward(x), _fill_forward(y)
     px, py = np.roll(fx, 1), np.roll(fy, 1)
     if count:
         px[0], py[0] = np.nan, np.nan
     moved = (~np.isnan(x) | ~np.isnan(y)) & ((fx != px) | (fy != py))
-    ext = np.flatnonzero((e > 0) & moved & ~np.isnan(fx) & ~np.isnan(fy))
+    ext = np.flatnonzero(extruding & moved & ~np.isnan(fx) & ~np.isnan(fy))
     sx = np.where(np.isnan(px[ext]), fx[ext], px[ext])
     sy = np.where(np.isnan(py[ext]), fy[ext], py[ext])
     points = np.column_stack([(sx + fx[ext]) / 2, (sy + fy[ext]) / 2])
     return ext, points
+
+
+def _move_words(lines: list[str]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Each line's X, Y (NaN where absent) and E (0 where absent) if it is a move,
+    (n,) float64 each: one regular-expression pass over the joined text, the numbers
+    converted by numpy (as ``float`` converts them)."""
+    found = _LINE.findall("\n".join(lines) + "\n") if lines else []
+    if len(found) != len(lines):  # a line with a newline inside: one line at a time
+        found = [_LINE.match(line + "\n").groups("") for line in lines]  # type: ignore[union-attr]
+    words = np.array(list(itertools.chain.from_iterable(found)), dtype=object).reshape(-1, 3)
+    given = words != ""
+    values = np.zeros(words.shape)
+    values[given] = words[given].astype(np.float64)
+    values[:, :2][~given[:, :2]] = np.nan
+    return values[:, 0], values[:, 1], values[:, 2]
 
 
 def _fill_forward(values: np.ndarray) -> np.ndarray:

@@ -266,7 +266,7 @@ def _solid_small_regions(
         return skin, sparse
     skin = skin.copy()
     sparse = sparse.copy()
-    for i in np.unique(owner[small]):
+    for i in geom.sorted_unique(owner[small]):
         mine = owner == i
         solid = parts[mine & small]
         rest = parts[mine & ~small]

@@ -10,6 +10,8 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
+from slicer.geom import sorted_unique
+
 
 def ring_points(ring: np.ndarray) -> np.ndarray:
     """Points of a closed ring without the repeated closing point: (k, 2)."""
@@ -150,7 +152,7 @@ def join_runs(
     ok = np.zeros(len(ends), dtype=bool)
     if len(cand):
         region_of = np.array([r[2] for r in runs])[which[cand]]
-        shapely.prepare(regions[np.unique(region_of)])
+        shapely.prepare(regions[sorted_unique(region_of)])
         middle = shapely.points((a[cand] + b[cand]) / 2.0)
         ok[cand] = shapely.dwithin(regions[region_of], middle, slack)
     pieces = np.split(pts, ends[:-1][~ok[:-1]])

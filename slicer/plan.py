@@ -23,6 +23,7 @@ from slicer.detour import avoid_region
 from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.fields.linear import LinearField
+from slicer.geom import private_copy
 from slicer.layer import LayerRegions, Path, fill_distance, layer_paths
 from slicer.lazycut import LazyOutlines
 from slicer.mesh import PlacedMesh, prepare, read_stl
@@ -305,11 +306,13 @@ class SlicePlan:
         code = gcode.layer_code(
             i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings,
             self._avoid(i, excluded_bodies),
+            extrusions=self.settings.gcode_labels and self.body_count >= 2,
         )
         if key is not None:
             with self._repeats_lock:
                 self._repeats[key] = gcode.LayerCode(
-                    list(code.lines), code.filament_mm, code.time_s, code.z_line
+                    list(code.lines), code.filament_mm, code.time_s, code.z_line,
+                    code.extrusions,
                 )
                 while len(self._repeats) > _REPEATS:
                     self._repeats.popitem(last=False)
@@ -410,7 +413,7 @@ def _private(g: shapely.Geometry | None) -> shapely.Geometry | None:
     geometries build their indexes lazily and must not be shared across threads)."""
     if g is None:
         return None
-    return shapely.from_wkb(shapely.to_wkb(g))
+    return private_copy(g)
 
 
 def _multi(polys: np.ndarray) -> shapely.Geometry:

@@ -33,7 +33,28 @@ class Canvas:
         """Paint closed rings (each (n, 2) float pixel coordinates, x right, y down) filled
         with ``fill`` (even-odd within a ring, rings of one call unioned) and their border
         pixels with ``edge``, over what is there."""
-        rows, lo, hi = self.spans(rings)
+        self.paint(*self.spans(rings), fill, edge)
+
+    def layers(
+        self, groups: list[list[NDArray[np.float64]]], fills: list[Colour], edges: list[Colour]
+    ) -> None:
+        """:meth:`polygons` for each group of rings in turn (``fills[k]``, ``edges[k]`` for
+        ``groups[k]``), the rows crossed by all of them found in one pass."""
+        rings = [ring for group in groups for ring in group]
+        rows, lo, hi, owner = self._runs(rings)
+        group_of = np.repeat(np.arange(len(groups)), [len(group) for group in groups])
+        # runs come sorted by ring, so each group's runs are one slice
+        cuts = np.searchsorted(group_of[owner], np.arange(len(groups) + 1)).tolist()
+        for k in range(len(groups)):
+            a, b = cuts[k], cuts[k + 1]
+            self.paint(rows[a:b], lo[a:b], hi[a:b], fills[k], edges[k])
+
+    def paint(
+        self, rows: NDArray[np.int64], lo: NDArray[np.int64], hi: NDArray[np.int64],
+        fill: Colour, edge: Colour,
+    ) -> None:
+        """Paint runs (row, first column, column after the last) with ``fill`` and the
+        runs' border pixels with ``edge``, over what is there."""
         if len(rows) == 0:
             return
         # only the window the spans touch, one pixel wider, is looked at
@@ -70,6 +91,13 @@ class Canvas:
     ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
         """The pixels whose centres lie inside ``rings`` as runs on rows: (row, first
         column, column after the last) of each run, empty runs dropped."""
+        rows, lo, hi, _owner = self._runs(rings)
+        return rows, lo, hi
+
+    def _runs(
+        self, rings: list[NDArray[np.float64]]
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """:meth:`spans` and the ring of each run, sorted by ring, row and column."""
         starts: list[NDArray[np.float64]] = []
         ends: list[NDArray[np.float64]] = []
         ids: list[NDArray[np.int64]] = []
@@ -80,25 +108,31 @@ class Canvas:
                 ids.append(np.full(len(ring), k, dtype=np.int64))
         if not starts:
             empty = np.empty(0, dtype=np.int64)
-            return empty, empty, empty
+            return empty, empty, empty, empty
         a, b, ring_of = np.concatenate(starts), np.concatenate(ends), np.concatenate(ids)
         rows, xs, owner = _crossings(a, b, ring_of, self.height)
         # crossings of one ring on one row, sorted by x, pair up into runs
         order = np.lexsort((xs, rows, owner))
-        rows, xs = rows[order], xs[order]
+        rows, xs, owner = rows[order], xs[order], owner[order]
         lo = np.clip(np.ceil(xs[0::2] - 0.5), 0, self.width).astype(np.int64)
         hi = np.clip(np.ceil(xs[1::2] - 0.5), 0, self.width).astype(np.int64)
         keep = hi > lo
-        return rows[0::2][keep], lo[keep], hi[keep]
+        return rows[0::2][keep], lo[keep], hi[keep], owner[0::2][keep]
 
     def halved(self) -> Picture:
         """The picture at half the size, each pixel the alpha-weighted mean of a 2 x 2 block
         (a width or height that is odd loses its last column or row)."""
         h, w = self.height // 2, self.width // 2
-        blocks = self.pixels[: 2 * h, : 2 * w].astype(np.float64).reshape(h, 2, w, 2, 4)
-        alpha = blocks[..., 3:4]
-        weight = alpha.sum(axis=(1, 3))
-        colour = (blocks[..., :3] * alpha).sum(axis=(1, 3)) / np.maximum(weight, 1.0)
+        pixels = np.array(self.palette, dtype=np.int32)[self.index[: 2 * h, : 2 * w]]
+        alpha = pixels[..., 3:4]
+
+        def blocks(a: NDArray[np.int32]) -> NDArray[np.float64]:
+            # the sum of each 2 x 2 block, exact (whole numbers below 2**20)
+            total = a[0::2, 0::2] + a[0::2, 1::2] + a[1::2, 0::2] + a[1::2, 1::2]
+            return total.astype(np.float64)
+
+        weight = blocks(alpha)
+        colour = blocks(pixels[..., :3] * alpha) / np.maximum(weight, 1.0)
         rgba = np.concatenate([colour, weight / 4.0], axis=-1)
         return Picture(np.rint(rgba).astype(np.uint8))
 

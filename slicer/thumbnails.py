@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
+from slicer.geom import sorted_unique
 from slicer.raster import Canvas
 
 if TYPE_CHECKING:
@@ -37,7 +38,7 @@ def thumbnail_png(plan: SlicePlan, width: int, height: int) -> bytes:
     scale_up = 2
     w, h = width * scale_up, height * scale_up
     n = plan.layer_count
-    picks = np.unique(np.linspace(0, n - 1, min(n, _LAYERS_DRAWN)).round().astype(int))
+    picks = sorted_unique(np.linspace(0, n - 1, min(n, _LAYERS_DRAWN)).round().astype(int))
     xmin, ymin, xmax, ymax = plan.bounds
     ztop = plan.layer_z(n - 1) if n else 1.0
     corners = np.array([[x, y, z] for x in (xmin, xmax) for y in (ymin, ymax) for z in (0, ztop)])
@@ -47,17 +48,19 @@ def thumbnail_png(plan: SlicePlan, width: int, height: int) -> bytes:
     fit = min((w * 0.92) / span[0], (h * 0.92) / span[1])
     offset = np.array([w, h]) / 2 - (lo + hi) / 2 * fit
     canvas = Canvas(w, h)
+    groups, fills, edges = [], [], []
     for rank, i in enumerate(picks.tolist()):
         z = plan.layer_z(i)
         shade = 0.55 + 0.45 * (rank + 1) / len(picks)
-        fill = (int(235 * shade), int(120 * shade), int(30 * shade), 255)
-        edge = (int(120 * shade), int(55 * shade), int(10 * shade), 255)
-        rings = []
-        for poly in shapely.get_parts(plan.outline(i)):
-            ring = shapely.get_coordinates(poly.exterior)
-            xyz = np.column_stack([ring, np.full(len(ring), z)])
-            rings.append(_project(xyz) * fit + offset)
-        canvas.polygons(rings, fill, edge)
+        fills.append((int(235 * shade), int(120 * shade), int(30 * shade), 255))
+        edges.append((int(120 * shade), int(55 * shade), int(10 * shade), 255))
+        exteriors = shapely.get_exterior_ring(shapely.get_parts(plan.outline(i)))
+        coords, ring_of = shapely.get_coordinates(exteriors, return_index=True)
+        xyz = np.column_stack([coords, np.full(len(coords), z)])
+        screen = _project(xyz) * fit + offset
+        groups.append(np.split(screen, np.flatnonzero(np.diff(ring_of)) + 1) if len(coords)
+                      else [])
+    canvas.layers(groups, fills, edges)
     return canvas.halved().png()
 
 

@@ -10,6 +10,7 @@ import trimesh
 
 from slicer.gcode import summarize
 from slicer.gcodefile import write_gcode
+from slicer.labels import extruding_moves
 from slicer.layer import WALL_INNER, WALL_OUTER
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
@@ -110,6 +111,21 @@ def test_retract_only_when_leaving_the_part(two_boxes) -> None:
     # one box alone: only the retraction before the layer change
     single = plan.layer_gcode(10, excluded_bodies=frozenset({1}))
     assert sum(line.startswith(r) for line in single) == 1
+
+
+def test_recorded_extrusions_are_what_the_lines_say(two_boxes) -> None:
+    """The extruding moves a layer records for its labels (from the numbers written) are
+    those read back from its lines, arcs or not, reused layers included."""
+    for arcs in ("off", "on"):
+        plan = SlicePlan.from_file(two_boxes, SliceSettings.from_mapping({"gcode.arcs": arcs}))
+        for i in range(plan.layer_count):
+            code = plan.layer_code(i)
+            assert code.extrusions is not None, i
+            index, points = code.extrusions
+            read_index, read_points = extruding_moves(code.lines)
+            assert len(index) > 0, i
+            assert np.array_equal(index, read_index), i
+            assert np.array_equal(points, read_points), i
 
 
 def test_excluded_bodies_drop_one_object(two_boxes) -> None:

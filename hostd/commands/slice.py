@@ -82,7 +82,7 @@ def load_tailored(
 def _tailoring_asked(model: str, settings: SliceSettings, load: str | None) -> bool:
     """Whether :func:`slicer.fea.tailor.tailored_plan` has anything to do: a load case
     given, set or beside the model, or an equal mass asked for."""
-    from slicer.fea.loadcase import load_path_for
+    from slicer.fea import load_path_for
 
     if load or settings.infill_load:
         return True

@@ -11,10 +11,10 @@ from typing import Any
 import numpy as np
 
 from slicer.errors import ModelError
+from slicer.fea import LOAD_SUFFIX, load_path_for  # noqa: F401  (imported from here too)
 
 ABS_YOUNGS_MPA = 2200.0
 ABS_POISSON = 0.35
-LOAD_SUFFIX = ".load.toml"
 NORMAL_CONE_DEG = 30.0  # a face's outward normal must lie this close to a region's ``normal``
 
 _TABLES = {
@@ -80,12 +80,6 @@ class LoadCase:
 def _region_bytes(region: Region) -> bytes:
     normal = region.normal if region.normal is not None else np.zeros(3)
     return region.box.astype("<f8").tobytes() + np.asarray(normal, dtype="<f8").tobytes()
-
-
-def load_path_for(model: str | os.PathLike[str]) -> Path:
-    """``NAME.load.toml`` beside ``NAME.stl``."""
-    model = Path(model)
-    return model.with_name(model.stem + LOAD_SUFFIX)
 
 
 def read_load_case(
