@@ -17,6 +17,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from slicer import geom
 from slicer.arcs import arcs_wanted
 from slicer.settings import SliceSettings
 
@@ -93,7 +94,7 @@ def along(
     zone0 = shapely.buffer(regions, _REACH * w, quad_segs=_QUAD_SEGS)
     rings = shapely.boundary(shapely.buffer(fill[has][row_of], -depth[level],
                                             quad_segs=_QUAD_SEGS))
-    pieces = shapely.intersection(rings, np.where(level == 0, zone0[row_of], regions[row_of]))
+    pieces = geom.intersection(rings, np.where(level == 0, zone0[row_of], regions[row_of]))
     parts, source = shapely.get_parts(pieces, return_index=True)
     line = (shapely.get_type_id(parts) == 1) & (shapely.length(parts) > 0.0)
     parts, part_row = parts[line], row_of[source[line]]
@@ -108,13 +109,13 @@ def along(
             out[i] = np.split(coords, np.flatnonzero(np.diff(index)) + 1)
             # each line apart, then united (one buffer of them all can come out invalid)
             covered = shapely.union_all(shapely.buffer(lines, 0.5 * w, quad_segs=_QUAD_SEGS))
-            left = shapely.difference(regions[row], covered)
+            left = geom.difference(regions[row], covered)
         else:
             left = regions[row]
         # strips thinner than twice _GAP lines are left, as hair-thin skin is (skins.py)
         left = shapely.buffer(shapely.buffer(left, -_GAP * w, quad_segs=_QUAD_SEGS),
                               _GAP * w, quad_segs=_QUAD_SEGS)
-        left_parts = shapely.get_parts(shapely.intersection(left, regions[row]))
+        left_parts = shapely.get_parts(geom.intersection(left, regions[row]))
         left_parts = left_parts[shapely.get_type_id(left_parts) == 3]
         if len(left_parts):
             base = wide[i]

@@ -2,7 +2,9 @@
 
 from __future__ import annotations
 
+import json
 import random
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -10,6 +12,8 @@ import shapely
 
 from slicer import skinfill
 from slicer.skins import _OPEN, SkinCache, _domains, skin_regions
+
+DATA = Path(__file__).parent / "data"
 
 FILL = 0.8  # mm from an outline to its infill domain
 
@@ -170,3 +174,24 @@ def test_a_narrow_band_of_skin_is_filled_along_its_length() -> None:
     # and no line is laid over another
     beads = shapely.buffer(paths, 0.45 * w)
     assert shapely.union_all(beads).area >= 0.97 * shapely.area(beads).sum()
+
+
+def test_a_band_geos_cannot_overlay_exactly_is_filled_on_the_precision_grid() -> None:
+    # a real layer (the bracket's, arcs on) where GEOS's exact overlay of what the lines
+    # leave with the band raised a topology error and the whole slice failed
+    case = json.loads((DATA / "skinfill_overlay_case.json").read_text())
+
+    def shapes(key: str) -> np.ndarray:
+        return np.array([None if s is None else shapely.from_wkt(s) for s in case[key]],
+                        dtype=object)
+
+    narrow, wide, fill = shapes("narrow"), shapes("wide"), shapes("fill")
+    w = case["w"]
+    lines, rest = skinfill.along(narrow, wide, fill, w)
+    assert all(len(lines[i]) >= 1 for i, g in enumerate(narrow) if g is not None)
+    # what the lines leave and the skin left to the hatch stay inside the island's skin
+    for i, g in enumerate(narrow):
+        if g is None or rest[i] is None:
+            continue
+        skin = g if wide[i] is None else g.union(wide[i])
+        assert rest[i].difference(skin.buffer(1e-4)).area < 1e-6
