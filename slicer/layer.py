@@ -217,7 +217,7 @@ def _solid_small_regions(
         return skin, sparse
     skin = skin.copy()
     sparse = sparse.copy()
-    for i in np.unique(owner[small]):
+    for i in np.unique(owner[small], return_index=True)[0]:  # plain unique imports numpy.ma
         mine = owner == i
         solid = parts[mine & small]
         rest = parts[mine & ~small]
