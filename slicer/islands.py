@@ -6,7 +6,8 @@ island at a time, so an island with the same coordinates as one sliced lately
 while another one changes, letters standing on a base) has the same walls and
 domain, bit for bit. They are kept per thread, keyed by the island's exact
 coordinates (WKB) and the settings they depend on, for the last
-:data:`KEEP` islands; only the islands not seen lately are offset, all at once.
+:data:`KEEP` islands (fewer when large: :data:`KEEP_BYTES`); only the islands
+not seen lately are offset, all at once.
 The geometry kept is private to its thread: a thread may prepare it in place.
 """
 
@@ -21,8 +22,10 @@ import shapely
 
 from slicer import loops
 
-# islands kept per thread (most recently used)
+# islands kept per thread (most recently used), and the most of their WKB kept, bytes
+# (the walls, rings and domain kept with an island take a few times its WKB)
 KEEP = 512
+KEEP_BYTES = 2_000_000
 # arcs of offset corners: segments per quarter circle
 _QUAD_SEGS = 6
 # thin islands up to this inscribed radius (in line widths) get one widened outer
@@ -42,12 +45,14 @@ def _kept() -> OrderedDict[tuple, Island]:
     kept = getattr(_local, "kept", None)
     if kept is None:
         kept = _local.kept = OrderedDict()
+        _local.size = 0  # bytes of WKB in the keys
     return kept
 
 
 def forget() -> None:
     """Drop this thread's kept islands (a benchmark's passes each start cold)."""
     _kept().clear()
+    _local.size = 0
 
 
 def island_geometry(
@@ -70,11 +75,13 @@ def island_geometry(
     if miss:
         width, fill, rings = _offsets(islands[miss], w, perimeters, fill_distance, wall_order)
         for j, i in enumerate(miss):
+            if keys[i] not in kept:
+                _local.size += len(keys[i][0])
             found[i] = kept.setdefault(keys[i], (float(width[j]), fill[j], rings[j]))
     for k in keys:
         kept.move_to_end(k)
-    while len(kept) > KEEP:
-        kept.popitem(last=False)
+    while kept and (len(kept) > KEEP or _local.size > KEEP_BYTES):
+        _local.size -= len(kept.popitem(last=False)[0][0])
     got = cast(list[Island], found)
     widths = np.array([f[0] for f in got], dtype=np.float64)
     fills = np.empty(p, dtype=object)
