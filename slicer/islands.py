@@ -35,12 +35,14 @@ THIN_WIDEN = 1.375
 _THIN_STEPS = 4
 
 # what one island yields: (outer wall width or NaN, infill domain, wall rings by level)
-Island = tuple[float, Any, list]
+Island = tuple[float, Any, list[Any]]
+# an island's WKB and the settings its geometry depends on
+Key = tuple[bytes, tuple[Any, ...]]
 
 _local = threading.local()
 
 
-def _kept() -> OrderedDict[tuple, Island]:
+def _kept() -> OrderedDict[Key, Island]:
     """This thread's islands, least recently used first."""
     kept = getattr(_local, "kept", None)
     if kept is None:
@@ -57,7 +59,7 @@ def forget() -> None:
 
 def island_geometry(
     islands: np.ndarray, w: float, perimeters: int, fill_distance: float, wall_order: str
-) -> tuple[np.ndarray, np.ndarray, list]:
+) -> tuple[np.ndarray, np.ndarray, list[Any]]:
     """Outer wall width (p,) float64 mm (NaN: the line width ``w``), infill domain (p,)
     object array and wall rings (:func:`slicer.loops.wall_loops`, p lists) of each island
     of ``islands`` (p,) Polygons, for ``perimeters`` walls ``w`` mm wide and the domain
@@ -91,7 +93,7 @@ def island_geometry(
 
 def _offsets(
     islands: np.ndarray, w: float, perimeters: int, fill_distance: float, wall_order: str
-) -> tuple[np.ndarray, np.ndarray, list]:
+) -> tuple[np.ndarray, np.ndarray, list[Any]]:
     """:func:`island_geometry` of ``islands`` (q,), made: walls are the level sets
     ``buffer(island, -c_k)``, ``c_k = (k + 1/2) w``, the domain ``buffer(island,
     -fill_distance)``."""

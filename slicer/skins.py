@@ -250,8 +250,8 @@ class SkinCache:
         top, bottom = self._top, self._bottom
         # open[j]: layers 0..j-1 that belong to a block not solved yet
         unsolved = np.ones(n, dtype=bool)
-        for key in self._blocks:
-            lo, hi = self._block_layers(key)
+        for block in self._blocks:
+            lo, hi = self._block_layers(block)
             unsolved[lo:hi] = False
         open_ = np.concatenate(([0], np.cumsum(unsolved)))
 
