@@ -12,7 +12,8 @@ THIN_WIDEN w``), two lines of width ``w`` would leave a strip of ``2h - 2w``
 unfilled between the two sides of the outer wall, which nothing else can fill.
 Its outer wall is then the level set ``c_0 = h / 2``, extruded ``h`` wide, so the
 two sides meet on the medial axis (as the variable-width walls of PrusaSlicer
-2.5 and Cura 5 lay two wider lines there).
+2.5 and Cura 5 lay two wider lines there). Walls and domains are made per island
+by :mod:`slicer.islands`, once for an island that repeats.
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ import shapely
 from slicer import geom, loops, order, skinfill
 from slicer.fields.base import InfillField, LayerContext
 from slicer.fields.linear import LinearField, hatch_many, line_frame
+from slicer.islands import island_geometry
 from slicer.settings import SliceSettings
 
 WALL_OUTER = loops.WALL_OUTER
@@ -34,8 +36,6 @@ SKIN = "SKIN"
 FILL = "FILL"
 SUPPORT = "SUPPORT"
 
-# arcs of offset corners: segments per quarter circle
-_QUAD_SEGS = 6
 # slicer.support.support_paths: (support region, part outline, context, interface region or
 # None) -> support paths by kind ("wall", "interface", "infill")
 SupportPaths = Callable[
@@ -44,11 +44,6 @@ SupportPaths = Callable[
 ]
 # paths shorter than this fraction of the line width are not printed
 _MIN_PATH = 0.5
-# thin islands up to this inscribed radius (in line widths) get one widened outer
-# wall instead of two lines with a gap between them (Arachne's 2-to-3-line step)
-THIN_WIDEN = 1.375
-# bisection steps for a thin island's inscribed radius (to w/32: 0.0125 mm at w = 0.4)
-_THIN_STEPS = 4
 
 
 @dataclass(frozen=True)
@@ -126,16 +121,9 @@ def layer_paths(
         b = support.bounds
         return _support(regions, ctx, support_paths, np.array([b[0], b[3]]))
     w = settings.line_width
-    levels = (np.arange(settings.perimeters) + 0.5) * w
-    walls = (
-        shapely.buffer(islands[:, None], -levels[None, :], quad_segs=_QUAD_SEGS)
-        if len(levels)
-        else np.empty((len(islands), 0), dtype=object)
+    outer_width, fill, rings = island_geometry(
+        islands, w, settings.perimeters, fill_distance(settings), settings.wall_order
     )
-    outer_width = np.full(len(islands), np.nan)  # NaN: the settings' line width
-    if settings.perimeters >= 2:
-        walls, outer_width = widen_thin_walls(islands, walls, w)
-    fill = shapely.buffer(islands, -fill_distance(settings), quad_segs=_QUAD_SEGS)
     if regions.skin is not None and not regions.skin.is_empty:
         if len(islands) == 1:  # the skin already lies in this island's infill domain
             skin = np.array([regions.skin], dtype=object)
@@ -151,21 +139,28 @@ def layer_paths(
     if skinfill.wanted(settings):
         narrow, skin = skinfill.split_narrow(skin, w)
         skin_lines, skin = skinfill.along(narrow, skin, fill, w)
-    skin_stacks = _stacks(skin, settings.infill_angle, ctx.index, w, shortest)
     sparse_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
-    if isinstance(field, LinearField):
-        spacing = sparse_spacing(settings)
-        sparse_stacks = _stacks(sparse, field.angle, ctx.index, spacing, shortest)
+    if isinstance(field, LinearField) and field.angle == settings.infill_angle:
+        # skin and sparse lines in one pass: the same field, two spacings
+        skin_stacks, sparse_stacks = _stacks(
+            [(skin, w), (sparse, sparse_spacing(settings))], field.angle, ctx.index, shortest
+        )
     else:
-        sparse_stacks = None
-        sparse_lines = _sparse_lines(sparse, ctx, field)
-    rings = loops.wall_loops(walls, settings.wall_order)
+        (skin_stacks,) = _stacks([(skin, w)], settings.infill_angle, ctx.index, shortest)
+        if isinstance(field, LinearField):
+            (sparse_stacks,) = _stacks(
+                [(sparse, sparse_spacing(settings))], field.angle, ctx.index, shortest
+            )
+        else:
+            sparse_stacks = None
+            sparse_lines = _sparse_lines(sparse, ctx, field)
 
     # walls are final; infill runs are joined for all islands at once after the walk
     items: list[Path | tuple[str, int]] = []
     runs: list[tuple[np.ndarray, np.ndarray, int]] = []
-    pos = _start_position(islands)
-    for k in _island_order(islands, pos):
+    box = shapely.bounds(islands)
+    pos = _start_position(box)
+    for k in _island_order(box, pos):
         width = None if np.isnan(outer_width[k]) else float(outer_width[k])
         for kind, ring in loops.order_loops(rings[k], pos):
             items.append(Path(kind, ring, width if kind == WALL_OUTER else None))
@@ -199,50 +194,6 @@ def layer_paths(
     if support_paths is not None and has_support:
         out.extend(_support(regions, ctx, support_paths, pos))
     return out
-
-
-def widen_thin_walls(
-    islands: np.ndarray, walls: np.ndarray, w: float
-) -> tuple[np.ndarray, np.ndarray]:
-    """Widen the outer wall of thin islands so its two sides meet (see the module doc).
-
-    ``islands`` (p,) Polygons; ``walls`` (p, P) the wall levels from
-    ``buffer(island, -c_k)`` with ``P >= 2``; ``w`` the line width, mm. An island
-    whose second wall is empty and whose maximum inscribed radius ``h`` lies in
-    ``(w, THIN_WIDEN w]`` gets the outer wall level ``buffer(island, -h / 2)``.
-    Returns the walls (a copy when changed) and the outer wall width per
-    island (p,) mm, NaN where it stays ``w``.
-    """
-    width = np.full(len(islands), np.nan)
-    if len(islands) == 0 or walls.shape[1] < 2:
-        return walls, width
-    # no second wall: h <= 1.5 w
-    cand = np.flatnonzero(shapely.is_empty(walls[:, 1]) & ~shapely.is_empty(walls[:, 0]))
-    if len(cand) == 0:
-        return walls, width
-    # the outer wall level is the island less w/2: h > w where it survives another w/2
-    first = walls[cand, 0]
-    keep = ~shapely.is_empty(shapely.buffer(first, -w / 2.0, quad_segs=_QUAD_SEGS))
-    cand, first = cand[keep], first[keep]
-    if len(cand) == 0:
-        return walls, width
-    # h - w/2 in (w/2, w] by bisection on where the level's inward offset empties
-    lo = np.full(len(cand), w / 2.0)
-    hi = np.full(len(cand), w)
-    for _ in range(_THIN_STEPS):
-        mid = (lo + hi) / 2.0
-        empty = shapely.is_empty(shapely.buffer(first, -mid, quad_segs=_QUAD_SEGS))
-        hi = np.where(empty, mid, hi)
-        lo = np.where(empty, lo, mid)
-    h = w / 2.0 + (lo + hi) / 2.0
-    thin = h <= THIN_WIDEN * w
-    if not thin.any():
-        return walls, width
-    cand, h = cand[thin], h[thin]
-    walls = walls.copy()
-    walls[cand, 0] = shapely.buffer(islands[cand], -h / 2.0, quad_segs=_QUAD_SEGS)
-    width[cand] = h
-    return walls, width
 
 
 def _solid_small_regions(
@@ -280,19 +231,22 @@ def _solid_small_regions(
     return skin, sparse
 
 
-def _start_position(islands: np.ndarray) -> np.ndarray:
-    """Where ordering starts: the rear-left corner of the layer (a fixed, layer-local point)."""
-    b = shapely.total_bounds(islands)
-    return np.array([b[0], b[3]])
+def _start_position(box: np.ndarray) -> np.ndarray:
+    """Where ordering starts: the rear-left corner of the layer (a fixed, layer-local point).
+
+    ``box`` (p, 4) the islands' bounds (xmin, ymin, xmax, ymax), mm; NaN (empty) ignored.
+    """
+    return np.array([np.fmin.reduce(box[:, 0]), np.fmax.reduce(box[:, 3])])
 
 
-def _island_order(islands: np.ndarray, pos: np.ndarray) -> list[int]:
-    """Islands in greedy nearest-neighbour order of their rear seams."""
-    if len(islands) == 1:
+def _island_order(box: np.ndarray, pos: np.ndarray) -> list[int]:
+    """Islands in greedy nearest-neighbour order of their rear seams (``box`` (p, 4) their
+    bounds)."""
+    if len(box) == 1:
         return [0]
-    b = shapely.bounds(islands)
+    b = box
     seams = np.stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 3]], axis=1)
-    left = list(range(len(islands)))
+    left = list(range(len(box)))
     out = []
     here = pos
     while left:
@@ -304,25 +258,40 @@ def _island_order(islands: np.ndarray, pos: np.ndarray) -> list[int]:
 
 
 def _stacks(
-    regions: np.ndarray, angle: float, index: int, spacing: float, min_length: float
-) -> order.ChordStacks | None:
+    groups: list[tuple[np.ndarray, float]], angle: float, index: int, min_length: float
+) -> list[order.ChordStacks | None]:
     """Level sets of the linear field (Eq. 13, mirrored on odd layers) in every region, stacked.
 
-    ``regions`` (p,) one (Multi)Polygon or None per island; chords shorter than
-    ``min_length`` mm are dropped. None when there are no chords at all.
+    ``groups`` of ``(regions, spacing)``: ``regions`` (p,) one (Multi)Polygon or
+    None per island, lines ``spacing`` mm apart; all are hatched in one pass.
+    Chords shorter than ``min_length`` mm are dropped. One stack per group,
+    None where it has no chords at all.
     """
-    if spacing <= 0 or len(regions) == 0:
-        return None
+    out: list[order.ChordStacks | None] = [None] * len(groups)
+    todo = [j for j, (regions, spacing) in enumerate(groups) if spacing > 0 and len(regions)]
+    if not todo:
+        return out
     mirror = index % 2 == 1
-    chords, owner = hatch_many(regions, angle, mirror, spacing)
-    if len(chords) == 0:
-        return None
-    length = np.linalg.norm(chords[:, 1] - chords[:, 0], axis=1)
-    keep = length >= min_length
-    if not keep.any():
-        return None
+    sizes = [len(groups[j][0]) for j in todo]
+    regions = np.concatenate([groups[j][0] for j in todo])
+    spacings = np.repeat([float(groups[j][1]) for j in todo], sizes)
+    chords, owner = hatch_many(regions, angle, mirror, spacings)
     g, d = line_frame(angle, mirror)
-    return order.chord_stacks(chords[keep], owner[keep], len(regions), g, d, spacing)
+    # chords come ordered by region: each group's are one stretch
+    offsets = np.cumsum([0, *sizes])
+    cuts = np.searchsorted(owner, offsets)
+    for j, lo, a, b in zip(todo, offsets, cuts[:-1], cuts[1:], strict=False):
+        if b == a:
+            continue
+        mine = chords[a:b]
+        length = np.linalg.norm(mine[:, 1] - mine[:, 0], axis=1)
+        keep = length >= min_length
+        if keep.any():
+            spacing = groups[j][1]
+            out[j] = order.chord_stacks(
+                mine[keep], owner[a:b][keep] - lo, len(groups[j][0]), g, d, spacing
+            )
+    return out
 
 
 def _sparse_lines(

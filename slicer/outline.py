@@ -215,7 +215,8 @@ def _close_gaps(
     layers.append(chains.layer[closed_idx])
     faces.append(chains.face[closed_idx])
     open_idx = np.nonzero(~chains.closed)[0]
-    for lay in np.unique(chains.layer[open_idx]):
+    # return_index: a plain unique imports numpy.ma
+    for lay in np.unique(chains.layer[open_idx], return_index=True)[0]:
         members = open_idx[chains.layer[open_idx] == lay]
         pieces = [chains.coords[chains.offsets[k] : chains.offsets[k + 1]] for k in members]
         loops, gaps, dropped = close_open_chains(
@@ -314,7 +315,7 @@ def _repair_layer(
     object) and their union is labelled with the lower body number.
     """
     fixed = shapely.make_valid(polys)
-    bodies = np.unique(body)
+    bodies = np.unique(body, return_index=True)[0]  # plain unique imports numpy.ma
     regions = [geom.polygonal(shapely.union_all(fixed[body == b])) for b in bodies]
     label = {int(b): int(b) for b in bodies}
     for i in range(len(bodies)):

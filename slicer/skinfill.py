@@ -53,7 +53,7 @@ def split_narrow(skin: np.ndarray, w: float) -> tuple[np.ndarray, np.ndarray]:
     thin = shapely.is_empty(shapely.buffer(parts, -0.5 * NARROW * w, quad_segs=_QUAD_SEGS))
     if not thin.any():
         return narrow, wide
-    for i in np.unique(owner[thin]).tolist():
+    for i in np.unique(owner[thin], return_index=True)[0].tolist():  # plain unique imports numpy.ma
         mine = owner == i
         # a skin's parts may touch along edges (solid small regions beside it): united
         narrow[i] = shapely.union_all(parts[mine & thin])

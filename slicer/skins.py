@@ -213,14 +213,18 @@ class SkinCache:
 
     def _span(self, i: int) -> tuple[int, int, int]:
         """(key, lo, hi): the block holding layer ``i``, layers ``lo..hi-1``."""
-        if i < self._block:
-            lo = 1 << (i.bit_length() - 1) if i > 0 else 0
+        first = 1 << (i.bit_length() - 1) if i > 0 else 0  # the growing blocks' first layer
+        key = -1 - first if i < self._block else i // self._block
+        return (key, *self._block_layers(key))
+
+    def _block_layers(self, key: int) -> tuple[int, int]:
+        """(lo, hi): the layers ``lo..hi-1`` of the block :meth:`_span` calls ``key``."""
+        if key < 0:
+            lo = -1 - key
             hi = min(max(2 * lo, 1), self._block)
-            key = -1 - lo
         else:
-            key = i // self._block
             lo, hi = key * self._block, key * self._block + self._block
-        return key, lo, min(hi, len(self._outlines))
+        return lo, min(hi, len(self._outlines))
 
     def get(self, i: int) -> shapely.Geometry | None:
         """Skin region of layer ``i`` (None when the layer needs no skin)."""
@@ -244,11 +248,17 @@ class SkinCache:
         """Forget the domains and windows that no block left to solve needs (lock held)."""
         n = len(self._outlines)
         top, bottom = self._top, self._bottom
+        # open[j]: layers 0..j-1 that belong to a block not solved yet
+        unsolved = np.ones(n, dtype=bool)
+        for block in self._blocks:
+            lo, hi = self._block_layers(block)
+            unsolved[lo:hi] = False
+        open_ = np.concatenate(([0], np.cumsum(unsolved)))
 
         def needed(first: int, last: int) -> bool:
             """Whether a layer in ``first..last`` belongs to a block not solved yet."""
-            layers = range(max(first, 0), min(last, n - 1) + 1)
-            return any(self._span(i)[0] not in self._blocks for i in layers)
+            first, last = max(first, 0), min(last, n - 1)
+            return first <= last and bool(open_[last + 1] > open_[first])
 
         for j in [j for j in self._fill if not needed(j - top, j + bottom)]:
             del self._fill[j]

@@ -22,7 +22,7 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("outlines", "slicer.lazycut", "LazyOutlines._cut"),
     ("skins", "slicer.skins", "SkinCache.get"),
     ("walls", "slicer.plan", "layer_paths"),
-    ("walls", "slicer.layer", "widen_thin_walls"),
+    ("walls", "slicer.islands", "widen_thin_walls"),
     ("walls", "slicer.loops", "wall_loops"),
     ("infill", "slicer.layer", "_solid_small_regions"),
     ("infill", "slicer.layer", "_stacks"),

@@ -44,15 +44,16 @@ def hatch(region: shapely.Geometry, angle_deg: float, mirror: bool, spacing: flo
 
 
 def hatch_many(
-    regions: np.ndarray, angle_deg: float, mirror: bool, spacing: float
+    regions: np.ndarray, angle_deg: float, mirror: bool, spacing: float | np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """:func:`hatch` of every region of ``regions`` (r,) at once (None or empty: no chords).
 
-    Returns the chords (n, 2, 2) float64 mm and the region each belongs to
-    (n,) int64, ordered by region, then as :func:`hatch` orders them.
+    ``spacing`` mm, one for all or (r,) one per region. Returns the chords (n, 2,
+    2) float64 mm and the region each belongs to (n,) int64, ordered by region,
+    then as :func:`hatch` orders them.
     """
     none = (np.empty((0, 2, 2)), np.empty(0, dtype=np.int64))
-    if spacing <= 0 or len(regions) == 0:
+    if np.any(np.asarray(spacing) <= 0) or len(regions) == 0:
         return none
     g, d = line_frame(angle_deg, mirror)
     parts, owner = shapely.get_parts(regions, return_index=True)
@@ -61,6 +62,8 @@ def hatch_many(
     same = ring[1:] == ring[:-1]
     p, q = coords[:-1][same], coords[1:][same]
     edge_owner = owner[ring_part[ring[:-1][same]]]
+    if isinstance(spacing, np.ndarray):
+        spacing = spacing[edge_owner]
     up, uq = p @ g, q @ g
     vp, vq = p @ d, q @ d
     lo = np.minimum(up, uq)
@@ -74,7 +77,7 @@ def hatch_many(
     edge = np.repeat(np.arange(len(count)), count)
     start = np.cumsum(count) - count
     k = k0[edge] + (np.arange(total) - start[edge])
-    c = k * spacing
+    c = k * (spacing[edge] if isinstance(spacing, np.ndarray) else spacing)
     t = (c - up[edge]) / (uq[edge] - up[edge])
     v = vp[edge] + t * (vq[edge] - vp[edge])
     who = edge_owner[edge]

@@ -1,0 +1,154 @@
+"""Per-island wall rings and infill domain, made once for islands that repeat layer after layer.
+
+A layer's walls and infill domain are inward offsets of each island taken one
+island at a time, so an island with the same coordinates as one sliced lately
+(the islands of a prismatic part, the parts of a plate that keep their shape
+while another one changes, letters standing on a base) has the same walls and
+domain, bit for bit. They are kept per thread, keyed by the island's exact
+coordinates (WKB) and the settings they depend on, for the last
+:data:`KEEP` islands (fewer when large: :data:`KEEP_BYTES`); only the islands
+not seen lately are offset, all at once.
+The geometry kept is private to its thread: a thread may prepare it in place.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections import OrderedDict
+from typing import Any, cast
+
+import numpy as np
+import shapely
+
+from slicer import loops
+
+# islands kept per thread (most recently used), and the most of their WKB kept, bytes
+# (the walls, rings and domain kept with an island take a few times its WKB)
+KEEP = 512
+KEEP_BYTES = 2_000_000
+# arcs of offset corners: segments per quarter circle
+_QUAD_SEGS = 6
+# thin islands up to this inscribed radius (in line widths) get one widened outer
+# wall instead of two lines with a gap between them (Arachne's 2-to-3-line step)
+THIN_WIDEN = 1.375
+# bisection steps for a thin island's inscribed radius (to w/32: 0.0125 mm at w = 0.4)
+_THIN_STEPS = 4
+
+# what one island yields: (outer wall width or NaN, infill domain, wall rings by level)
+Island = tuple[float, Any, list[Any]]
+# an island's WKB and the settings its geometry depends on
+Key = tuple[bytes, tuple[Any, ...]]
+
+_local = threading.local()
+
+
+def _kept() -> OrderedDict[Key, Island]:
+    """This thread's islands, least recently used first."""
+    kept = getattr(_local, "kept", None)
+    if kept is None:
+        kept = _local.kept = OrderedDict()
+        _local.size = 0  # bytes of WKB in the keys
+    return kept
+
+
+def forget() -> None:
+    """Drop this thread's kept islands (a benchmark's passes each start cold)."""
+    _kept().clear()
+    _local.size = 0
+
+
+def island_geometry(
+    islands: np.ndarray, w: float, perimeters: int, fill_distance: float, wall_order: str
+) -> tuple[np.ndarray, np.ndarray, list[Any]]:
+    """Outer wall width (p,) float64 mm (NaN: the line width ``w``), infill domain (p,)
+    object array and wall rings (:func:`slicer.loops.wall_loops`, p lists) of each island
+    of ``islands`` (p,) Polygons, for ``perimeters`` walls ``w`` mm wide and the domain
+    ``fill_distance`` mm inside the outline.
+
+    Islands seen lately with the same settings come from this thread's cache; the
+    others are offset in one vectorised pass, in their order.
+    """
+    p = len(islands)
+    kept = _kept()
+    tag = (w, perimeters, fill_distance, wall_order)
+    keys = [(b, tag) for b in shapely.to_wkb(islands)]
+    found: list[Island | None] = [kept.get(k) for k in keys]
+    miss = [i for i in range(p) if found[i] is None]
+    if miss:
+        width, fill, rings = _offsets(islands[miss], w, perimeters, fill_distance, wall_order)
+        for j, i in enumerate(miss):
+            if keys[i] not in kept:
+                _local.size += len(keys[i][0])
+            found[i] = kept.setdefault(keys[i], (float(width[j]), fill[j], rings[j]))
+    for k in keys:
+        kept.move_to_end(k)
+    while kept and (len(kept) > KEEP or _local.size > KEEP_BYTES):
+        _local.size -= len(kept.popitem(last=False)[0][0])
+    got = cast(list[Island], found)
+    widths = np.array([f[0] for f in got], dtype=np.float64)
+    fills = np.empty(p, dtype=object)
+    fills[:] = [f[1] for f in got]
+    return widths, fills, [f[2] for f in got]
+
+
+def _offsets(
+    islands: np.ndarray, w: float, perimeters: int, fill_distance: float, wall_order: str
+) -> tuple[np.ndarray, np.ndarray, list[Any]]:
+    """:func:`island_geometry` of ``islands`` (q,), made: walls are the level sets
+    ``buffer(island, -c_k)``, ``c_k = (k + 1/2) w``, the domain ``buffer(island,
+    -fill_distance)``."""
+    levels = (np.arange(perimeters) + 0.5) * w
+    walls = (
+        shapely.buffer(islands[:, None], -levels[None, :], quad_segs=_QUAD_SEGS)
+        if len(levels)
+        else np.empty((len(islands), 0), dtype=object)
+    )
+    outer_width = np.full(len(islands), np.nan)  # NaN: the settings' line width
+    if perimeters >= 2:
+        walls, outer_width = widen_thin_walls(islands, walls, w)
+    fill = shapely.buffer(islands, -fill_distance, quad_segs=_QUAD_SEGS)
+    return outer_width, fill, loops.wall_loops(walls, wall_order)
+
+
+def widen_thin_walls(
+    islands: np.ndarray, walls: np.ndarray, w: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """Widen the outer wall of thin islands so its two sides meet (see the module doc).
+
+    ``islands`` (p,) Polygons; ``walls`` (p, P) the wall levels from
+    ``buffer(island, -c_k)`` with ``P >= 2``; ``w`` the line width, mm. An island
+    whose second wall is empty and whose maximum inscribed radius ``h`` lies in
+    ``(w, THIN_WIDEN w]`` gets the outer wall level ``buffer(island, -h / 2)``.
+    Returns the walls (a copy when changed) and the outer wall width per
+    island (p,) mm, NaN where it stays ``w``.
+    """
+    width = np.full(len(islands), np.nan)
+    if len(islands) == 0 or walls.shape[1] < 2:
+        return walls, width
+    # no second wall: h <= 1.5 w
+    cand = np.flatnonzero(shapely.is_empty(walls[:, 1]) & ~shapely.is_empty(walls[:, 0]))
+    if len(cand) == 0:
+        return walls, width
+    # the outer wall level is the island less w/2: h > w where it survives another w/2
+    first = walls[cand, 0]
+    keep = ~shapely.is_empty(shapely.buffer(first, -w / 2.0, quad_segs=_QUAD_SEGS))
+    cand, first = cand[keep], first[keep]
+    if len(cand) == 0:
+        return walls, width
+    # h - w/2 in (w/2, w] by bisection on where the level's inward offset empties
+    lo = np.full(len(cand), w / 2.0)
+    hi = np.full(len(cand), w)
+    for _ in range(_THIN_STEPS):
+        mid = (lo + hi) / 2.0
+        empty = shapely.is_empty(shapely.buffer(first, -mid, quad_segs=_QUAD_SEGS))
+        hi = np.where(empty, mid, hi)
+        lo = np.where(empty, lo, mid)
+    h = w / 2.0 + (lo + hi) / 2.0
+    thin = h <= THIN_WIDEN * w
+    if not thin.any():
+        return walls, width
+    cand, h = cand[thin], h[thin]
+    walls = walls.copy()
+    walls[cand, 0] = shapely.buffer(islands[cand], -h / 2.0, quad_segs=_QUAD_SEGS)
+    width[cand] = h
+    return walls, width
