@@ -159,7 +159,11 @@ def main(argv: list[str] | None = None) -> int:
                         help="ours with arcs fed at 100 mm/s over 115200 baud and 150 mm/s over "
                              "250000 only (the no-underrun targets), with the outer-wall IoU")
     parser.add_argument("--jobs", type=int, default=1,
-                        help="forked processes slicing layers (--targets only; same G-code)")
+                        help="forked processes slicing layers (--targets, --lines-only; same "
+                             "G-code)")
+    parser.add_argument("--iou", action="store_true",
+                        help="with --lines-only: also slice ours without arcs, for the "
+                             "outer-wall IoU")
     parser.add_argument("--out", type=Path, default=OUT / "serial_budget.json")
     args = parser.parse_args(argv)
     every = sorted(p.stem for p in MODELS.glob("*.stl") if p.stem not in SKIP_MODELS)
@@ -170,7 +174,7 @@ def main(argv: list[str] | None = None) -> int:
     speeds = ([float(s) for s in args.speeds.split(",")] if args.speeds
               else list(SPEEDS) if args.full else list(DEFAULT["speeds"]))
     if args.lines_only:
-        return _lines_only(models, fields, speeds, args.out)
+        return _lines_only(models, fields, speeds, args.out, args.jobs, args.iou)
     if args.targets:
         pairs = [t for t in TARGETS if not args.speeds or t[0] in speeds]
         return _targets(models, fields, pairs, args.out, args.jobs)
@@ -218,9 +222,13 @@ def _commands(lines: list[str]) -> int:
     return sum(1 for line in lines if line.split(";", 1)[0].strip())
 
 
-def _lines_only(models: list[str], fields: list[str], speeds: list[float], out: Path) -> int:
+def _lines_only(
+    models: list[str], fields: list[str], speeds: list[float], out: Path, jobs: int = 1,
+    iou: bool = False,
+) -> int:
     """Our line count with arcs and the 250000-baud budget against PrusaSlicer's, for every
-    model, field and speed given; the table and the runs over PrusaSlicer's count."""
+    model, field and speed given; the table and the runs over PrusaSlicer's count. With
+    ``iou``, the outer-wall IoU against ours without arcs too."""
     table: list[dict[str, object]] = []
     with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
         work = Path(tmp)
@@ -234,10 +242,20 @@ def _lines_only(models: list[str], fields: list[str], speeds: list[float], out: 
                 for field in fields:
                     base = {**_field_settings(field, work), "print_speed": speed,
                             "wall_speed": speed, "gcode.arcs": "on", "gcode.baud": 250000}
-                    ours = _commands(_slice(geometry, base))
-                    table.append({"model": stem, "field": field, "speed": speed,
-                                  "ours": ours, "prusaslicer": peer})
+                    arcs = _slice(geometry, base, jobs)
+                    ours = _commands(arcs)
+                    row: dict[str, object] = {"model": stem, "field": field, "speed": speed,
+                                              "ours": ours, "prusaslicer": peer}
                     ratio = f"{ours / peer:.3f}" if peer else "-"
+                    if iou:
+                        plain = _slice(geometry, {**base, "gcode.arcs": "off", "gcode.baud": 0},
+                                       jobs)
+                        row["plain"] = _commands(plain)
+                        row["outer_wall_iou"] = round(gcodeparse.wall_agreement(
+                            gcodeparse.parse_moves(arcs), gcodeparse.parse_moves(plain),
+                            align=False).mean_iou, 5)
+                        ratio += f"  no arcs {row['plain']}  outer-wall IoU {row['outer_wall_iou']}"
+                    table.append(row)
                     print(f"  {stem:>16} {field:>10} {speed:5g}  ours {ours:8d}  "
                           f"PrusaSlicer {peer if peer is not None else '-':>8}  ratio {ratio}",
                           flush=True)
