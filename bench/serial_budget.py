@@ -34,6 +34,7 @@ if __package__ in (None, ""):
 from bench import gcodeparse
 from bench.peers import prusaslicer
 from drivers.feedsim import simulate_feed
+from slicer.gcodefile import iter_layer_texts
 from slicer.plan import SlicePlan
 from slicer.settings import INFILL_FIELDS, SliceSettings
 
@@ -93,11 +94,16 @@ def _field_settings(field: str, workdir: Path) -> dict[str, object]:
     return values
 
 
-def _slice(geometry: SlicePlan, values: dict[str, object]) -> list[str]:
+def _slice(geometry: SlicePlan, values: dict[str, object], jobs: int = 1) -> list[str]:
+    """The whole program's lines; ``jobs`` > 1 slices layers in forked workers (same bytes)."""
     plan = geometry.with_settings(SliceSettings.from_mapping(values, base=geometry.settings))
     lines = plan.start_gcode()
-    for i in range(plan.layer_count):
-        lines += plan.layer_gcode(i)
+    if jobs > 1:
+        for text, _, _ in iter_layer_texts(plan, jobs):
+            lines += text.splitlines()
+    else:
+        for i in range(plan.layer_count):
+            lines += plan.layer_gcode(i)
     return lines + plan.end_gcode()
 
 
@@ -152,6 +158,12 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--targets", action="store_true",
                         help="ours with arcs fed at 100 mm/s over 115200 baud and 150 mm/s over "
                              "250000 only (the no-underrun targets), with the outer-wall IoU")
+    parser.add_argument("--jobs", type=int, default=1,
+                        help="forked processes slicing layers (--targets, --lines-only; same "
+                             "G-code)")
+    parser.add_argument("--iou", action="store_true",
+                        help="with --lines-only: also slice ours without arcs, for the "
+                             "outer-wall IoU")
     parser.add_argument("--out", type=Path, default=OUT / "serial_budget.json")
     args = parser.parse_args(argv)
     every = sorted(p.stem for p in MODELS.glob("*.stl") if p.stem not in SKIP_MODELS)
@@ -162,10 +174,10 @@ def main(argv: list[str] | None = None) -> int:
     speeds = ([float(s) for s in args.speeds.split(",")] if args.speeds
               else list(SPEEDS) if args.full else list(DEFAULT["speeds"]))
     if args.lines_only:
-        return _lines_only(models, fields, speeds, args.out)
+        return _lines_only(models, fields, speeds, args.out, args.jobs, args.iou)
     if args.targets:
         pairs = [t for t in TARGETS if not args.speeds or t[0] in speeds]
-        return _targets(models, fields, pairs, args.out)
+        return _targets(models, fields, pairs, args.out, args.jobs)
     rows: list[Row] = []
     ious: list[dict[str, object]] = []
     with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
@@ -210,9 +222,13 @@ def _commands(lines: list[str]) -> int:
     return sum(1 for line in lines if line.split(";", 1)[0].strip())
 
 
-def _lines_only(models: list[str], fields: list[str], speeds: list[float], out: Path) -> int:
+def _lines_only(
+    models: list[str], fields: list[str], speeds: list[float], out: Path, jobs: int = 1,
+    iou: bool = False,
+) -> int:
     """Our line count with arcs and the 250000-baud budget against PrusaSlicer's, for every
-    model, field and speed given; the table and the runs over PrusaSlicer's count."""
+    model, field and speed given; the table and the runs over PrusaSlicer's count. With
+    ``iou``, the outer-wall IoU against ours without arcs too."""
     table: list[dict[str, object]] = []
     with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
         work = Path(tmp)
@@ -226,10 +242,20 @@ def _lines_only(models: list[str], fields: list[str], speeds: list[float], out: 
                 for field in fields:
                     base = {**_field_settings(field, work), "print_speed": speed,
                             "wall_speed": speed, "gcode.arcs": "on", "gcode.baud": 250000}
-                    ours = _commands(_slice(geometry, base))
-                    table.append({"model": stem, "field": field, "speed": speed,
-                                  "ours": ours, "prusaslicer": peer})
+                    arcs = _slice(geometry, base, jobs)
+                    ours = _commands(arcs)
+                    row: dict[str, object] = {"model": stem, "field": field, "speed": speed,
+                                              "ours": ours, "prusaslicer": peer}
                     ratio = f"{ours / peer:.3f}" if peer else "-"
+                    if iou:
+                        plain = _slice(geometry, {**base, "gcode.arcs": "off", "gcode.baud": 0},
+                                       jobs)
+                        row["plain"] = _commands(plain)
+                        row["outer_wall_iou"] = round(gcodeparse.wall_agreement(
+                            gcodeparse.parse_moves(arcs), gcodeparse.parse_moves(plain),
+                            align=False).mean_iou, 5)
+                        ratio += f"  no arcs {row['plain']}  outer-wall IoU {row['outer_wall_iou']}"
+                    table.append(row)
                     print(f"  {stem:>16} {field:>10} {speed:5g}  ours {ours:8d}  "
                           f"PrusaSlicer {peer if peer is not None else '-':>8}  ratio {ratio}",
                           flush=True)
@@ -244,10 +270,17 @@ def _lines_only(models: list[str], fields: list[str], speeds: list[float], out: 
 
 
 def _targets(
-    models: list[str], fields: list[str], pairs: list[tuple[float, int]], out: Path
+    models: list[str], fields: list[str], pairs: list[tuple[float, int]], out: Path,
+    jobs: int = 1,
 ) -> int:
     """Ours with arcs and the wire's budget fed at each (speed, baud) of ``pairs`` alone:
-    lines, underruns, stalls, and the outer-wall IoU against ours without arcs."""
+    lines, underruns, stalls, and the outer-wall IoU against ours without arcs.
+
+    Ours without arcs (no wire, so no budget) differs between speeds in feedrates
+    only, so it is sliced once per model and field, at the first pair's speed, and
+    each pair's IoU is taken against it. The rows are written after every model
+    and field, so a run stopped early keeps what it took.
+    """
     rows: list[Row] = []
     ious: list[dict[str, object]] = []
     with tempfile.TemporaryDirectory(prefix="serial-budget-") as tmp:
@@ -256,20 +289,24 @@ def _targets(
             geometry = SlicePlan.from_file(MODELS / f"{stem}.stl", SliceSettings.from_mapping(OURS),
                                            bed=(200.0, 200.0, 200.0))
             for field in fields:
+                plain_moves = None
                 for speed, baud in pairs:
                     base = {**_field_settings(field, work), "print_speed": speed,
                             "wall_speed": speed}
-                    arcs = _slice(geometry, {**base, "gcode.arcs": "on", "gcode.baud": baud})
+                    if plain_moves is None:
+                        plain_moves = gcodeparse.parse_moves(
+                            _slice(geometry, {**base, "gcode.arcs": "off"}, jobs))
+                    arcs = _slice(geometry, {**base, "gcode.arcs": "on", "gcode.baud": baud}, jobs)
                     rows += _feed_rows(arcs, (stem, field, speed), "a", (baud,))
-                    plain = _slice(geometry, {**base, "gcode.arcs": "off"})
                     agreement = gcodeparse.wall_agreement(
-                        gcodeparse.parse_moves(arcs), gcodeparse.parse_moves(plain), align=False)
+                        gcodeparse.parse_moves(arcs), plain_moves, align=False)
                     ious.append({"model": stem, "field": field, "speed": speed, "baud": baud,
                                  "outer_wall_iou": round(agreement.mean_iou, 5)})
                     print(f"  outer-wall IoU (a) against (b): {agreement.mean_iou:.5f}", flush=True)
+                out.parent.mkdir(parents=True, exist_ok=True)
+                out.write_text(json.dumps({"rows": [asdict(r) for r in rows], "iou": ious},
+                                          indent=1))
     _summary(rows, ious)
-    out.parent.mkdir(parents=True, exist_ok=True)
-    out.write_text(json.dumps({"rows": [asdict(r) for r in rows], "iou": ious}, indent=1))
     print(f"written {out}")
     return 0
 

@@ -40,6 +40,11 @@ WIRE_SHARE = 0.8
 # along its whole length, where simplified lines keep their vertices on it (at 0.65 the
 # arcs through the corners of a 64-gon of 12 mm radius, 0.014 mm off its sides, still fit)
 OUTER_ARC = 0.65
+# and at most this share of the area over the boundary length of the island an outer wall
+# bounds: an arc's mean distance from the polyline it replaces, over the island's boundary,
+# is the share of its area that changes, so a thin island keeps its arcs tighter (see
+# budget_moves)
+OUTER_FLATNESS = 0.004
 
 
 @dataclass(frozen=True)
@@ -66,21 +71,29 @@ def line_rate(settings: SliceSettings) -> float:
 def budget_moves(
     pts: np.ndarray, starts: np.ndarray, ends: np.ndarray, speeds: np.ndarray,
     settings: SliceSettings, loose: np.ndarray | None = None,
-    exact: np.ndarray | None = None,
+    exact: np.ndarray | None = None, scale: np.ndarray | None = None,
 ) -> Moves:
     """The moves of the packed paths ``pts[starts[i]:ends[i]]`` ((m, 2) mm), printed at
     ``speeds[i]`` mm/s, within the settings' tolerances (see the module docstring).
 
     Paths where ``loose`` ((n,) bool: sparse infill, support) get the larger of
     ``resolution`` and ``infill.resolution``; the others ``resolution``. Paths where
-    ``exact`` ((n,) bool: outer walls) keep their tolerance when the wire is short.
+    ``exact`` ((n,) bool: outer walls) keep their tolerance when the wire is short, and
+    their arcs are fitted within :data:`OUTER_ARC` of it and within
+    :data:`OUTER_FLATNESS` times ``scale`` ((n,) mm: the area over the boundary length of
+    the island each path bounds; absent: no such bound).
     """
     path_tol = np.full(len(starts), settings.resolution)
     if loose is not None:
         path_tol[loose] = max(settings.resolution, settings.infill_resolution)
     arcs = None
     if arcs_wanted(settings) and (path_tol > 0).any():
-        arc_tol = path_tol if exact is None else np.where(exact, OUTER_ARC * path_tol, path_tol)
+        arc_tol = path_tol
+        if exact is not None:
+            outer = OUTER_ARC * path_tol
+            if scale is not None:
+                outer = np.minimum(outer, OUTER_FLATNESS * scale)
+            arc_tol = np.where(exact, outer, path_tol)
         arcs = fit_arcs(pts, starts, ends, arc_tol)
     pa, pb, arc_of = _pieces(pts, starts, ends, arcs)
     tol = path_tol[np.searchsorted(starts, pa, "right") - 1]  # each piece's

@@ -72,6 +72,26 @@ class LayerCode:
         return LayerCode(lines, self.filament_mm, self.time_s, self.z_line, self.extrusions)
 
 
+def _island_scale(
+    outline: shapely.Geometry, first: np.ndarray, exact: np.ndarray
+) -> np.ndarray | None:
+    """Per path, area over boundary length (mm) of the island of ``outline`` nearest its
+    first point ``first`` ((n, 2) mm) where ``exact``, inf elsewhere; None without islands."""
+    islands = shapely.get_parts(outline) if outline is not None else np.zeros(0, dtype=object)
+    islands = islands[shapely.area(islands) > 0] if len(islands) else islands
+    if len(islands) == 0 or not exact.any():
+        return None
+    scale = np.full(len(first), np.inf)
+    tree = shapely.STRtree(islands)
+    rows = np.flatnonzero(exact)
+    hit = tree.query_nearest(shapely.points(first[rows]), all_matches=False)
+    island = np.empty(len(rows), dtype=np.int64)
+    island[hit[0]] = hit[1]
+    per_island = shapely.area(islands) / shapely.length(islands)
+    scale[rows] = per_island[island]
+    return scale
+
+
 def fan_command(settings: SliceSettings, index: int) -> str:
     """The fan command that holds from layer ``index`` on (``M106 S..`` or ``M107``)."""
     if index >= settings.fan_first_layer and settings.fan_speed > 0:
@@ -117,7 +137,8 @@ def layer_code(
     # the emitted moves: simplified within the resolution, arcs where they fit
     loose = np.array([p.kind in (FILL, SUPPORT) for p in paths])
     exact = np.array([p.kind == WALL_OUTER for p in paths])
-    mv = budget_moves(pts, starts, ends, speeds, settings, loose, exact)
+    scale = _island_scale(outline, pts[starts], exact)
+    mv = budget_moves(pts, starts, ends, speeds, settings, loose, exact, scale)
     # extrusion moves: every point but each path's first
     move = np.ones(len(mv.pts), dtype=bool)
     move[mv.starts] = False
