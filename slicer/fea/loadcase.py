@@ -11,7 +11,8 @@ from typing import Any
 import numpy as np
 
 from slicer.errors import ModelError
-from slicer.fea import LOAD_SUFFIX, load_path_for  # noqa: F401  (imported from here too)
+from slicer.fea import LOAD_SUFFIX as LOAD_SUFFIX  # re-exported: imported from here too
+from slicer.fea import load_path_for as load_path_for
 
 ABS_YOUNGS_MPA = 2200.0
 ABS_POISSON = 0.35
