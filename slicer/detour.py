@@ -12,6 +12,7 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
+from slicer import geom
 from slicer.geom import private_copy
 
 # how far travels keep from a cancelled body's outline, mm
@@ -54,7 +55,7 @@ def _around(a: np.ndarray, b: np.ndarray, rings: list[shapely.Geometry]) -> np.n
     line = shapely.LineString([a, b])
     crossings = []
     for ring in rings:
-        meet = shapely.get_coordinates(shapely.intersection(line, ring))
+        meet = shapely.get_coordinates(geom.intersection(line, ring))
         inside = [shapely.contains_xy(shapely.Polygon(ring), *end) for end in (a, b)]
         ends = [shapely.get_coordinates(shapely.line_interpolate_point(
             ring, shapely.line_locate_point(ring, shapely.Point(end))))[0]

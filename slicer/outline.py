@@ -320,7 +320,7 @@ def _repair_layer(
     label = {int(b): int(b) for b in bodies}
     for i in range(len(bodies)):
         for j in range(i + 1, len(bodies)):
-            if shapely.intersection(regions[i], regions[j]).area > _MIN_RING_AREA:
+            if shapely.area(geom.intersection(regions[i], regions[j])) > _MIN_RING_AREA:
                 report.merged.add((int(bodies[i]), int(bodies[j])))
                 label[int(bodies[j])] = label[int(bodies[i])]
     out_p = []

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer import gcode
+from slicer import gcode, geom
 from slicer.detour import avoid_region
 from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
@@ -273,7 +273,7 @@ class SlicePlan:
             ctx = self.layer_context(i, excluded_bodies)
         skin = self._skins.get(i)
         if excluded_bodies and skin is not None:  # no skin over a cancelled body
-            skin = shapely.intersection(skin, ctx.domain)
+            skin = geom.intersection(skin, ctx.domain)
         regions = LayerRegions(
             islands=islands,
             skin=skin,
@@ -302,7 +302,7 @@ class SlicePlan:
         paths = self.layer_toolpaths(i, excluded_bodies)
         outline = self.outline(i, excluded_bodies)
         if self._support is not None and self._support[i] is not None:
-            outline = shapely.union(outline, self._support[i])
+            outline = geom.union(outline, self._support[i])
         code = gcode.layer_code(
             i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings,
             self._avoid(i, excluded_bodies),

@@ -10,6 +10,7 @@ from dataclasses import replace
 import numpy as np
 import shapely
 
+from slicer import geom
 from slicer.fields.base import LayerContext
 from slicer.fields.eggcrate import EggcrateField
 from slicer.fields.paths import as_multiline, clip, empty_paths, linestring_parts
@@ -46,10 +47,10 @@ def support_regions(
     if settings.support_angle >= 89.999 or count < 2:
         return [shapely.Polygon() for _ in range(count)]
     reach = shapely.buffer(solid[:-1], layer_height * slope)
-    bare = shapely.difference(solid[1:], reach)
+    bare = geom.difference(solid[1:], reach)
     # widen each overhang by the self-supported reach, so the thin bands of a steady
     # slope join into one area instead of slivers narrower than a line
-    bare = shapely.intersection(shapely.buffer(bare, layer_height * slope), solid[1:])
+    bare = geom.intersection(shapely.buffer(bare, layer_height * slope), solid[1:])
     overhang = np.concatenate(([empty], bare))
     gap = _gap_layers(settings, layer_height)
     regions = np.empty(count, dtype=object)
@@ -57,15 +58,15 @@ def support_regions(
     for i in range(count - 1, -1, -1):
         above = i + 1 + gap
         if above < count and not overhang[above].is_empty:
-            carried = shapely.union(carried, overhang[above])
+            carried = geom.union(carried, overhang[above])
         if not carried.is_empty:
-            carried = shapely.difference(carried, solid[i])
+            carried = geom.difference(carried, solid[i])
         regions[i] = carried
     width = settings.line_width
-    regions = shapely.difference(regions, shapely.buffer(solid, settings.support_clearance))
+    regions = geom.difference(regions, shapely.buffer(solid, settings.support_clearance))
     narrow = 0.5 * MIN_WIDTH_LINES * width
     opened = shapely.buffer(shapely.buffer(regions, -narrow), narrow)
-    regions = shapely.intersection(opened, regions)  # arcs are polygons: never grow
+    regions = geom.intersection(opened, regions)  # arcs are polygons: never grow
     # a fresh empty per layer: no object shared by the layers (threads prepare them)
     return [shapely.Polygon() if g is None or g.is_empty else g for g in regions]
 
@@ -92,7 +93,7 @@ def support_interfaces(
             continue
         window = [g for g in outlines[i + 1 : i + 2 + gap + INTERFACE_LAYERS] if g is not None]
         roof = shapely.union_all(window) if window else empty
-        result.append(shapely.intersection(regions[i], roof))
+        result.append(geom.intersection(regions[i], roof))
     return result
 
 
@@ -120,14 +121,14 @@ def support_paths(
     wall_rings = linestring_parts(shapely.boundary(shapely.buffer(region, -0.5 * width)))
     wall = as_multiline(wall_rings[shapely.length(wall_rings) >= 2.0 * width])
     inside = shapely.buffer(region, -width * (1.0 - settings.infill_overlap))
-    roof = shapely.Polygon() if interface is None else shapely.intersection(inside, interface)
-    body = shapely.difference(inside, roof) if not roof.is_empty else inside
+    roof = shapely.Polygon() if interface is None else geom.intersection(inside, interface)
+    body = geom.difference(inside, roof) if not shapely.is_empty(roof) else inside
     infill = empty_paths()
-    if not body.is_empty:
+    if not shapely.is_empty(body):
         spacing = width / settings.support_density
         infill = _support_field(settings, spacing).paths(body, ctx, spacing)
     lines = empty_paths()
-    if not roof.is_empty:
+    if not shapely.is_empty(roof):
         angle = settings.infill_angle + (90.0 if ctx.index % 2 else 0.0)
         lines = as_multiline(hatch(roof, INTERFACE_SPACING * width, angle))
     return {"wall": wall, "infill": infill, "interface": lines}

@@ -7,6 +7,8 @@ import shapely
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
+from slicer import geom
+
 LINESTRING = 1
 
 
@@ -54,7 +56,7 @@ def clip(lines: np.ndarray, region: shapely.Geometry) -> np.ndarray:
         return np.empty(0, dtype=object)
     region = prepared(region)
     hits = shapely.intersects(region, lines)
-    return linestring_parts(_merged(shapely.intersection(lines[hits], region)))
+    return linestring_parts(_merged(geom.intersection(lines[hits], region)))
 
 
 def split_runs(coords: np.ndarray, owner: np.ndarray, keep: np.ndarray) -> np.ndarray:
@@ -152,7 +154,7 @@ def finish(
         return empty_paths()
     region = prepared(region)
     if priority is not None:
-        pieces = _merged(shapely.intersection(lines, region))
+        pieces = _merged(geom.intersection(lines, region))
         parts, source = shapely.get_parts(pieces, return_index=True)
         keep = (shapely.get_type_id(parts) == LINESTRING) & (shapely.length(parts) > 0.0)
         clipped, priority = parts[keep], np.asarray(priority, dtype=float)[source[keep]]
