@@ -40,23 +40,9 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
-INTERNAL = ("M110", "M115", "M503", "M155", "M105")
 
 
 # -- the worker: streaming runs with a watchdog ----------------------------------------------
-
-
-def _job(n: int, seed: int) -> list[str]:
-    out = []
-    for i in range(n):
-        a = 0.01 * i + seed
-        out.append(f"G1 X{100 + 40 * math.cos(a):.3f} Y{100 + 40 * math.sin(a):.3f} "
-                   f"E{0.002 * (i % 97):.4f} F9000")
-    return out
-
-
-def _job_lines(executed: list[str]) -> list[str]:
-    return [c for c in executed if c.split(" ", 1)[0].split("*", 1)[0] not in INTERNAL]
 
 
 def _short(value: Any, limit: int = 600) -> str:
@@ -229,6 +215,7 @@ def _one_run(args: argparse.Namespace, worker: int, run: int, rng: random.Random
              out_dir: Path) -> dict[str, Any]:
     import multiprocessing
 
+    from drivers.simlinkrun import arc_job, job_commands
     from drivers.simulator import SimulatedPrinter, SimulatorConfig
     from drivers.streamer import StreamerConfig
 
@@ -237,7 +224,7 @@ def _one_run(args: argparse.Namespace, worker: int, run: int, rng: random.Random
                             reconnect_delay_s=0.005, temperature_interval_s=1.0)
     sim_config = SimulatorConfig(time_scale=0.0, baud=args.baud, boot_delay_s=0.0,
                                  seed=rng.randrange(1 << 30))
-    lines = _job(args.lines, seed=run)
+    lines = arc_job(args.lines, seed=run)
     in_process = args.sim == "inproc" or (args.sim == "mixed" and run % 2 == 0)
     probe = _Probe()
     log_path = str(out_dir / f"w{worker}.simlog")
@@ -311,11 +298,11 @@ def _one_run(args: argparse.Namespace, worker: int, run: int, rng: random.Random
                 child.kill()
     result["seconds"] = round(time.monotonic() - started, 2)
     result["acked"] = link.core.acked if link is not None else None
-    result["ok"] = (link is not None and _job_lines(executed) == lines
+    result["ok"] = (link is not None and job_commands(executed) == lines
                     and link.core.acked == len(lines))
     if link is not None and not result["ok"] and not result["stalled"]:
         result["error"] = result.get("error") or "executed lines differ from the job"
-        done = _job_lines(executed)
+        done = job_commands(executed)
         first = next((i for i, (a, b) in enumerate(zip(done, lines, strict=False))
                       if a != b),
                      min(len(done), len(lines)))

@@ -6,6 +6,7 @@ passing, for deterministic fault tests and for the throughput benchmark's noisy 
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TypedDict
@@ -20,7 +21,7 @@ from drivers.simconfig import SimulatorConfig
 from drivers.simvirtual import Clock, VirtualPrinter
 
 # commands the link adds on its own
-INTERNAL = ("M110", "M115", "M155", "M105")
+INTERNAL = ("M110", "M115", "M503", "M155", "M105")
 
 
 class _Phase(TypedDict):
@@ -63,6 +64,16 @@ class LinkRun:
     def rate(self) -> float:
         """Job lines per virtual second."""
         return len(self.executed) / self.seconds if self.seconds > 0 else float("inf")
+
+
+def arc_job(n: int, seed: int = 0) -> list[str]:
+    """A curved perimeter of ``n`` short G1 segments (distinct lines, so order is visible)."""
+    out = []
+    for i in range(n):
+        a = 0.01 * i + seed
+        out.append(f"G1 X{100 + 40 * math.cos(a):.3f} Y{100 + 40 * math.sin(a):.3f} "
+                   f"E{0.002 * (i % 97):.4f} F9000")
+    return out
 
 
 def job_commands(executed: list[str]) -> list[str]:

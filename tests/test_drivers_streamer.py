@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-import math
 import os
 import select
 import threading
@@ -14,6 +13,7 @@ from collections.abc import Callable
 import pytest
 
 from drivers.protocol import checksum
+from drivers.simlinkrun import arc_job as job
 from drivers.simulator import SimulatedPrinter, SimulatorConfig
 from drivers.streamer import (
     HALTED,
@@ -34,16 +34,6 @@ FAST = StreamerConfig(probe_after_s=0.02, probe_retries=100, resync_quiet_s=0.01
                       start_timeout_s=0.05,
                       reconnect_attempts=200, reconnect_delay_s=0.005,
                       temperature_interval_s=1.0)
-
-
-def job(n: int, seed: int = 0) -> list[str]:
-    """A curved perimeter of ``n`` short G1 segments (distinct lines, so order is visible)."""
-    out = []
-    for i in range(n):
-        a = 0.01 * i + seed
-        out.append(f"G1 X{100 + 40 * math.cos(a):.3f} Y{100 + 40 * math.sin(a):.3f} "
-                   f"E{0.002 * (i % 97):.4f} F9000")
-    return out
 
 
 def job_lines(executed: list[str]) -> list[str]:
