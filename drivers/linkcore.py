@@ -31,6 +31,9 @@ _GARBLED_N = re.compile(r'\s*[^\d\s"](\d+)\D')  # (the blank after it may be gar
 # most oks awaited for an M110 written several times
 MAX_LATE_OKS = 8
 
+# commands that wait for a heater and report temperatures while they run
+HEATING = frozenset({"M109", "M190", "M191", "M303"})
+
 
 class LinkCore(Acknowledging, Resync, Writing, Watching):
     """Everything the link knows and decides, as plain data; see the module docstring."""
@@ -57,9 +60,13 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.cancelled = False
         self.started = False
         self.handshaking = False
-        self.last_rx = 0.0
+        self.last_rx = 0.0  # any line received
+        self.last_answer = 0.0  # a line that answers the link (not an auto-report)
         self.last_poll = 0.0
         self.probes_unanswered = 0
+        self.reports_unanswered = 0  # auto-reports since the last answer
+        self.last_probe_at = -1.0  # when the last probe was due and sent
+        self.over_budget = 0  # lines past the modelled receive buffer since the last answer
         self.reconnected_at = 0.0
         self._events: list[Event] = []
         self._plain_oks: dict[str, Response] = {}  # parsed once: plain and advanced oks
@@ -108,7 +115,6 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
     def feed(self, text: str, now: float) -> list[Event]:
         """One line received from the printer (without its line ending)."""
         self.last_rx = now
-        self.probes_unanswered = 0
         if self.transcript is not None:
             self.transcript.append(text)
         response = self._plain_oks.get(text)
@@ -117,10 +123,36 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             if response.kind == "ok" and not response.temperatures \
                     and len(self._plain_oks) < 16:
                 self._plain_oks[text] = response  # the same few texts, line after line
+            if self._is_report(response):
+                self.reports_unanswered += 1  # a sign of a powered board, not of a live link
+            else:
+                self.answered(now)
+        else:
+            self.answered(now)
         self.handle(response, now)
         if not self._events:
             return []
         return self.take_events()
+
+    def _is_report(self, response: Response) -> bool:
+        """True for a line the printer sends on its own (``M155`` temperature, ``M154``
+        position auto-reports), which answers nothing the link asked: a board that sends
+        only those is not running what it is sent. A heating wait's report (``W:``, or any
+        temperature line while ``M109``/``M190``/``M191``/``M303`` is in flight) is the
+        running command's own output and keeps the link alive."""
+        kind = response.kind
+        if kind == "temperature":
+            if " W:" in response.raw:
+                return False
+            return not any(e.command.split(" ", 1)[0] in HEATING for e in self.window)
+        return kind == "other" and response.raw.startswith("X:")
+
+    def answered(self, now: float) -> None:
+        """The printer answered something: the silence that probes measure restarts."""
+        self.last_answer = now
+        self.probes_unanswered = 0
+        self.reports_unanswered = 0
+        self.over_budget = 0
 
     def fail(self, reason: str) -> None:
         """The link is dead: ``ERROR``, and every waiter fails."""
@@ -347,7 +379,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
     def begin_connect(self, now: float) -> None:
         """The port is open: wait for ``start`` (the board's reset)."""
         self.state = LinkState.CONNECTING
-        self.last_rx = now
+        self.last_rx = self.last_answer = now
 
     def begin_handshake(self, reset_to: int, keep_history: bool, token: int) -> None:
         """``M110 N<reset_to>`` once nothing is in flight; ``token`` is acknowledged when
@@ -368,7 +400,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
     def reopened(self, now: float) -> None:
         """The port is open again: wait for ``start`` or ``start_timeout_s``."""
         self.stats.reconnects += 1
-        self.reconnected_at = self.last_rx = now
+        self.reconnected_at = self.last_rx = self.last_answer = now
         self._oks_lost = True
         self.forget_in_flight()
         self.model.lost()

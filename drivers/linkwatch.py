@@ -2,9 +2,12 @@
 
 from __future__ import annotations
 
+import math
+
 from drivers.linkconfig import LONG_COMMANDS
 from drivers.linkevents import Event, LinkState
 from drivers.linkfields import CoreFields
+from drivers.protocol import frame
 
 
 class Watching(CoreFields):
@@ -40,41 +43,89 @@ class Watching(CoreFields):
     def _watch_silence(self, now: float) -> None:
         renumber = self.renumber
         if renumber is not None and renumber.sent:
-            if now - max(self.last_rx, renumber.sent_at) >= self.config.renumber_retry_s:
+            if now - max(self.last_answer, renumber.sent_at) >= self.config.renumber_retry_s:
                 self.window.clear()  # M110 is idempotent: write it again
                 renumber.sent = False
                 self.probes_unanswered += 1
                 self.stats.probes += 1
                 if self.probes_unanswered > self.config.probe_retries:
-                    self.fail("printer does not answer M110")
+                    self.fail("printer does not answer M110" + self._reports_note())
             return
         if not len(self.window):
             return
-        silence = now - self.last_rx
-        due = self.config.probe_after_s * (self.probes_unanswered + 1)
-        if silence < due:
+        # silence: nothing that answers the link (auto-reports answer nothing); one probe
+        # per interval at most, each only when it fits the receive buffer as modelled
+        silence = now - self.last_answer
+        interval = self.config.probe_after_s
+        if silence < interval * (self.probes_unanswered + 1) \
+                or now - self.last_probe_at < interval:
             return
         long_running = any(e.command.split(" ", 1)[0] in LONG_COMMANDS for e in self.window)
         if long_running:
             if silence >= self.config.long_command_timeout_s:
-                self.fail(f"printer silent for {silence:.0f} s during a long command")
-            elif self.probes_unanswered == 0:
-                self.probe()
+                self.fail(f"printer silent for {silence:.0f} s during a long command"
+                          + self._reports_note())
+            elif self.probes_unanswered == 0 and not self._awaiting_room(now):
+                self.probe(now)
             return
         if self.probes_unanswered >= self.config.probe_retries:
-            self.fail(f"printer not responding ({self.probes_unanswered} probes unanswered)")
+            self.fail(f"printer not responding ({self.probes_unanswered} probes unanswered"
+                      f"{self._reports_note(', ')})")
             return
-        self.probe()
+        if not self._awaiting_room(now):
+            self.probe(now)
 
-    def probe(self) -> None:
+    def _reports_note(self, sep: str = "; ") -> str:
+        count = self.reports_unanswered
+        return f"{sep}{count} auto-reports meanwhile" if count else ""
+
+    def _awaiting_room(self, now: float) -> bool:
+        """True while the next line past the window (a probe, or the replay's next line)
+        may not go yet (:meth:`may_force`): the probe waits, not counted as unanswered."""
+        number = self.replay_next
+        held = self.history.get(number) if number is not None else None
+        if number is not None and held is not None:
+            nbytes = len(frame(number, held[0]))
+        else:
+            nbytes = len(frame(self.next_number, "M105"))
+        return not self.may_force(nbytes, now, take=False)
+
+    def may_force(self, nbytes: int, now: float, take: bool = True) -> bool:
+        """Whether a line of ``nbytes`` may go past the window now (a probe, a replayed line
+        after silence), and if so (``take``) record it.
+
+        Only when it fits the printer's receive buffer as modelled (every byte written and
+        not acknowledged is in it), or, for a buffer the model says full, as the silence
+        doubles: one line past the model after 2 probe intervals, a second after 4, a third
+        after 8... Lost oks leave the model full while the printer holds nothing: a probe
+        must go, and its answer sets the count right. But a silent Marlin may as well be
+        blocked in a long move (``busy:`` keepalives off), reading nothing: there, one line
+        per interval fills the 128 bytes in a dozen intervals and overruns them (bytes lost,
+        a probe merged with the next line, its checksum matching by chance: a line not run
+        as written). Doubling keeps lines past the model to a few in any silence, and still
+        writes: a printer holding half a line (its end lost) needs bytes to answer at all.
+        """
+        if self.window.bytes_in_flight + nbytes <= self.window.max_bytes:
+            return True
+        doublings = int(math.log2((now - self.last_answer) / self.config.probe_after_s)) \
+            if now - self.last_answer >= 2 * self.config.probe_after_s else 0
+        if self.over_budget >= doublings:
+            return False
+        if take:
+            self.over_budget += 1
+        return True
+
+    def probe(self, now: float) -> None:
         """Ask ``M105`` past the window: its ``ok T:`` proves every earlier line done.
 
-        One probe at a time: one already queued is only made urgent.
+        One probe at a time: one already queued is only made urgent. It goes out only when
+        :meth:`may_force` allows.
         During a replay the probe waits for the replay to end, numbered after it (a probe
         numbered ahead would be refused), and the replay passes the window meanwhile.
         """
         self.probes_unanswered += 1
         self.stats.probes += 1
+        self.last_probe_at = now
         if self.replay_next is not None:
             self.force_replay = True
         queued = next((c for c in self.control if c.probe), None)
