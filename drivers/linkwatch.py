@@ -9,6 +9,9 @@ from drivers.linkevents import Event, LinkState
 from drivers.linkfields import CoreFields
 from drivers.protocol import frame
 
+# Marlin's HOST_KEEPALIVE_INTERVAL default (seconds): a command that blocks says ``busy:``
+KEEPALIVE_S = 2.0
+
 
 class Watching(CoreFields):
     """Mixin of :class:`~drivers.linkcore.LinkCore`: what time alone decides."""
@@ -95,21 +98,26 @@ class Watching(CoreFields):
         after silence), and if so (``take``) record it.
 
         Only when it fits the printer's receive buffer as modelled (every byte written and
-        not acknowledged is in it), or, for a buffer the model says full, as the silence
-        doubles: one line past the model after 2 probe intervals, a second after 4, a third
-        after 8... Lost oks leave the model full while the printer holds nothing: a probe
-        must go, and its answer sets the count right. But a silent Marlin may as well be
-        blocked in a long move (``busy:`` keepalives off), reading nothing: there, one line
-        per interval fills the 128 bytes in a dozen intervals and overruns them (bytes lost,
-        a probe merged with the next line, its checksum matching by chance: a line not run
-        as written). Doubling keeps lines past the model to a few in any silence, and still
-        writes: a printer holding half a line (its end lost) needs bytes to answer at all.
+        not acknowledged is in it), or, for a buffer the model says full, once the silence
+        is long (two probe intervals, and two of Marlin's 2 s keep-alive intervals) and
+        then as it doubles: a second line past the model after twice that silence, a third
+        after four times... Lost oks leave the model full while the printer holds nothing:
+        a probe must go, and its answer sets the count right; a printer holding half a line
+        (its end lost) needs bytes to answer at all. But Marlin reads its receive buffer
+        only from its main loop, which does not run while a command blocks (a move waiting
+        for room in a full planner): there, one line per interval fills the 128 bytes in a
+        dozen intervals and overruns them (bytes lost, a probe merged with the next line,
+        its checksum matching by chance: a line not run as written). A blocked Marlin with
+        ``HOST_KEEPALIVE_FEATURE`` (on by default) says ``busy:`` every 2 s, so a longer
+        silence means a printer that is not blocked, or a build without it, which then
+        gets a few lines past the model in any silence, not one per interval.
         """
         if self.window.bytes_in_flight + nbytes <= self.window.max_bytes:
             return True
-        doublings = int(math.log2((now - self.last_answer) / self.config.probe_after_s)) \
-            if now - self.last_answer >= 2 * self.config.probe_after_s else 0
-        if self.over_budget >= doublings:
+        silence = now - self.last_answer
+        quiet = max(2 * self.config.probe_after_s, 2 * KEEPALIVE_S)
+        allowed = int(math.log2(silence / quiet)) + 1 if silence >= quiet else 0
+        if self.over_budget >= allowed:
             return False
         if take:
             self.over_budget += 1
