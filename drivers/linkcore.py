@@ -31,9 +31,6 @@ _GARBLED_N = re.compile(r'\s*[^\d\s"](\d+)\D')  # (the blank after it may be gar
 # most oks awaited for an M110 written several times
 MAX_LATE_OKS = 8
 
-# commands that wait for a heater and report temperatures while they run
-HEATING = frozenset({"M109", "M190", "M191", "M303"})
-
 
 class LinkCore(Acknowledging, Resync, Writing, Watching):
     """Everything the link knows and decides, as plain data; see the module docstring."""
@@ -123,7 +120,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             if response.kind == "ok" and not response.temperatures \
                     and len(self._plain_oks) < 16:
                 self._plain_oks[text] = response  # the same few texts, line after line
-            if self._is_report(response):
+            if self.is_report(response):
                 self.reports_unanswered += 1  # a sign of a powered board, not of a live link
             else:
                 self.answered(now)
@@ -133,26 +130,6 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         if not self._events:
             return []
         return self.take_events()
-
-    def _is_report(self, response: Response) -> bool:
-        """True for a line the printer sends on its own (``M155`` temperature, ``M154``
-        position auto-reports), which answers nothing the link asked: a board that sends
-        only those is not running what it is sent. A heating wait's report (``W:``, or any
-        temperature line while ``M109``/``M190``/``M191``/``M303`` is in flight) is the
-        running command's own output and keeps the link alive."""
-        kind = response.kind
-        if kind == "temperature":
-            if " W:" in response.raw:
-                return False
-            return not any(e.command.split(" ", 1)[0] in HEATING for e in self.window)
-        return kind == "other" and response.raw.startswith("X:")
-
-    def answered(self, now: float) -> None:
-        """The printer answered something: the silence that probes measure restarts."""
-        self.last_answer = now
-        self.probes_unanswered = 0
-        self.reports_unanswered = 0
-        self.over_budget = 0
 
     def fail(self, reason: str) -> None:
         """The link is dead: ``ERROR``, and every waiter fails."""

@@ -1,4 +1,4 @@
-"""The protocol core's timers: probes after silence, temperature polls, reconnect waits."""
+"""The protocol core's liveness: which lines answer it, probes, polls, reconnect waits."""
 
 from __future__ import annotations
 
@@ -8,13 +8,37 @@ from drivers.linkconfig import LONG_COMMANDS
 from drivers.linkevents import Event, LinkState
 from drivers.linkfields import CoreFields
 from drivers.protocol import frame
+from drivers.responses import Response
 
 # Marlin's HOST_KEEPALIVE_INTERVAL default (seconds): a command that blocks says ``busy:``
 KEEPALIVE_S = 2.0
 
+# commands that wait for a heater and report temperatures while they run
+HEATING = frozenset({"M109", "M190", "M191", "M303"})
+
 
 class Watching(CoreFields):
     """Mixin of :class:`~drivers.linkcore.LinkCore`: what time alone decides."""
+
+    def is_report(self, response: Response) -> bool:
+        """True for a line the printer sends on its own (``M155`` temperature, ``M154``
+        position auto-reports), which answers nothing the link asked: a board that sends
+        only those is not running what it is sent. A heating wait's report (``W:``, or any
+        temperature line while ``M109``/``M190``/``M191``/``M303`` is in flight) is the
+        running command's own output and keeps the link alive."""
+        kind = response.kind
+        if kind == "temperature":
+            if " W:" in response.raw:
+                return False
+            return not any(e.command.split(" ", 1)[0] in HEATING for e in self.window)
+        return kind == "other" and response.raw.startswith("X:")
+
+    def answered(self, now: float) -> None:
+        """The printer answered something: the silence that probes measure restarts."""
+        self.last_answer = now
+        self.probes_unanswered = 0
+        self.reports_unanswered = 0
+        self.over_budget = 0
 
     def tick_interval(self) -> float:
         """How often the shell should call :meth:`tick` (seconds)."""
