@@ -10,9 +10,6 @@ from drivers.linkfields import CoreFields
 from drivers.protocol import frame
 from drivers.responses import Response
 
-# Marlin's HOST_KEEPALIVE_INTERVAL default (seconds): a command that blocks says ``busy:``
-KEEPALIVE_S = 2.0
-
 # commands that wait for a heater and report temperatures while they run
 HEATING = frozenset({"M109", "M190", "M191", "M303"})
 
@@ -123,7 +120,8 @@ class Watching(CoreFields):
 
         Only when it fits the printer's receive buffer as modelled (every byte written and
         not acknowledged is in it), or, for a buffer the model says full, once the silence
-        is long (two probe intervals, and two of Marlin's 2 s keep-alive intervals) and
+        is long (two probe intervals, and ``busy_silence_s``: two of Marlin's 2 s keep-alive
+        intervals) and
         then as it doubles: a second line past the model after twice that silence, a third
         after four times... Lost oks leave the model full while the printer holds nothing:
         a probe must go, and its answer sets the count right; a printer holding half a line
@@ -139,7 +137,7 @@ class Watching(CoreFields):
         if self.window.bytes_in_flight + nbytes <= self.window.max_bytes:
             return True
         silence = now - self.last_answer
-        quiet = max(2 * self.config.probe_after_s, 2 * KEEPALIVE_S)
+        quiet = max(2 * self.config.probe_after_s, self.config.busy_silence_s)
         allowed = int(math.log2(silence / quiet)) + 1 if silence >= quiet else 0
         if self.over_budget >= allowed:
             return False

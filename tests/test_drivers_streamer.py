@@ -505,7 +505,10 @@ def test_silent_printer_is_probed_then_the_link_fails_and_stops_sending():
     def answer(number: int, command: str) -> list[str] | None:
         return [] if number >= silent_from or command == "M105" else None
 
-    config = StreamerConfig(**{**FAST.__dict__, "probe_after_s": 0.05, "probe_retries": 2})
+    # (the scripted printer says no busy: a silence of 0.1 s already means not blocked,
+    # so the probes go into its receive buffer however full the window says it is)
+    config = StreamerConfig(**{**FAST.__dict__, "probe_after_s": 0.05, "probe_retries": 2,
+                               "busy_silence_s": 0.1})
     errors: list[str] = []
 
     async def run(printer: ScriptedPrinter) -> None:
