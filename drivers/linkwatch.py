@@ -120,7 +120,7 @@ class Watching(CoreFields):
 
         Only when it fits the printer's receive buffer as modelled (every byte written and
         not acknowledged is in it), or, for a buffer the model says full, once the silence
-        is long (two probe intervals, and ``busy_silence_s``: two of Marlin's 2 s keep-alive
+        is long (a probe interval, and ``busy_silence_s``: two of Marlin's 2 s keep-alive
         intervals) and
         then as it doubles: a second line past the model after twice that silence, a third
         after four times... Lost oks leave the model full while the printer holds nothing:
@@ -137,7 +137,7 @@ class Watching(CoreFields):
         if self.window.bytes_in_flight + nbytes <= self.window.max_bytes:
             return True
         silence = now - self.last_answer
-        quiet = max(2 * self.config.probe_after_s, self.config.busy_silence_s)
+        quiet = max(self.config.probe_after_s, self.config.busy_silence_s)
         allowed = int(math.log2(silence / quiet)) + 1 if silence >= quiet else 0
         if self.over_budget >= allowed:
             return False
