@@ -4,7 +4,9 @@ The hypothesis test in ``tests/test_drivers_core.py`` draws 40 new cases per run
 runs thousands the same way (each write cut in up to 3 places, each reply delayed by one
 of the test's delays, 8 % of every fault kind with resets, 120 lines, both ``ok``
 dialects), seeded, so a failure is replayed by its seed. Prints one line per run that
-ran a line twice as a boot fragment (``FRAG``) or failed (``FAIL``), then the figures.
+ran a line twice as a boot fragment (``FRAG``) or failed (``FAIL``), then the figures,
+with the printer's receive-buffer overruns (bytes lost past its 128 bytes: noise and
+resets cause none, only a host that writes more than the buffer holds).
 
     .venv/bin/python -m bench.interleavings --seeds 0 1500
 """
@@ -26,8 +28,9 @@ KINDS = ("corrupt_rx", "corrupt_tx", "resend", "refuse", "busy", "reset")
 DELAYS = (0.0, 0.0, 0.0002, 0.001, 0.004)
 
 
-def one_run(seed: int, ok_after_resend: bool, lines: list[str]) -> str:
-    """``"ok"``, ``"frag"`` (exactly once but a boot fragment) or ``"fail"``."""
+def one_run(seed: int, ok_after_resend: bool, lines: list[str]) -> tuple[str, int]:
+    """``"ok"``, ``"frag"`` (exactly once but a boot fragment) or ``"fail"``, and the
+    bytes the printer's receive buffer lost to overruns."""
     rng = random.Random(seed * 2 + ok_after_resend)
     sim: SimulatorConfig = wire(seed=seed, ok_after_resend=ok_after_resend,
                                 **{f"p_{k}": 0.08 for k in KINDS})
@@ -38,7 +41,10 @@ def one_run(seed: int, ok_after_resend: bool, lines: list[str]) -> str:
         edges = [0, *cuts, len(chunk)]
         return [chunk[a:b] for a, b in itertools.pairwise(edges) if b > a]
 
+    printers: list[VirtualPrinter] = []
+
     def hook(printer: VirtualPrinter) -> None:
+        printers.append(printer)
         printer.split = split
         printer.to_host.delay = lambda _size: rng.choice(DELAYS)
 
@@ -46,11 +52,12 @@ def one_run(seed: int, ok_after_resend: bool, lines: list[str]) -> str:
     try:
         run = run_core(lines, sim, link, printer_hook=hook, max_seconds=600)
     except (NoConvergence, RuntimeError):
-        return "fail"
+        return "fail", printers[0].overrun_bytes if printers else 0
+    overrun = run.printer.overrun_bytes
     if run.acked != lines or _once_but_boot_fragments(
             run.executed, run.printer.unnumbered, lines) != lines:
-        return "fail"
-    return "ok" if run.executed == lines else "frag"
+        return "fail", overrun
+    return ("ok" if run.executed == lines else "frag"), overrun
 
 
 def main() -> None:
@@ -60,16 +67,21 @@ def main() -> None:
     args = parser.parse_args()
     lines = spiral(120)
     counts = {"ok": 0, "frag": 0, "fail": 0}
+    overrun_runs = overrun_bytes = 0
     start = time.process_time()
     for seed in range(*args.seeds):
         for ok_after_resend in (True, False):
-            outcome = one_run(seed, ok_after_resend, lines)
+            outcome, overrun = one_run(seed, ok_after_resend, lines)
             counts[outcome] += 1
-            if outcome != "ok":
-                print(f"{outcome.upper()} seed={seed} ok_after_resend={ok_after_resend}",
-                      flush=True)
+            if overrun:
+                overrun_runs += 1
+                overrun_bytes += overrun
+            if outcome != "ok" or overrun:
+                print(f"{outcome.upper()} seed={seed} ok_after_resend={ok_after_resend}"
+                      f"{f' overrun={overrun} bytes' if overrun else ''}", flush=True)
     runs = sum(counts.values())
     print(f"{runs} runs: {counts['fail']} failed, {counts['frag']} boot fragments, "
+          f"{overrun_runs} with receive-buffer overruns ({overrun_bytes} bytes lost), "
           f"{time.process_time() - start:.0f} s of CPU")
 
 

@@ -10,8 +10,11 @@ random (``SIGSTOP``/``SIGCONT``), as an overloaded scheduler would. A watchdog t
 each worker watches the acknowledged count: with no progress for ``--stall-s`` seconds it
 writes ``stall-W-R.txt`` (every thread's stack, every asyncio task's stack, the core's
 fields, the transport's buffers, the event loop's registered descriptors, the last bytes
-read and written, the simulator's state and threads), then ends the run. Everything is
-bounded: ``--runs`` in all, ``--time-limit`` seconds.
+read and written, the simulator's state and threads), then ends the run. A run whose link
+failed (``printer not responding (100 probes unanswered)``...) keeps the same dump, taken
+when the failure surfaced, as ``fail-W-R.txt``. Each run also reports the bytes the
+printer's receive buffer lost to overruns. Everything is bounded: ``--runs`` in all,
+``--time-limit`` seconds.
 
     .venv/bin/python -m bench.stall_hunt --runs 400 --parallel 4 --busy 4 --time-limit 900
     # another revision of drivers/ (unpacked with git archive) under the same harness:
@@ -89,7 +92,7 @@ def _sim_child(conn: Any, config: Any, log_path: str) -> None:
             conn.send(buf.getvalue())
         elif request == "stop":
             sim.stop()
-            conn.send(list(sim.executed))
+            conn.send((list(sim.executed), sim.stats().rx_overflow_bytes))
             return
 
 
@@ -284,20 +287,35 @@ def _one_run(args: argparse.Namespace, worker: int, run: int, rng: random.Random
         result["error"] = "cancelled by the watchdog"
     except Exception as exc:
         result["error"] = f"{type(exc).__name__}: {exc}"
+        if not result["stalled"]:
+            # the link gave up (or the stream raised): the same dump as for a stall, the
+            # printer still running, so the failure can be read after the run
+            target = out_dir / f"fail-{worker}-{run}.txt"
+            finished.set()
+            _dump(probe, target, f"the stream raised {result['error']} "
+                  f"(in_process printer {in_process})")
+            result["dump"] = str(target)
     finally:
         finished.set()
         guard.join()
+        overrun = 0
         if in_process:
             probe.sim.stop()
             executed = list(probe.sim.executed)
+            overrun = probe.sim.stats().rx_overflow_bytes
         else:
             probe.sim_conn.send("stop")
-            executed = probe.sim_conn.recv() if probe.sim_conn.poll(20.0) else []
+            executed, overrun = (probe.sim_conn.recv() if probe.sim_conn.poll(20.0)
+                                 else ([], 0))
             child.join(5.0)
             if child.is_alive():
                 child.kill()
+    result["overrun_bytes"] = overrun
     result["seconds"] = round(time.monotonic() - started, 2)
-    result["acked"] = link.core.acked if link is not None else None
+    if link is None and probe.link is not None:
+        result["acked"] = probe.link.core.acked
+    else:
+        result["acked"] = link.core.acked if link is not None else None
     result["ok"] = (link is not None and job_commands(executed) == lines
                     and link.core.acked == len(lines))
     if link is not None and not result["ok"] and not result["stalled"]:
@@ -400,6 +418,9 @@ def parent_main(args: argparse.Namespace) -> int:
                     print(f"  worker {item['worker']} run {item['run']}: "
                           f"{'STALL' if item['stalled'] else 'FAIL'} {item.get('error', '')} "
                           f"{item.get('dump', '')}", flush=True)
+                if item.get("overrun_bytes"):
+                    print(f"  worker {item['worker']} run {item['run']}: receive buffer "
+                          f"overrun, {item['overrun_bytes']} bytes lost", flush=True)
 
     readers = [threading.Thread(target=collect, args=(p,), daemon=True) for p in workers]
     for reader in readers:
@@ -427,12 +448,15 @@ def parent_main(args: argparse.Namespace) -> int:
             reader.join(5.0)
     stalls = [r for r in results if r["stalled"]]
     fails = [r for r in results if not r["ok"] and not r["stalled"]]
+    overruns = [r for r in results if r.get("overrun_bytes")]
     secs = sorted(r["seconds"] for r in results if r["ok"])
     median = secs[len(secs) // 2] if secs else 0.0
     print(f"{len(results)} runs of {args.lines} lines in {time.monotonic() - started:.0f} s "
           f"(src {src}, {args.parallel} workers, {args.busy} busy loops, "
           f"{counts['pauses']} pauses, printer {args.sim}): {len(stalls)} stalls, "
-          f"{len(fails)} other failures; run median {median:.2f} s, "
+          f"{len(fails)} other failures, {len(overruns)} with receive-buffer overruns "
+          f"({sum(r['overrun_bytes'] for r in overruns)} bytes lost); "
+          f"run median {median:.2f} s, "
           f"longest {secs[-1] if secs else 0.0:.2f} s; "
           f"load average {os.getloadavg()[0]:.1f}")
     return 1 if stalls or fails else 0

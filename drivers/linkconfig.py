@@ -45,6 +45,9 @@ class StreamerConfig:
     - ``start_timeout_s``: after opening, how long to wait for ``start`` (board reset).
     - ``probe_after_s``: silence, with lines in flight, before an ``M105`` probe.
     - ``probe_retries``: unanswered probes before the link is declared dead.
+    - ``busy_silence_s``: silence after which a printer is taken as not blocked in a
+      command (Marlin says ``busy:`` every 2 s while one blocks), so that a probe may go
+      into a receive buffer the window says full (then one more each time it doubles).
     - ``long_command_timeout_s``: silence tolerated while a long command (``M109``,
       ``G28``...) is in flight; busy and temperature lines reset the silence.
     - ``temperature_interval_s``: ``M155 S<n>`` auto-report when offered, else ``M105`` polls
@@ -72,6 +75,7 @@ class StreamerConfig:
     connect_timeout_s: float = 10.0
     probe_after_s: float = 5.0
     probe_retries: int = 3
+    busy_silence_s: float = 4.0
     long_command_timeout_s: float = 900.0
     temperature_interval_s: float = 2.0
     renumber_at: int = 100_000
@@ -94,7 +98,8 @@ class StreamerConfig:
         for key in ("connect_timeout_s", "probe_after_s", "long_command_timeout_s",
                     "renumber_retry_s"):
             _check(getattr(self, key) > 0, key, "must be > 0")
-        for key in ("temperature_interval_s", "resync_quiet_s", "reconnect_delay_s"):
+        for key in ("temperature_interval_s", "resync_quiet_s", "reconnect_delay_s",
+                    "busy_silence_s"):
             _check(getattr(self, key) >= 0, key, "must be >= 0")
         _check(self.probe_retries >= 1, "probe_retries", "must be >= 1")
         _check(self.reconnect_attempts >= 0, "reconnect_attempts", "must be >= 0")

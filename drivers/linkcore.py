@@ -57,9 +57,13 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.cancelled = False
         self.started = False
         self.handshaking = False
-        self.last_rx = 0.0
+        self.last_rx = 0.0  # any line received
+        self.last_answer = 0.0  # a line that answers the link (not an auto-report)
         self.last_poll = 0.0
         self.probes_unanswered = 0
+        self.reports_unanswered = 0  # auto-reports since the last answer
+        self.last_probe_at = -1.0  # when the last probe was due and sent
+        self.over_budget = 0  # lines past the modelled receive buffer since the last answer
         self.reconnected_at = 0.0
         self._events: list[Event] = []
         self._plain_oks: dict[str, Response] = {}  # parsed once: plain and advanced oks
@@ -108,7 +112,6 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
     def feed(self, text: str, now: float) -> list[Event]:
         """One line received from the printer (without its line ending)."""
         self.last_rx = now
-        self.probes_unanswered = 0
         if self.transcript is not None:
             self.transcript.append(text)
         response = self._plain_oks.get(text)
@@ -117,6 +120,12 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             if response.kind == "ok" and not response.temperatures \
                     and len(self._plain_oks) < 16:
                 self._plain_oks[text] = response  # the same few texts, line after line
+            if self.is_report(response):
+                self.reports_unanswered += 1  # a sign of a powered board, not of a live link
+            else:
+                self.answered(now)
+        else:
+            self.answered(now)
         self.handle(response, now)
         if not self._events:
             return []
@@ -347,7 +356,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
     def begin_connect(self, now: float) -> None:
         """The port is open: wait for ``start`` (the board's reset)."""
         self.state = LinkState.CONNECTING
-        self.last_rx = now
+        self.last_rx = self.last_answer = now
 
     def begin_handshake(self, reset_to: int, keep_history: bool, token: int) -> None:
         """``M110 N<reset_to>`` once nothing is in flight; ``token`` is acknowledged when
@@ -368,7 +377,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
     def reopened(self, now: float) -> None:
         """The port is open again: wait for ``start`` or ``start_timeout_s``."""
         self.stats.reconnects += 1
-        self.reconnected_at = self.last_rx = now
+        self.reconnected_at = self.last_rx = self.last_answer = now
         self._oks_lost = True
         self.forget_in_flight()
         self.model.lost()

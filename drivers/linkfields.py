@@ -39,8 +39,12 @@ class CoreFields:
     force_replay: bool
     fenced: bool
     last_rx: float
+    last_answer: float
     last_poll: float
     probes_unanswered: int
+    reports_unanswered: int
+    last_probe_at: float
+    over_budget: int
     reconnected_at: float
     _answers_owed: list[int]  # probes acknowledged ahead of their answers, still to come
     _events: list[Event]
@@ -57,6 +61,9 @@ class CoreFields:
         raise NotImplementedError
 
     def on_reset(self) -> None:
+        raise NotImplementedError
+
+    def may_force(self, nbytes: int, now: float, take: bool = True) -> bool:
         raise NotImplementedError
 
     def remember_waiter(self, number: int, token: int) -> None:

@@ -87,9 +87,9 @@ class Writing(CoreFields):
         if self.renumber is not None:
             return self._next_renumber_line(now)
         if self.replay_next is not None:
-            return self._next_replay_line()
+            return self._next_replay_line(now)
         if self.control:
-            return self._next_control_line()
+            return self._next_control_line(now)
         if self.pending and not self.paused and not self.cancelled:
             number = self.next_number
             if number >= self.config.renumber_at:
@@ -103,7 +103,7 @@ class Writing(CoreFields):
                     # never be replayed
                     if not any(c.probe for c in self.control):
                         self.queue_control("M105", internal=True, probe=True)
-                    return self._next_control_line()
+                    return self._next_control_line(now)
                 self.stats.renumbers += 1
                 self.renumber = Renumber(number, 0, keep_history=False)
                 return self._next_renumber_line(now)
@@ -132,7 +132,7 @@ class Writing(CoreFields):
         renumber = self.renumber
         assert renumber is not None
         if self.control and self.control[0].force and not self.control[0].probe:
-            return self._next_control_line()
+            return self._next_control_line(now)
         if renumber.sent or len(self.window):
             return None
         if renumber.quiet and now - self.last_rx < self.config.resync_quiet_s:
@@ -144,11 +144,11 @@ class Writing(CoreFields):
         renumber.sent_at = now
         return data, InFlight(renumber.line, command, len(data), internal=True)
 
-    def _next_replay_line(self) -> tuple[bytes, InFlight | None] | None:
+    def _next_replay_line(self, now: float) -> tuple[bytes, InFlight | None] | None:
         number = self.replay_next
         assert number is not None
         if self.control and self.control[0].force and not self.control[0].probe:
-            return self._next_control_line()
+            return self._next_control_line(now)
         held = self.history.get(number)
         if held is None:
             self.fail(f"printer asked for line {number}, which is no longer held")
@@ -158,6 +158,8 @@ class Writing(CoreFields):
         if not self.window.has_room(len(data)):
             if not self.force_replay:
                 return None
+            if not self.may_force(len(data), now):
+                return None  # not into a full receive buffer (or later: see may_force)
             # a probe is due and the window looks full (an ok lost: the count stays a line
             # behind; or the printer is slow, and its receive buffer is full): one line
             # passes it, as the probe itself would, and each later probe due lets one
@@ -174,11 +176,16 @@ class Writing(CoreFields):
         return data, InFlight(number, command, len(data), internal=internal,
                               probe=command == "M105" and internal, copy=True)
 
-    def _next_control_line(self) -> tuple[bytes, InFlight | None] | None:
+    def _next_control_line(self, now: float) -> tuple[bytes, InFlight | None] | None:
         control = self.control[0]
         data = frame(self.next_number, control.command)
-        if not control.force and not self.window.has_room(len(data)):
-            return None
+        if not self.window.has_room(len(data)):
+            if not control.force:
+                return None
+            if control.probe and not self.may_force(len(data), now):
+                # into a receive buffer the model says full only as the silence doubles (an
+                # overrun merged a probe with the next line, checksum still matching)
+                return None
         self.control.popleft()
         number = self._assign(control.command, internal=control.internal)
         if control.token is not None:

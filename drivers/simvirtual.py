@@ -153,6 +153,10 @@ class VirtualPrinter:
         self.last_n = 0
         self.errors = 0
         self.resets = 0
+        # bytes that arrived while the receive buffer was full (lost, as a UART loses them),
+        # and how many arrivals lost some: a host that respects the buffer never makes any
+        self.overrun_bytes = 0
+        self.overruns = 0
         self._rx = bytearray()
         self._partial = bytearray()
         self._host_partial = bytearray()
@@ -177,7 +181,11 @@ class VirtualPrinter:
         if self.clock.now < self._booting_until:
             return  # lost while booting
         room = self.config.rx_buffer - len(self._rx)
-        self._rx += data[: max(0, room)]
+        if len(data) > room:
+            self.overrun_bytes += len(data) - max(0, room)
+            self.overruns += 1
+            data = data[: max(0, room)]
+        self._rx += data
         self._serve()
 
     def _host_bytes(self, data: bytes) -> None:

@@ -520,7 +520,9 @@ def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
         t += LINK.probe_after_s * (core.probes_unanswered + 1)
         core.tick(t)
         _write_all(core, t)
-    assert core.next_number > 30  # the probes of the silence, numbered
+    # the probes of the silence, numbered (as many as the receive buffer holds, the lines
+    # before them credited as read: tests/test_drivers_probes.py)
+    assert core.next_number > 10
     t += 0.001
     core.feed(f"Error:{ERR_CHECKSUM}4", t)
     core.feed("Resend: 5", t)

@@ -23,7 +23,8 @@ def test_every_link_setting_is_reachable_from_printer_link():
     values = {
         "rx_buffer": 255, "bufsize": 8, "learn_bufsize": False, "history": 500,
         "start_timeout_s": 3, "connect_timeout_s": 20.0, "probe_after_s": 2.5,
-        "probe_retries": 5, "long_command_timeout_s": 1200, "temperature_interval_s": 0,
+        "probe_retries": 5, "busy_silence_s": 6.0, "long_command_timeout_s": 1200,
+        "temperature_interval_s": 0,
         "renumber_at": 50_000, "park_gcode": ["G91", "G1 Z5", "G90"], "unpark_gcode": [],
         "ok_after_resend": False, "resync_quiet_s": 0.5, "renumber_retry_s": 2.0,
         "reconnect_attempts": 3, "reconnect_delay_s": 0.5, "firmware_defaults": False,

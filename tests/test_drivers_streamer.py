@@ -33,7 +33,9 @@ INTERNAL = ("M110", "M115", "M503", "M155", "M105")
 FAST = StreamerConfig(probe_after_s=0.02, probe_retries=100, resync_quiet_s=0.01,
                       start_timeout_s=0.05,
                       reconnect_attempts=200, reconnect_delay_s=0.005,
-                      temperature_interval_s=1.0)
+                      temperature_interval_s=1.0,
+                      # a lost ok that leaves the window full waits this long for its probe
+                      busy_silence_s=0.1)
 
 
 def job_lines(executed: list[str]) -> list[str]:
