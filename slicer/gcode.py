@@ -15,6 +15,7 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
+from slicer.arcs import arcs_wanted
 from slicer.budget import Moves, budget_moves
 from slicer.detour import detours
 from slicer.geom import private_copy
@@ -137,7 +138,8 @@ def layer_code(
     # the emitted moves: simplified within the resolution, arcs where they fit
     loose = np.array([p.kind in (FILL, SUPPORT) for p in paths])
     exact = np.array([p.kind == WALL_OUTER for p in paths])
-    scale = _island_scale(outline, pts[starts], exact)
+    # the islands' scale bounds outer walls' arcs only: no arcs, no need to find it
+    scale = _island_scale(outline, pts[starts], exact) if arcs_wanted(settings) else None
     mv = budget_moves(pts, starts, ends, speeds, settings, loose, exact, scale)
     # extrusion moves: every point but each path's first
     move = np.ones(len(mv.pts), dtype=bool)

@@ -38,15 +38,19 @@ class ObjectLabels:
         """``M486 T<count>`` and one ``EXCLUDE_OBJECT_DEFINE`` per body (centre, outline)."""
         plan = self.plan
         n = plan.layer_count
-        parts: list[list[shapely.Geometry]] = [[] for _ in range(self.count)]
         sampled = np.linspace(0, n - 1, min(n, _SAMPLED_LAYERS)).astype(int)
-        for i in sorted_unique(sampled).tolist():
-            polys, bodies = plan.layer_bodies(i)
-            for poly, body in zip(polys.tolist(), bodies.tolist(), strict=True):
-                parts[body].append(poly)
+        layers = [plan.layer_bodies(i) for i in sorted_unique(sampled).tolist()]
+        polys = np.concatenate([p for p, _ in layers]) if layers else np.empty(0, dtype=object)
+        bodies = np.concatenate([b for _, b in layers]) if layers else np.empty(0, dtype=int)
+        # the hull of a body's outlines is that of their points: no union needed; all
+        # bodies' hulls in one call (a body without outlines gets an empty one)
+        order = np.argsort(bodies, kind="stable")
+        hulls = np.full(self.count, None, dtype=object)
+        if len(order):
+            grouped = shapely.multipolygons(polys[order], indices=bodies[order])
+            hulls[: len(grouped)] = shapely.convex_hull(grouped)
         lines = [f"M486 T{self.count}"]
-        for body, outlines in enumerate(parts):
-            hull = shapely.convex_hull(shapely.union_all(outlines)) if outlines else None
+        for body, hull in enumerate(hulls.tolist()):
             if hull is None or hull.is_empty or hull.geom_type != "Polygon":
                 continue
             hull = shapely.simplify(hull, 0.2)

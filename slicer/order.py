@@ -302,6 +302,15 @@ def walk_stacks(
     s0, s1 = int(stacks.group_stacks[group]), int(stacks.group_stacks[group + 1])
     if s0 == s1:
         return np.empty((0, 2, 2)), pos
+    if s1 - s0 == 1:  # one stack (most islands): entered at its nearest corner
+        near = stacks.ends[s0:s1] - np.asarray(pos, dtype=np.float64)
+        corner = int(np.einsum("ijk,ijk->ij", near, near)[0].argmin())  # as _visit_stacks
+        a, z = int(stacks.bounds[s0]), int(stacks.bounds[s1])
+        chosen = stacks.seq[a:z] if corner < 2 else stacks.seq[a:z][::-1]
+        block = stacks.fw[chosen]
+        odd = 1 - corner % 2  # chords j with j + corner odd are turned back
+        block[odd::2] = block[odd::2, ::-1].copy()
+        return block, block[-1, 1]
     b = stacks.bounds[s0 : s1 + 1]
     sizes = np.diff(b)
     visits = _visit_stacks(
