@@ -35,6 +35,22 @@ def test_format_moves_matches_python_formatting():
     assert format_moves("G0 F9000 ", xy) == _python_travels(xy)
 
 
+def test_format_moves_writes_every_whole_part_and_fraction():
+    """Every entry of the word tables (built by digit arithmetic) in use: all whole parts
+    -999..999 with and without a sign, every 3- and 5-digit fraction's digits."""
+    units = np.tile(np.arange(-999_999, 1_000_000, 997), 2)  # thousandths
+    k = np.arange(len(units) // 2)
+    e_units = np.concatenate([k * 99_991, k * 1_234_567]) % 100_000_000  # 10**-5 mm
+    assert len({(u < 0, abs(u) // 1000) for u in units.tolist()}) == 2000  # "-0" too
+    assert len(set((np.abs(units) % 1000).tolist())) == 1000
+    for digits in (e_units // 100_000, e_units // 100 % 1000, e_units % 100):
+        assert len(set(digits.tolist())) == int(digits.max()) + 1  # every one
+    xy = np.column_stack([units / 1000.0, units[::-1] / 1000.0])
+    e = e_units / 100_000.0
+    assert format_moves("G1 ", xy, e) == _python_lines(xy, e)
+    assert format_moves("G0 F9000 ", xy) == _python_travels(xy)
+
+
 def test_format_moves_falls_back_outside_three_whole_digits():
     for bad in (1000.0, 999.9996, -1234.5, np.nan, np.inf):
         xy = np.array([[bad, 1.0], [2.0, 3.0]])
