@@ -4,7 +4,9 @@ For every model the two versions slice in turn (A, B, A, B, ...: load on the
 shared machine hits both alike), each a cold `hostd slice` process with the
 peers' settings (``bench/slice_vs_peers.py``), and the table gives each one's
 median wall time, the ratio, and whether the two G-code files are the same
-bytes (thumbnails, object labels and M73 lines included). The other version
+bytes (thumbnails, object labels and M73 lines included); also the median CPU
+time (user + system, workers included), which a loaded machine disturbs less
+than the wall time. The other version
 is an exported tree (``git archive REF | tar -x -C DIR``), run with
 ``PYTHONPATH`` pointing at it; its modules are compiled first, as this tree's
 are (``make .venv/.installed``). ``--variant`` adds settings (e.g.
@@ -23,6 +25,7 @@ import argparse
 import compileall
 import filecmp
 import os
+import resource
 import statistics
 import sys
 import tempfile
@@ -66,8 +69,9 @@ def main(argv: list[str] | None = None) -> int:
     settings = [] if args.default else list(OUR_SETTINGS)
     repeat = 1 if args.check_only else args.repeat
     print(f"load average at start: {os.getloadavg()[0]:.2f}")
-    print("| model | this (s) | other (s) | this / other | same bytes |")
-    print("|---|---|---|---|---|")
+    print("| model | this (s) | other (s) | this / other | CPU this (s) | CPU other (s) | "
+          "CPU this / other | same bytes |")
+    print("|---|---|---|---|---|---|---|---|")
     failures = 0
     with tempfile.TemporaryDirectory(prefix="slice-ab-") as tmp:
         config = Path(tmp) / "printer.toml"
@@ -75,12 +79,17 @@ def main(argv: list[str] | None = None) -> int:
         for name in [m.strip() for m in args.models.split(",") if m.strip()]:
             model = model_path(name)
             walls: dict[str, list[float]] = {"this": [], "other": []}
+            cpus: dict[str, list[float]] = {"this": [], "other": []}
             outs = {k: Path(tmp) / f"{name}.{k}.gcode" for k in trees}
             for _ in range(repeat):
                 for key, tree in trees.items():
                     env = dict(os.environ, PYTHONPATH=str(tree))
                     cmd = command(model, outs[key], config, settings, args.variant)
+                    before = resource.getrusage(resource.RUSAGE_CHILDREN)
                     result = run_measured(cmd, timeout=args.timeout, env=env, cwd=tmp)
+                    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                    cpus[key].append(after.ru_utime + after.ru_stime
+                                     - before.ru_utime - before.ru_stime)
                     if not result.ok:
                         print(f"{name}: {key} failed: {result.reason()}", file=sys.stderr)
                         return 1
@@ -88,8 +97,9 @@ def main(argv: list[str] | None = None) -> int:
             same = filecmp.cmp(outs["this"], outs["other"], shallow=False)
             failures += not same
             a, b = statistics.median(walls["this"]), statistics.median(walls["other"])
-            print(f"| {name} | {a:.2f} | {b:.2f} | {a / b:.2f} | {'yes' if same else 'NO'} |",
-                  flush=True)
+            ca, cb = statistics.median(cpus["this"]), statistics.median(cpus["other"])
+            print(f"| {name} | {a:.2f} | {b:.2f} | {a / b:.2f} | {ca:.2f} | {cb:.2f} | "
+                  f"{ca / cb:.2f} | {'yes' if same else 'NO'} |", flush=True)
     print(f"load average at end: {os.getloadavg()[0]:.2f}")
     return 1 if failures else 0
 

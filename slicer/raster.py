@@ -97,8 +97,8 @@ class Canvas:
             core[:, -1] = False
         window = self.index[top : top + h, left : left + w]
         self.palette += [fill, edge]
-        window[core] = len(self.palette) - 2
-        window[inside & ~core] = len(self.palette) - 1
+        np.copyto(window, len(self.palette) - 2, where=core)
+        np.copyto(window, len(self.palette) - 1, where=inside ^ core)  # core lies inside
 
     def spans(
         self, rings: list[NDArray[np.float64]]
