@@ -24,6 +24,7 @@ _LINE = re.compile(
     re.M,
 )
 _SAMPLED_LAYERS = 24  # layers whose outlines make a body's footprint
+_PAIRS = 1 << 22  # (point, polygon) box tests held at once when moves are given to bodies
 
 
 class ObjectLabels:
@@ -113,14 +114,19 @@ def _nearest_body(
         hits = np.zeros(len(points), dtype=np.int64)
         x, y = points[:, 0], points[:, 1]
         boxes = shapely.bounds(polys)
-        for k, (x0, y0, x1, y1) in enumerate(boxes.tolist()):
-            near = np.flatnonzero((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1))
-            if len(near) == 0:
-                continue
-            shapely.prepare(polys[k])
-            inside = near[shapely.contains_xy(polys[k], x[near], y[near])]
-            hits[inside] += 1
-            owner[inside] = bodies[k]
+        shapely.prepare(polys)  # layer_bodies' own copies
+        # (point, polygon) pairs whose box holds the point, a bounded block of polygons
+        # at a time, then one point-in-polygon test over all the pairs of the block
+        step = max(1, _PAIRS // max(len(points), 1))
+        for a in range(0, len(polys), step):
+            box = boxes[a : a + step]
+            near = ((x[:, None] >= box[:, 0]) & (x[:, None] <= box[:, 2])
+                    & (y[:, None] >= box[:, 1]) & (y[:, None] <= box[:, 3]))
+            pt, poly = np.nonzero(near)
+            poly += a
+            inside = shapely.contains_xy(polys[poly], x[pt], y[pt])
+            hits += np.bincount(pt[inside], minlength=len(points))
+            owner[pt[inside]] = bodies[poly[inside]]
         rest = np.flatnonzero(hits != 1)
     elif len(polys) == 1:
         owner[:] = bodies[0]

@@ -178,3 +178,38 @@ def test_thumbnail_sizes_are_checked() -> None:
     for bad in ("32", "0x10", "10x2000", "32x32;64x64"):
         with pytest.raises(SettingsError, match=r"gcode\.thumbnails"):
             SliceSettings.from_mapping({"gcode.thumbnails": bad})
+
+
+def test_moves_go_to_the_body_whose_polygon_holds_them(monkeypatch) -> None:
+    """Each point inside exactly one polygon gets that polygon's body, the others the
+    nearest polygon's, whether the box tests run in one block or in many."""
+    import numpy as np
+    import shapely
+
+    from slicer import labels
+
+    rng = np.random.default_rng(5)
+    centres = rng.uniform(0, 100, (30, 2))
+    polys = shapely.buffer(shapely.points(centres), rng.uniform(2, 9, 30), quad_segs=3)
+    polys = polys[np.argsort(shapely.area(polys))]
+    keep = [0]  # an outline's polygons do not overlap
+    for k in range(1, len(polys)):
+        if not shapely.intersects(polys[k], polys[keep]).any():
+            keep.append(k)
+    polys = polys[keep]
+    bodies = rng.integers(0, 4, len(polys))
+    outline = shapely.multipolygons(polys)
+    points = rng.uniform(-5, 105, (1200, 2))
+    inside = shapely.contains_xy(polys[:, None], points[None, :, 0], points[None, :, 1])
+    once = inside.sum(axis=0) == 1
+    expected = bodies[inside.argmax(axis=0)]
+    assert 50 < once.sum() < len(points)
+    whole = labels._nearest_body(shapely.get_parts(outline), bodies, points, outline)
+    monkeypatch.setattr(labels, "_PAIRS", 2000)  # one polygon at a time
+    blocks = labels._nearest_body(shapely.get_parts(outline), bodies, points, outline)
+    assert (whole[once] == expected[once]).all()
+    assert (whole == blocks).all()
+    # the others: a polygon of the body given is among the nearest
+    distance = shapely.distance(polys[:, None], shapely.points(points[~once])[None, :])
+    mine = np.where(bodies[:, None] == whole[~once][None, :], distance, np.inf)
+    assert (mine.min(axis=0) == distance.min(axis=0)).all()
