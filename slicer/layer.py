@@ -335,7 +335,7 @@ def _as_coords(lines: shapely.Geometry | np.ndarray, w: float) -> list[np.ndarra
     parts = parts[shapely.length(parts) >= _MIN_PATH * w]
     coords, index = shapely.get_coordinates(parts, return_index=True)
     cuts = np.flatnonzero(np.diff(index)) + 1
-    return np.split(coords, cuts) if len(coords) else []
+    return geom.split_rows(coords, cuts) if len(coords) else []
 
 
 def _support(

@@ -13,6 +13,7 @@ import numpy as np
 import shapely
 
 from slicer import order
+from slicer.geom import split_rows
 
 WALL_OUTER = "WALL-OUTER"
 WALL_INNER = "WALL-INNER"
@@ -58,7 +59,7 @@ def wall_loops(
     head = best[np.concatenate(([True], sorted_ring[1:] != sorted_ring[:-1]))]
     seam = np.zeros(len(rings), dtype=np.int64)
     seam[ring[head]] = head - start[ring[head]]
-    pieces = np.split(coords, start[1:])
+    pieces = split_rows(coords, start[1:])
     ring_cell = cell[ring_part]
     for r in np.flatnonzero(size >= 3):
         c = int(ring_cell[r])

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer.geom import sorted_unique
+from slicer.geom import sorted_unique, split_rows
 
 
 def ring_points(ring: np.ndarray) -> np.ndarray:
@@ -119,7 +119,7 @@ def join_paths(
     ok[idx] = shapely.dwithin(region, middle, slack)
     # a joined run is the stretch of the concatenated points between two refused joints
     cuts = ends[:-1][~ok]
-    return np.split(pts, cuts)
+    return split_rows(pts, cuts)
 
 
 def join_runs(
@@ -155,7 +155,7 @@ def join_runs(
         shapely.prepare(regions[sorted_unique(region_of)])
         middle = shapely.points((a[cand] + b[cand]) / 2.0)
         ok[cand] = shapely.dwithin(regions[region_of], middle, slack)
-    pieces = np.split(pts, ends[:-1][~ok[:-1]])
+    pieces = split_rows(pts, ends[:-1][~ok[:-1]])
     per_run = np.bincount(which[~ok], minlength=len(runs))
     bounds = np.cumsum(per_run)
     return [pieces[e - c : e] for e, c in zip(bounds, per_run, strict=True)]
