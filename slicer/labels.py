@@ -48,8 +48,10 @@ class ObjectLabels:
         order = np.argsort(bodies, kind="stable")
         hulls = np.full(self.count, None, dtype=object)
         if len(order):
-            grouped = shapely.multipolygons(polys[order], indices=bodies[order])
-            hulls[: len(grouped)] = shapely.convex_hull(grouped)
+            present = sorted_unique(bodies)  # the bodies with outlines: indices without gaps
+            grouped = shapely.multipolygons(polys[order],
+                                            indices=np.searchsorted(present, bodies[order]))
+            hulls[present] = shapely.convex_hull(grouped)
         lines = [f"M486 T{self.count}"]
         for body, hull in enumerate(hulls.tolist()):
             if hull is None or hull.is_empty or hull.geom_type != "Polygon":
