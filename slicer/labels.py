@@ -24,7 +24,7 @@ _LINE = re.compile(
     re.M,
 )
 _SAMPLED_LAYERS = 24  # layers whose outlines make a body's footprint
-_PAIRS = 1 << 22  # (point, polygon) box tests held at once when moves are given to bodies
+_PAIRS = 1 << 20  # (point, polygon) box tests held at once when moves are given to bodies
 
 
 class ObjectLabels:

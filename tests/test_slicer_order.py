@@ -109,3 +109,19 @@ def test_islands_hatched_stacked_and_joined_at_once_match_one_at_a_time():
     for got_run, want_run in zip(got, want, strict=True):
         for a, b in zip(got_run, want_run, strict=True):
             np.testing.assert_array_equal(a, b)
+
+
+def test_islands_ordered_alike_from_a_table_and_step_by_step(monkeypatch):
+    """Nearest rear seam first, the same order whether the distances come from one table
+    or one norm per step (ties and empty islands' NaN bounds included)."""
+    from slicer import layer
+
+    rng = np.random.default_rng(11)
+    lo = rng.integers(0, 40, (300, 2)).astype(float)  # many equal seams: ties
+    box = np.column_stack([lo, lo + rng.integers(1, 5, (300, 2))])
+    box[[5, 77]] = np.nan  # empty islands
+    pos = layer._start_position(box)
+    step_by_step = layer._island_order(box, pos)
+    monkeypatch.setattr(layer, "_TABLE_ISLANDS", 1000)
+    assert layer._island_order(box, pos) == step_by_step
+    assert sorted(step_by_step) == list(range(300))
