@@ -304,13 +304,13 @@ def walk_stacks(
         return np.empty((0, 2, 2)), pos
     if s1 - s0 == 1:  # one stack (most islands): entered at its nearest corner
         near = stacks.ends[s0:s1] - np.asarray(pos, dtype=np.float64)
-        corner = int(np.einsum("ijk,ijk->ij", near, near)[0].argmin())  # as _visit_stacks
+        entry = int(np.einsum("ijk,ijk->ij", near, near)[0].argmin())  # as _visit_stacks
         a, z = int(stacks.bounds[s0]), int(stacks.bounds[s1])
-        chosen = stacks.seq[a:z] if corner < 2 else stacks.seq[a:z][::-1]
-        block = stacks.fw[chosen]
-        odd = 1 - corner % 2  # chords j with j + corner odd are turned back
-        block[odd::2] = block[odd::2, ::-1].copy()
-        return block, block[-1, 1]
+        chosen = stacks.seq[a:z] if entry < 2 else stacks.seq[a:z][::-1]
+        one = stacks.fw[chosen]
+        odd = 1 - entry % 2  # chords j with j + entry odd are turned back
+        one[odd::2] = one[odd::2, ::-1].copy()
+        return one, one[-1, 1]
     b = stacks.bounds[s0 : s1 + 1]
     sizes = np.diff(b)
     visits = _visit_stacks(

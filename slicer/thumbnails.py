@@ -58,7 +58,8 @@ class _Stack:
         span = np.maximum(self.hi - self.lo, 1e-6)
         fit = min((w * 0.92) / span[0], (h * 0.92) / span[1])
         offset = np.array([w, h]) / 2 - (self.lo + self.hi) / 2 * fit
-        return self.points * fit + offset
+        screen: np.ndarray = self.points * fit + offset
+        return screen
 
 
 def thumbnail_png(
