@@ -44,7 +44,7 @@ class ObjectLabels:
         polys = np.concatenate([p for p, _ in layers]) if layers else np.empty(0, dtype=object)
         bodies = np.concatenate([b for _, b in layers]) if layers else np.empty(0, dtype=int)
         # the hull of a body's outlines is that of their points: no union needed; all
-        # bodies' hulls in one call (a body without outlines gets an empty one)
+        # bodies' hulls in one call (a body without outlines on these layers has none)
         order = np.argsort(bodies, kind="stable")
         hulls = np.full(self.count, None, dtype=object)
         if len(order):
