@@ -15,6 +15,7 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
+from slicer.arcs import arcs_wanted
 from slicer.budget import Moves, budget_moves
 from slicer.detour import detours
 from slicer.geom import private_copy
@@ -137,7 +138,8 @@ def layer_code(
     # the emitted moves: simplified within the resolution, arcs where they fit
     loose = np.array([p.kind in (FILL, SUPPORT) for p in paths])
     exact = np.array([p.kind == WALL_OUTER for p in paths])
-    scale = _island_scale(outline, pts[starts], exact)
+    # the islands' scale bounds outer walls' arcs only: no arcs, no need to find it
+    scale = _island_scale(outline, pts[starts], exact) if arcs_wanted(settings) else None
     mv = budget_moves(pts, starts, ends, speeds, settings, loose, exact, scale)
     # extrusion moves: every point but each path's first
     move = np.ones(len(mv.pts), dtype=bool)
@@ -285,10 +287,29 @@ def _words(texts: list[str]) -> np.ndarray:
     return np.frombuffer(b"".join(t.encode("ascii").ljust(4, b"\0") for t in texts), _WORD)
 
 
+def _digit_words(count: int, places: int, lead: str = "", pad: bool = True) -> np.ndarray:
+    """The words of ``lead + str(q)`` for q in ``0..count-1``, ``places`` digits each (zeros
+    in front) when ``pad``, else as few as ``str`` writes: (count,) uint32, built by
+    arithmetic on the digits (a Python string per number cost milliseconds at import)."""
+    q = np.arange(count)
+    digits = np.stack([q // 10**p % 10 for p in range(places - 1, -1, -1)], axis=1)
+    shown = np.full(count, places)
+    if not pad:
+        shown = 1 + sum((q >= 10**p).astype(int) for p in range(1, places))
+    out = np.zeros((count, 4), dtype=np.uint8)
+    head = np.frombuffer(lead.encode("ascii"), dtype=np.uint8)
+    out[:, : len(head)] = head
+    for k in range(places):  # the k-th digit shown, where a number has one
+        col = places - shown + k  # its column in ``digits``
+        has = k < shown
+        out[has, len(head) + k] = 48 + digits[has, col[has]]
+    return out.view(_WORD).reshape(count)
+
+
 # whole part with its sign: _WHOLE[1, q] is "-q"; digits after the point, 3 then 2
-_WHOLE = _words([f"{s}{q}" for s in ("", "-") for q in range(1000)]).reshape(2, 1000)
-_FRAC3 = _words([f".{r:03d}" for r in range(1000)])
-_DIGITS2 = _words([f"{r:02d}" for r in range(100)])
+_WHOLE = np.stack([_digit_words(1000, 3, "", pad=False), _digit_words(1000, 3, "-", pad=False)])
+_FRAC3 = _digit_words(1000, 3, ".")
+_DIGITS2 = _digit_words(100, 2)
 _SPACE_Y, _SPACE_E, _NEWLINE, _SPACE_I, _SPACE_J = _words([" Y", " E", "\n", " I", " J"])
 
 

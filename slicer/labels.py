@@ -24,6 +24,7 @@ _LINE = re.compile(
     re.M,
 )
 _SAMPLED_LAYERS = 24  # layers whose outlines make a body's footprint
+_PAIRS = 1 << 20  # (point, polygon) box tests held at once when moves are given to bodies
 
 
 class ObjectLabels:
@@ -38,15 +39,21 @@ class ObjectLabels:
         """``M486 T<count>`` and one ``EXCLUDE_OBJECT_DEFINE`` per body (centre, outline)."""
         plan = self.plan
         n = plan.layer_count
-        parts: list[list[shapely.Geometry]] = [[] for _ in range(self.count)]
         sampled = np.linspace(0, n - 1, min(n, _SAMPLED_LAYERS)).astype(int)
-        for i in sorted_unique(sampled).tolist():
-            polys, bodies = plan.layer_bodies(i)
-            for poly, body in zip(polys.tolist(), bodies.tolist(), strict=True):
-                parts[body].append(poly)
+        layers = [plan.layer_bodies(i) for i in sorted_unique(sampled).tolist()]
+        polys = np.concatenate([p for p, _ in layers]) if layers else np.empty(0, dtype=object)
+        bodies = np.concatenate([b for _, b in layers]) if layers else np.empty(0, dtype=int)
+        # the hull of a body's outlines is that of their points: no union needed; all
+        # bodies' hulls in one call (a body without outlines on these layers has none)
+        order = np.argsort(bodies, kind="stable")
+        hulls = np.full(self.count, None, dtype=object)
+        if len(order):
+            present = sorted_unique(bodies)  # the bodies with outlines: indices without gaps
+            grouped = shapely.multipolygons(polys[order],
+                                            indices=np.searchsorted(present, bodies[order]))
+            hulls[present] = shapely.convex_hull(grouped)
         lines = [f"M486 T{self.count}"]
-        for body, outlines in enumerate(parts):
-            hull = shapely.convex_hull(shapely.union_all(outlines)) if outlines else None
+        for body, hull in enumerate(hulls.tolist()):
             if hull is None or hull.is_empty or hull.geom_type != "Polygon":
                 continue
             hull = shapely.simplify(hull, 0.2)
@@ -109,14 +116,19 @@ def _nearest_body(
         hits = np.zeros(len(points), dtype=np.int64)
         x, y = points[:, 0], points[:, 1]
         boxes = shapely.bounds(polys)
-        for k, (x0, y0, x1, y1) in enumerate(boxes.tolist()):
-            near = np.flatnonzero((x >= x0) & (x <= x1) & (y >= y0) & (y <= y1))
-            if len(near) == 0:
-                continue
-            shapely.prepare(polys[k])
-            inside = near[shapely.contains_xy(polys[k], x[near], y[near])]
-            hits[inside] += 1
-            owner[inside] = bodies[k]
+        shapely.prepare(polys)  # layer_bodies' own copies
+        # (point, polygon) pairs whose box holds the point, a bounded block of polygons
+        # at a time, then one point-in-polygon test over all the pairs of the block
+        step = max(1, _PAIRS // max(len(points), 1))
+        for a in range(0, len(polys), step):
+            box = boxes[a : a + step]
+            near = ((x[:, None] >= box[:, 0]) & (x[:, None] <= box[:, 2])
+                    & (y[:, None] >= box[:, 1]) & (y[:, None] <= box[:, 3]))
+            pt, poly = np.nonzero(near)
+            poly += a
+            inside = shapely.contains_xy(polys[poly], x[pt], y[pt])
+            hits += np.bincount(pt[inside], minlength=len(points))
+            owner[pt[inside]] = bodies[poly[inside]]
         rest = np.flatnonzero(hits != 1)
     elif len(polys) == 1:
         owner[:] = bodies[0]

@@ -239,6 +239,11 @@ def _start_position(box: np.ndarray) -> np.ndarray:
     return np.array([np.fmin.reduce(box[:, 0]), np.fmax.reduce(box[:, 3])])
 
 
+# islands up to this many are ordered from one table of distances (its memory grows
+# as the square: thousands of islands a layer walk the list instead)
+_TABLE_ISLANDS = 256
+
+
 def _island_order(box: np.ndarray, pos: np.ndarray) -> list[int]:
     """Islands in greedy nearest-neighbour order of their rear seams (``box`` (p, 4) their
     bounds)."""
@@ -246,8 +251,19 @@ def _island_order(box: np.ndarray, pos: np.ndarray) -> list[int]:
         return [0]
     b = box
     seams = np.stack([(b[:, 0] + b[:, 2]) / 2.0, b[:, 3]], axis=1)
-    left = list(range(len(box)))
     out = []
+    if len(box) <= _TABLE_ISLANDS:
+        # every seam's distance from the start and from every seam, at once (the same
+        # numbers as one norm per step); a visited seam is ruled out by an infinite one
+        table = np.linalg.norm(seams[None, :, :] - seams[:, None, :], axis=2)
+        d = np.linalg.norm(seams - pos, axis=1)
+        for _ in range(len(box)):
+            j = int(np.argmin(d))
+            out.append(j)
+            table[:, j] = np.inf
+            d = table[j]
+        return out
+    left = list(range(len(box)))
     here = pos
     while left:
         d = np.linalg.norm(seams[left] - here, axis=1)
@@ -333,7 +349,7 @@ def _as_coords(lines: shapely.Geometry | np.ndarray, w: float) -> list[np.ndarra
     parts = parts[shapely.length(parts) >= _MIN_PATH * w]
     coords, index = shapely.get_coordinates(parts, return_index=True)
     cuts = np.flatnonzero(np.diff(index)) + 1
-    return np.split(coords, cuts) if len(coords) else []
+    return geom.split_rows(coords, cuts) if len(coords) else []
 
 
 def _support(

@@ -18,7 +18,7 @@ from __future__ import annotations
 import numpy as np
 
 from slicer.budget import Moves
-from slicer.motion import JUNCTION_DEVIATION, planned_time, segment_times
+from slicer.motion import JUNCTION_DEVIATION, planned_time, rest_time
 
 # Marlin's default limits (Configuration.h) for the axes a slicer does not set: mm/s, mm/s^2
 MAX_Z_SPEED = 5.0
@@ -58,13 +58,11 @@ def layer_time(
     time_s = chain_time(chain, chain_speed, chain_stop, accel)
     # the travel into the layer, from its last point, and the lift to its height
     into = float(np.hypot(*(pts[0] - pts[-1])))
-    time_s += float(segment_times(np.array([into]), travel_speed, np.zeros(1), np.zeros(1),
-                                  accel)[0])
+    time_s += rest_time(into, travel_speed, accel)
     time_s += lift_time(layer_height, travel_speed, accel)
     if retracts:
-        e = segment_times(np.array([retract_length]), min(retract_speed, MAX_E_SPEED),
-                          np.zeros(1), np.zeros(1), accel)[0]
-        time_s += 2 * retracts * float(e)
+        e = rest_time(retract_length, min(retract_speed, MAX_E_SPEED), accel)
+        time_s += 2 * retracts * e
     return time_s
 
 
@@ -73,8 +71,7 @@ def lift_time(height: float, travel_speed: float, accel: float) -> float:
     Marlin's default Z limits; ``accel`` mm/s^2 (the settings')."""
     if height <= 0:
         return 0.0
-    return float(segment_times(np.array([height]), min(travel_speed, MAX_Z_SPEED), np.zeros(1),
-                               np.zeros(1), min(accel, MAX_Z_ACCEL))[0])
+    return rest_time(height, min(travel_speed, MAX_Z_SPEED), min(accel, MAX_Z_ACCEL))
 
 
 def _chords(

@@ -13,6 +13,7 @@ import numpy as np
 import shapely
 
 from slicer import order
+from slicer.geom import split_rows
 
 WALL_OUTER = "WALL-OUTER"
 WALL_INNER = "WALL-INNER"
@@ -58,16 +59,16 @@ def wall_loops(
     head = best[np.concatenate(([True], sorted_ring[1:] != sorted_ring[:-1]))]
     seam = np.zeros(len(rings), dtype=np.int64)
     seam[ring[head]] = head - start[ring[head]]
-    pieces = np.split(coords, start[1:])
-    ring_cell = cell[ring_part]
-    for r in np.flatnonzero(size >= 3):
-        c = int(ring_cell[r])
-        island, level = divmod(c, levels)
+    pieces = split_rows(coords, start[1:])
+    ring_cell = cell[ring_part].tolist()  # plain ints: numpy scalars are slow to index
+    seams = seam.tolist()
+    for r in np.flatnonzero(size >= 3).tolist():
+        island, level = divmod(ring_cell[r], levels)
         loops = out[island]
         if not loops or loops[-1][3] != level:
             loops.append((WALL_OUTER if level == 0 else WALL_INNER, [], [], level))
         loops[-1][1].append(pieces[r])
-        loops[-1][2].append(int(seam[r]))
+        loops[-1][2].append(seams[r])
     result = []
     for loops in out:
         levels_of = [(kind, rings_, seams) for kind, rings_, seams, _ in loops]

@@ -9,6 +9,8 @@ are limited to what the acceleration can reach over the neighbouring moves.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 from numpy.typing import NDArray
 
@@ -88,6 +90,21 @@ def run_time(points: np.ndarray, speed: float, accel: float) -> float:
     return packed_runs_time(points, np.zeros(1, dtype=np.int64), np.array([speed]), accel)
 
 
+def rest_time(length: float, speed: float, accel: float) -> float:
+    """Seconds of one move of ``length`` mm from rest to rest at ``speed`` mm/s, ``accel``
+    mm/s^2: :func:`segment_times` of that move with zero entry and exit speeds, the same
+    float to the bit (the same operations in the same order, on plain floats, without
+    numpy's cost per call on one element)."""
+    v = float(speed)
+    d_acc = max(v * v - 0.0, 0.0) / (2.0 * accel)
+    cruise = length - d_acc - d_acc
+    if cruise >= 0:
+        return v / accel + v / accel + max(cruise, 0.0) / v
+    # a triangle (segment_times' "mean" case needs a peak below a zero entry speed: never)
+    peak = math.sqrt(max((2.0 * accel * length + 0.0 + 0.0) / 2.0, 0.0))
+    return peak / accel + peak / accel
+
+
 def segment_times(
     length: NDArray[np.float64],
     speed: float | NDArray[np.float64],
@@ -101,7 +118,9 @@ def segment_times(
     short to reach ``speed`` the profile is a triangle; when it is too short
     even for that, the mean of entry and exit speed is used.
     """
-    v = np.broadcast_to(np.asarray(speed, dtype=np.float64), length.shape)
+    v = speed
+    if not (isinstance(v, np.ndarray) and v.dtype == np.float64 and v.shape == length.shape):
+        v = np.broadcast_to(np.asarray(speed, dtype=np.float64), length.shape)
     d_acc = np.maximum(v * v - v_in * v_in, 0.0) / (2.0 * accel)
     d_dec = np.maximum(v * v - v_out * v_out, 0.0) / (2.0 * accel)
     cruise = length - d_acc - d_dec

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer.geom import sorted_unique
+from slicer.geom import sorted_unique, split_rows
 
 
 def ring_points(ring: np.ndarray) -> np.ndarray:
@@ -119,7 +119,7 @@ def join_paths(
     ok[idx] = shapely.dwithin(region, middle, slack)
     # a joined run is the stretch of the concatenated points between two refused joints
     cuts = ends[:-1][~ok]
-    return np.split(pts, cuts)
+    return split_rows(pts, cuts)
 
 
 def join_runs(
@@ -155,7 +155,7 @@ def join_runs(
         shapely.prepare(regions[sorted_unique(region_of)])
         middle = shapely.points((a[cand] + b[cand]) / 2.0)
         ok[cand] = shapely.dwithin(regions[region_of], middle, slack)
-    pieces = np.split(pts, ends[:-1][~ok[:-1]])
+    pieces = split_rows(pts, ends[:-1][~ok[:-1]])
     per_run = np.bincount(which[~ok], minlength=len(runs))
     bounds = np.cumsum(per_run)
     return [pieces[e - c : e] for e, c in zip(bounds, per_run, strict=True)]
@@ -302,6 +302,15 @@ def walk_stacks(
     s0, s1 = int(stacks.group_stacks[group]), int(stacks.group_stacks[group + 1])
     if s0 == s1:
         return np.empty((0, 2, 2)), pos
+    if s1 - s0 == 1:  # one stack (most islands): entered at its nearest corner
+        near = stacks.ends[s0:s1] - np.asarray(pos, dtype=np.float64)
+        entry = int(np.einsum("ijk,ijk->ij", near, near)[0].argmin())  # as _visit_stacks
+        a, z = int(stacks.bounds[s0]), int(stacks.bounds[s1])
+        chosen = stacks.seq[a:z] if entry < 2 else stacks.seq[a:z][::-1]
+        one = stacks.fw[chosen]
+        odd = 1 - entry % 2  # chords j with j + entry odd are turned back
+        one[odd::2] = one[odd::2, ::-1].copy()
+        return one, one[-1, 1]
     b = stacks.bounds[s0 : s1 + 1]
     sizes = np.diff(b)
     visits = _visit_stacks(

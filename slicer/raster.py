@@ -49,6 +49,20 @@ class Canvas:
             a, b = cuts[k], cuts[k + 1]
             self.paint(rows[a:b], lo[a:b], hi[a:b], fills[k], edges[k])
 
+    def packed_layers(
+        self, points: NDArray[np.float64], ring_of: NDArray[np.int64],
+        group_of_ring: NDArray[np.int64], fills: list[Colour], edges: list[Colour],
+    ) -> None:
+        """:meth:`layers` with the rings packed: ``points`` (m, 2) float pixel coordinates,
+        ``ring_of`` (m,) each point's ring (ascending, rings numbered from 0), and
+        ``group_of_ring`` (r,) each ring's group (ascending): the same pixels, without a
+        Python step per ring."""
+        rows, lo, hi, owner = self._packed_runs(points, ring_of)
+        cuts = np.searchsorted(group_of_ring[owner], np.arange(len(fills) + 1)).tolist()
+        for k in range(len(fills)):
+            a, b = cuts[k], cuts[k + 1]
+            self.paint(rows[a:b], lo[a:b], hi[a:b], fills[k], edges[k])
+
     def paint(
         self, rows: NDArray[np.int64], lo: NDArray[np.int64], hi: NDArray[np.int64],
         fill: Colour, edge: Colour,
@@ -83,8 +97,8 @@ class Canvas:
             core[:, -1] = False
         window = self.index[top : top + h, left : left + w]
         self.palette += [fill, edge]
-        window[core] = len(self.palette) - 2
-        window[inside & ~core] = len(self.palette) - 1
+        np.copyto(window, len(self.palette) - 2, where=core)
+        np.copyto(window, len(self.palette) - 1, where=inside ^ core)  # core lies inside
 
     def spans(
         self, rings: list[NDArray[np.float64]]
@@ -110,6 +124,13 @@ class Canvas:
             empty = np.empty(0, dtype=np.int64)
             return empty, empty, empty, empty
         a, b, ring_of = np.concatenate(starts), np.concatenate(ends), np.concatenate(ids)
+        return self._runs_of_edges(a, b, ring_of)
+
+    def _runs_of_edges(
+        self, a: NDArray[np.float64], b: NDArray[np.float64], ring_of: NDArray[np.int64]
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """The runs of rings given as edges ``a[i] -> b[i]`` ((e, 2) each) of ring
+        ``ring_of[i]``, sorted by ring, row and column (see :meth:`_runs`)."""
         rows, xs, owner = _crossings(a, b, ring_of, self.height)
         # crossings of one ring on one row, sorted by x, pair up into runs
         order = np.lexsort((xs, rows, owner))
@@ -119,22 +140,50 @@ class Canvas:
         keep = hi > lo
         return rows[0::2][keep], lo[keep], hi[keep], owner[0::2][keep]
 
+    def _packed_runs(
+        self, points: NDArray[np.float64], ring_of: NDArray[np.int64]
+    ) -> tuple[NDArray[np.int64], NDArray[np.int64], NDArray[np.int64], NDArray[np.int64]]:
+        """:meth:`_runs` of packed rings (see :meth:`packed_layers`): the same edges in the
+        same order (each point to the next of its ring, the last to the first; rings of
+        fewer than three points left out)."""
+        if len(points) == 0:
+            empty = np.empty(0, dtype=np.int64)
+            return empty, empty, empty, empty
+        cut = np.flatnonzero(np.diff(ring_of)) + 1
+        first = np.concatenate(([0], cut))
+        size = np.diff(np.concatenate((first, [len(points)])))
+        nxt = np.arange(1, len(points) + 1)
+        nxt[first + size - 1] = first  # the last point of a ring closes to its first
+        keep = np.repeat(size >= 3, size)
+        a, b, owner = points[keep], points[nxt[keep]], ring_of[keep]
+        return self._runs_of_edges(a, b, owner)
+
     def halved(self) -> Picture:
         """The picture at half the size, each pixel the alpha-weighted mean of a 2 x 2 block
         (a width or height that is odd loses its last column or row)."""
         h, w = self.height // 2, self.width // 2
-        pixels = np.array(self.palette, dtype=np.int32)[self.index[: 2 * h, : 2 * w]]
-        alpha = pixels[..., 3:4]
-
-        def blocks(a: NDArray[np.int32]) -> NDArray[np.float64]:
-            # the sum of each 2 x 2 block, exact (whole numbers below 2**20)
-            total = a[0::2, 0::2] + a[0::2, 1::2] + a[1::2, 0::2] + a[1::2, 1::2]
-            return total.astype(np.float64)
-
-        weight = blocks(alpha)
-        colour = blocks(pixels[..., :3] * alpha) / np.maximum(weight, 1.0)
-        rgba = np.concatenate([colour, weight / 4.0], axis=-1)
-        return Picture(np.rint(rgba).astype(np.uint8))
+        palette = np.array(self.palette, dtype=np.int32)
+        index = self.index[: 2 * h, : 2 * w]
+        corners = (index[0::2, 0::2], index[0::2, 1::2], index[1::2, 0::2], index[1::2, 1::2])
+        # a block of one colour halves to that colour (the mean below gives it exactly;
+        # a transparent one to all zeros): only the mixed blocks are averaged
+        uniform = (corners[0] == corners[1]) & (corners[0] == corners[2]) & (
+            corners[0] == corners[3])
+        plain = palette.copy()
+        plain[plain[:, 3] == 0] = 0
+        out = plain.astype(np.uint8)[corners[0]]
+        mixed = ~uniform
+        if mixed.any():
+            pixels = [palette[c[mixed]] for c in corners]  # four (k, 4) int32
+            alpha = [p[:, 3:4] for p in pixels]
+            # the sums of each 2 x 2 block, exact (whole numbers below 2**20)
+            weight = (alpha[0] + alpha[1] + alpha[2] + alpha[3]).astype(np.float64)
+            colour = (pixels[0][:, :3] * alpha[0] + pixels[1][:, :3] * alpha[1]
+                      + pixels[2][:, :3] * alpha[2] + pixels[3][:, :3] * alpha[3]
+                      ).astype(np.float64) / np.maximum(weight, 1.0)
+            rgba = np.concatenate([colour, weight / 4.0], axis=-1)
+            out[mixed] = np.rint(rgba).astype(np.uint8)
+        return Picture(out)
 
 
 class Picture:

@@ -106,7 +106,7 @@ def along(
             lines = shapely.get_parts(finish(lines, zone0[row], _APART * w))
         if len(lines):
             coords, index = shapely.get_coordinates(lines, return_index=True)
-            out[i] = np.split(coords, np.flatnonzero(np.diff(index)) + 1)
+            out[i] = geom.split_rows(coords, np.flatnonzero(np.diff(index)) + 1)
             # each line apart, then united (one buffer of them all can come out invalid)
             covered = shapely.union_all(shapely.buffer(lines, 0.5 * w, quad_segs=_QUAD_SEGS))
             left = geom.difference(regions[row], covered)

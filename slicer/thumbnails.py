@@ -28,39 +28,60 @@ def parse_sizes(text: str) -> list[tuple[int, int]]:
     return sizes
 
 
-def thumbnail_png(plan: SlicePlan, width: int, height: int) -> bytes:
+class _Stack:
+    """The stacked outlines of a thumbnail, projected once for every size: the exterior
+    rings' points (m, 2) in unscaled screen units, each point's ring (m,) int64
+    (ascending), each ring's layer rank (r,) int64, and the projected bounding box."""
+
+    def __init__(self, plan: SlicePlan) -> None:
+        n = plan.layer_count
+        picks = sorted_unique(np.linspace(0, n - 1, min(n, _LAYERS_DRAWN)).round().astype(int))
+        self.layers = len(picks)
+        xmin, ymin, xmax, ymax = plan.bounds
+        ztop = plan.layer_z(n - 1) if n else 1.0
+        corners = np.array(
+            [[x, y, z] for x in (xmin, xmax) for y in (ymin, ymax) for z in (0, ztop)])
+        projected = _project(corners)
+        self.lo, self.hi = projected.min(axis=0), projected.max(axis=0)
+        outlines = np.array([plan.outline(i) for i in picks.tolist()], dtype=object)
+        tops = np.array([plan.layer_z(i) for i in picks.tolist()])
+        parts, rank = shapely.get_parts(outlines, return_index=True)
+        coords, ring_of = shapely.get_coordinates(
+            shapely.get_exterior_ring(parts), return_index=True)
+        xyz = np.column_stack([coords, tops[rank[ring_of]]])
+        self.points = _project(xyz)
+        self.ring_of = ring_of
+        self.rank = rank
+
+    def screen(self, w: int, h: int) -> np.ndarray:
+        """The points on a ``w`` x ``h`` canvas (the model fitted to 92 % of it), (m, 2)."""
+        span = np.maximum(self.hi - self.lo, 1e-6)
+        fit = min((w * 0.92) / span[0], (h * 0.92) / span[1])
+        offset = np.array([w, h]) / 2 - (self.lo + self.hi) / 2 * fit
+        screen: np.ndarray = self.points * fit + offset
+        return screen
+
+
+def thumbnail_png(
+    plan: SlicePlan, width: int, height: int, stack: _Stack | None = None
+) -> bytes:
     """An isometric picture of the model's layer outlines stacked, ``width`` x ``height`` px.
 
     Transparent background; faces shaded from dark (bottom) to light (top), each
     outline's border pixels darker. Drawn at twice the size and halved, so small
     thumbnails stay smooth; numpy and zlib only (no imaging library to import).
+    ``stack``: the outlines already gathered (:class:`_Stack`), shared by every size.
     """
     scale_up = 2
     w, h = width * scale_up, height * scale_up
-    n = plan.layer_count
-    picks = sorted_unique(np.linspace(0, n - 1, min(n, _LAYERS_DRAWN)).round().astype(int))
-    xmin, ymin, xmax, ymax = plan.bounds
-    ztop = plan.layer_z(n - 1) if n else 1.0
-    corners = np.array([[x, y, z] for x in (xmin, xmax) for y in (ymin, ymax) for z in (0, ztop)])
-    projected = _project(corners)
-    lo, hi = projected.min(axis=0), projected.max(axis=0)
-    span = np.maximum(hi - lo, 1e-6)
-    fit = min((w * 0.92) / span[0], (h * 0.92) / span[1])
-    offset = np.array([w, h]) / 2 - (lo + hi) / 2 * fit
-    canvas = Canvas(w, h)
-    groups, fills, edges = [], [], []
-    for rank, i in enumerate(picks.tolist()):
-        z = plan.layer_z(i)
-        shade = 0.55 + 0.45 * (rank + 1) / len(picks)
+    stack = stack if stack is not None else _Stack(plan)
+    fills, edges = [], []
+    for rank in range(stack.layers):
+        shade = 0.55 + 0.45 * (rank + 1) / stack.layers
         fills.append((int(235 * shade), int(120 * shade), int(30 * shade), 255))
         edges.append((int(120 * shade), int(55 * shade), int(10 * shade), 255))
-        exteriors = shapely.get_exterior_ring(shapely.get_parts(plan.outline(i)))
-        coords, ring_of = shapely.get_coordinates(exteriors, return_index=True)
-        xyz = np.column_stack([coords, np.full(len(coords), z)])
-        screen = _project(xyz) * fit + offset
-        groups.append(np.split(screen, np.flatnonzero(np.diff(ring_of)) + 1) if len(coords)
-                      else [])
-    canvas.layers(groups, fills, edges)
+    canvas = Canvas(w, h)
+    canvas.packed_layers(stack.screen(w, h), stack.ring_of, stack.rank, fills, edges)
     return canvas.halved().png()
 
 
@@ -83,8 +104,10 @@ def thumbnail_block(png: bytes, width: int, height: int) -> list[str]:
 def thumbnail_lines(plan: SlicePlan, sizes: str) -> list[str]:
     """Every thumbnail block for the sizes of ``gcode.thumbnails`` (none for "")."""
     lines: list[str] = []
-    for width, height in parse_sizes(sizes):
-        lines += thumbnail_block(thumbnail_png(plan, width, height), width, height)
+    wanted = parse_sizes(sizes)
+    stack = _Stack(plan) if wanted else None
+    for width, height in wanted:
+        lines += thumbnail_block(thumbnail_png(plan, width, height, stack), width, height)
     return lines
 
 

@@ -178,3 +178,77 @@ def test_thumbnail_sizes_are_checked() -> None:
     for bad in ("32", "0x10", "10x2000", "32x32;64x64"):
         with pytest.raises(SettingsError, match=r"gcode\.thumbnails"):
             SliceSettings.from_mapping({"gcode.thumbnails": bad})
+
+
+def test_moves_go_to_the_body_whose_polygon_holds_them(monkeypatch) -> None:
+    """Each point inside exactly one polygon gets that polygon's body, the others the
+    nearest polygon's, whether the box tests run in one block or in many."""
+    import numpy as np
+    import shapely
+
+    from slicer import labels
+
+    rng = np.random.default_rng(5)
+    centres = rng.uniform(0, 100, (30, 2))
+    polys = shapely.buffer(shapely.points(centres), rng.uniform(2, 9, 30), quad_segs=3)
+    polys = polys[np.argsort(shapely.area(polys))]
+    keep = [0]  # an outline's polygons do not overlap
+    for k in range(1, len(polys)):
+        if not shapely.intersects(polys[k], polys[keep]).any():
+            keep.append(k)
+    polys = polys[keep]
+    bodies = rng.integers(0, 4, len(polys))
+    outline = shapely.multipolygons(polys)
+    points = rng.uniform(-5, 105, (1200, 2))
+    inside = shapely.contains_xy(polys[:, None], points[None, :, 0], points[None, :, 1])
+    once = inside.sum(axis=0) == 1
+    expected = bodies[inside.argmax(axis=0)]
+    assert 50 < once.sum() < len(points)
+    whole = labels._nearest_body(shapely.get_parts(outline), bodies, points, outline)
+    monkeypatch.setattr(labels, "_PAIRS", 2000)  # one polygon at a time
+    blocks = labels._nearest_body(shapely.get_parts(outline), bodies, points, outline)
+    assert (whole[once] == expected[once]).all()
+    assert (whole == blocks).all()
+    # the others: a polygon of the body given is among the nearest
+    distance = shapely.distance(polys[:, None], shapely.points(points[~once])[None, :])
+    mine = np.where(bodies[:, None] == whole[~once][None, :], distance, np.inf)
+    assert (mine.min(axis=0) == distance.min(axis=0)).all()
+
+
+def test_objects_defined_by_the_hull_of_their_sampled_outlines() -> None:
+    """A body's footprint is the convex hull of its outlines on the sampled layers, the
+    same polygon as the hull of their union; a body absent from every sampled layer
+    (between two of them) is not defined, and the others still are."""
+    import numpy as np
+    import shapely
+
+    from slicer.labels import ObjectLabels
+
+    class Layers:  # the three things the definitions read of a plan
+        layer_count = 60
+        body_count = 4
+
+        def layer_bodies(self, i: int) -> tuple[np.ndarray, np.ndarray]:
+            polys = [shapely.box(0, 0, 10 + i % 7, 8), shapely.box(20, 0, 26, 6 + i % 5)]
+            bodies = [0, 3]
+            if i % 2:  # body 1 on odd layers only, overlapping itself from layer to layer
+                polys.append(shapely.Point(40, 10).buffer(3 + i % 3, quad_segs=4))
+                bodies.append(1)
+            if i == 1:  # body 2 on a layer that is never sampled
+                polys.append(shapely.box(50, 50, 55, 55))
+                bodies.append(2)
+            return np.array(polys, dtype=object), np.array(bodies)
+
+    lines = ObjectLabels(Layers()).define_lines()  # type: ignore[arg-type]
+    assert lines[0] == "M486 T4"
+    names = [line.split()[1] for line in lines[1:]]
+    assert names == ["NAME=body_0", "NAME=body_1", "NAME=body_3"]
+    sampled = sorted(set(np.linspace(0, 59, 24).astype(int).tolist()))
+    for line, body in zip(lines[1:], (0, 1, 3), strict=True):
+        parts = [p for i in sampled for p, b in zip(*Layers().layer_bodies(i), strict=True)
+                 if b == body]
+        hull = shapely.simplify(shapely.convex_hull(shapely.union_all(parts)), 0.2)
+        ring = shapely.get_coordinates(hull.exterior)[:-1]
+        polygon = ",".join(f"[{x:.3f},{y:.3f}]" for x, y in ring.tolist())
+        assert line.endswith(f"POLYGON=[{polygon}]")
+        assert f"CENTER={hull.centroid.x:.3f},{hull.centroid.y:.3f}" in line

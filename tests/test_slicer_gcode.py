@@ -62,6 +62,28 @@ def test_time_model_charges_acceleration() -> None:
     assert straight + 0.1 < run_time(square, 50.0, 1000.0) < stop_each_corner
 
 
+def test_rest_time_is_segment_times_to_the_bit() -> None:
+    """The scalar rest-to-rest time equals the vectorised one exactly (trapezoids,
+    triangles, zero lengths), so layer times and the header do not change by a bit."""
+    from slicer.motion import rest_time, segment_times
+
+    rng = np.random.default_rng(7)
+    short = long = 0
+    length = np.concatenate([[0.0, 1e-12, 0.2, 0.6, 1.0, 3.0], rng.uniform(0, 50, 2000),
+                             rng.uniform(0, 0.5, 2000)])
+    for speed, accel in [(150.0, 1000.0), (5.0, 100.0), (25.0, 1000.0), (7.3, 10.0),
+                         *zip(rng.uniform(1, 300, 20).tolist(), rng.uniform(10, 5e4, 20).tolist(),
+                              strict=True)]:
+        zero = np.zeros(len(length))
+        expected = segment_times(length, speed, zero, zero, accel)
+        got = np.array([rest_time(x, speed, accel) for x in length.tolist()])
+        assert got.tobytes() == expected.tobytes()
+        short += int((length < speed * speed / accel).sum())  # no cruise: a triangle
+        long += int((length > speed * speed / accel).sum())
+    assert short > 1000
+    assert long > 1000
+
+
 def test_start_and_resume_blocks() -> None:
     plan = SlicePlan.from_file(DATA / "cube20_xyz.stl", SliceSettings())
     start = plan.start_gcode()

@@ -35,6 +35,22 @@ def test_format_moves_matches_python_formatting():
     assert format_moves("G0 F9000 ", xy) == _python_travels(xy)
 
 
+def test_format_moves_writes_every_whole_part_and_fraction():
+    """Every entry of the word tables (built by digit arithmetic) in use: all whole parts
+    -999..999 with and without a sign, every 3- and 5-digit fraction's digits."""
+    units = np.tile(np.arange(-999_999, 1_000_000, 997), 2)  # thousandths
+    k = np.arange(len(units) // 2)
+    e_units = np.concatenate([k * 99_991, k * 1_234_567]) % 100_000_000  # 10**-5 mm
+    assert len({(u < 0, abs(u) // 1000) for u in units.tolist()}) == 2000  # "-0" too
+    assert len(set((np.abs(units) % 1000).tolist())) == 1000
+    for digits in (e_units // 100_000, e_units // 100 % 1000, e_units % 100):
+        assert len(set(digits.tolist())) == int(digits.max()) + 1  # every one
+    xy = np.column_stack([units / 1000.0, units[::-1] / 1000.0])
+    e = e_units / 100_000.0
+    assert format_moves("G1 ", xy, e) == _python_lines(xy, e)
+    assert format_moves("G0 F9000 ", xy) == _python_travels(xy)
+
+
 def test_format_moves_falls_back_outside_three_whole_digits():
     for bad in (1000.0, 999.9996, -1234.5, np.nan, np.inf):
         xy = np.array([[bad, 1.0], [2.0, 3.0]])
@@ -93,3 +109,19 @@ def test_islands_hatched_stacked_and_joined_at_once_match_one_at_a_time():
     for got_run, want_run in zip(got, want, strict=True):
         for a, b in zip(got_run, want_run, strict=True):
             np.testing.assert_array_equal(a, b)
+
+
+def test_islands_ordered_alike_from_a_table_and_step_by_step(monkeypatch):
+    """Nearest rear seam first, the same order whether the distances come from one table
+    or one norm per step (ties and empty islands' NaN bounds included)."""
+    from slicer import layer
+
+    rng = np.random.default_rng(11)
+    lo = rng.integers(0, 40, (300, 2)).astype(float)  # many equal seams: ties
+    box = np.column_stack([lo, lo + rng.integers(1, 5, (300, 2))])
+    box[[5, 77]] = np.nan  # empty islands
+    pos = layer._start_position(box)
+    step_by_step = layer._island_order(box, pos)
+    monkeypatch.setattr(layer, "_TABLE_ISLANDS", 1000)
+    assert layer._island_order(box, pos) == step_by_step
+    assert sorted(step_by_step) == list(range(300))
