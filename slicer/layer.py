@@ -158,6 +158,7 @@ def layer_paths(
     # walls are final; infill runs are joined for all islands at once after the walk
     items: list[Path | tuple[str, int]] = []
     runs: list[tuple[np.ndarray, np.ndarray, int]] = []
+    hatched_skin: list[int] = []  # the runs of skin chords (capped by their region's area)
     box = shapely.bounds(islands)
     pos = _start_position(box)
     for k in _island_order(box, pos):
@@ -182,17 +183,56 @@ def layer_paths(
                 ends = np.cumsum([len(c) for c in ordered])
             else:
                 continue
+            if stacks is skin_stacks:
+                hatched_skin.append(len(runs))
             items.append((kind, len(runs)))
             runs.append((pts, ends, k))
     joined = order.join_runs(runs, fill, 2.0 * w, w / 2.0)
+    widths = _capped_widths(joined, runs, hatched_skin, skin, w)
     out: list[Path] = []
     for item in items:
         if isinstance(item, Path):
             out.append(item)
         else:
-            out.extend(Path(item[0], coords) for coords in joined[item[1]])
+            width = widths.get(item[1])
+            out.extend(Path(item[0], coords, width) for coords in joined[item[1]])
     if support_paths is not None and has_support:
         out.extend(_support(regions, ctx, support_paths, pos))
+    return out
+
+
+def _capped_widths(
+    joined: list[list[np.ndarray]],
+    runs: list[tuple[np.ndarray, np.ndarray, int]],
+    capped: list[int],
+    regions: np.ndarray,
+    w: float,
+) -> dict[int, float]:
+    """Line width of the runs ``capped`` whose lines would lay more than their region holds.
+
+    ``joined`` the runs' joined paths (coords (k, 2) mm), ``runs`` their
+    ``(points, ends, island)``; ``regions`` (p,) the region each island's run
+    fills (the solid region, inside the infill domain, so already reaching
+    ``infill.overlap`` into the walls). A run whose lines, ``w`` mm wide, cover
+    more than that area (chords and their joints in a region a few lines
+    across: a thin tower's corners) gets the width that lays the region's area
+    exactly; the others keep ``w`` (absent from the result).
+    """
+    out: dict[int, float] = {}
+    capped = [r for r in capped if joined[r]]
+    if not capped:
+        return out
+    area = shapely.area(regions[[runs[r][2] for r in capped]])
+    paths = [c for r in capped for c in joined[r]]
+    pts = np.concatenate(paths)
+    step = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+    # segments joining one path to the next are not laid
+    step[np.cumsum([len(c) for c in paths])[:-1] - 1] = 0.0
+    ends = np.cumsum([sum(len(c) for c in joined[r]) for r in capped])
+    length = np.diff(np.concatenate([[0.0], np.cumsum(step)])[ends - 1], prepend=0.0)
+    over = length * w > area
+    for r, a, ell in zip(np.asarray(capped)[over], area[over], length[over], strict=True):
+        out[int(r)] = float(a / ell)
     return out
 
 
