@@ -31,8 +31,9 @@ _QUAD_SEGS = 6
 # a thin island's second wall level would cover less than this fraction of what the
 # outer wall's beads leave uncovered (empty, or specks where the island is thickest)
 THIN_SECOND = 0.25
-# the widest outer wall of a thin island, in line widths (a band 3 lines wide gets 2 walls)
-THIN_MAX = 1.5
+# the widest outer wall of a thin island, in line widths: an island that needs wider
+# walls is left as it was (PrusaSlicer lays a third line there, Arachne's 2-to-3 step)
+THIN_MAX = 1.375
 
 # what one island yields: (outer wall width or NaN, infill domain, wall rings by level)
 Island = tuple[float, Any, list[Any]]
@@ -118,38 +119,47 @@ def widen_thin_walls(
     """Widen the outer wall of thin islands so it fills the island (see the module doc).
 
     ``islands`` (p,) Polygons; ``walls`` (p, P) the wall levels from
-    ``buffer(island, -c_k)`` with ``P >= 2``; ``w`` the line width, mm. An island
-    is thin when the outer wall's ``w``-wide beads leave some area uncovered
-    (``R = A_0 - L_0 w / 2``, ``A_0`` and ``L_0`` the outer level's area and
-    length) and the second level's beads with all they enclose (``A_1 + L_1 w / 2``)
-    would cover less than :data:`THIN_SECOND` of it (empty, or specks where the
-    island is thickest). Its outer wall is then the level ``c_0 = W / 2``
-    extruded ``W`` wide, ``W`` (``w < W <= THIN_MAX w``) the width whose beads
-    lay the island's area: ``W L(W/2) = A``, with ``L(c) = L_0 - 2 pi (c - w/2) chi``
-    (an offset ring shortens by ``2 pi`` per mm for each exterior and lengthens
-    for each hole: ``chi`` = 1 - holes); the other levels are dropped. Returns
-    the walls (a copy when changed) and the outer wall width per island (p,)
-    mm, NaN where it stays ``w``.
+    ``buffer(island, -c_k)`` with ``P >= 2``; ``w`` the line width, mm. The
+    rings of an island shorten by ``k`` mm per mm of inset (``2 pi`` for each
+    exterior of a round island, less for each hole), measured between the
+    outline and the outer level (length ``L_0``, area ``A_0``); an inset by ``r``
+    then takes ``L r - k r^2 / 2`` of area. An island is thin when the outer
+    wall's ``w``-wide beads leave some area uncovered (``R = A_0 - L_0 w / 2 +
+    k w^2 / 8 > 0``) and the second level's beads with all they enclose
+    (``A_1 + L_1 w / 2 + pi w^2 / 4`` per part, 0 when empty) would cover under
+    :data:`THIN_SECOND` of it (empty, or specks where the island is thickest).
+    Its outer wall is then the level ``c_0 = W / 2`` extruded ``W`` wide, ``W``
+    the width whose beads lay the island's area ``A``: ``W L(W/2) = A`` with
+    ``L(c) = L_0 - k (c - w/2)``, when ``w < W <= THIN_MAX w``; its other levels
+    are dropped. Returns the walls (a copy when changed) and the outer wall
+    width per island (p,) mm, NaN where it stays ``w``.
     """
     width = np.full(len(islands), np.nan)
     if len(islands) == 0 or walls.shape[1] < 2:
         return walls, width
     area = shapely.area(islands)
     l0 = shapely.length(walls[:, 0])
+    # how fast the rings shorten per mm of inset (2 pi per exterior of a round island)
+    k = (shapely.length(islands) - l0) / (w / 2.0)
     # beyond the outer wall's beads, and what the second level's beads and all inside cover
-    beyond = shapely.area(walls[:, 0]) - w / 2.0 * l0
-    second = shapely.area(walls[:, 1]) + w / 2.0 * shapely.length(walls[:, 1])
+    beyond = shapely.area(walls[:, 0]) - w / 2.0 * l0 + k * w * w / 8.0
+    parts = np.where(shapely.is_empty(walls[:, 1]), 0, shapely.get_num_geometries(walls[:, 1]))
+    second = (
+        shapely.area(walls[:, 1])
+        + w / 2.0 * shapely.length(walls[:, 1])
+        + parts * np.pi * w * w / 4.0
+    )
     thin = (l0 > 0) & (beyond > 0) & (second < THIN_SECOND * beyond)
     cand = np.flatnonzero(thin)
     if len(cand) == 0:
         return walls, width
-    # W L(W/2) = A, i.e. a W^2 - b W + A = 0 with a = pi chi, b = L_0 + pi chi w:
-    # the root near A / L_0, in a form that holds at chi = 0
-    a = np.pi * (1.0 - shapely.get_num_interior_rings(islands[cand]))
+    # W L(W/2) = A with L(c) = L_0 - k (c - w/2): a W^2 - b W + A = 0, a = k / 2,
+    # b = L_0 + k w / 2; the root near A / L_0, in a form that holds at k = 0
+    a = k[cand] / 2.0
     b = l0[cand] + a * w
     root = np.sqrt(np.maximum(b * b - 4.0 * a * area[cand], 0.0))
-    wide = np.minimum(2.0 * area[cand] / (b + root), THIN_MAX * w)
-    grow = wide > w
+    wide = 2.0 * area[cand] / (b + root)
+    grow = (wide > w) & (wide <= THIN_MAX * w)
     cand, wide = cand[grow], wide[grow]
     if len(cand) == 0:
         return walls, width

@@ -7,13 +7,18 @@ outline *is* that level set, so each wall is the boundary of
 level sets of the selected field, clipped to the contracted domain ``w'``.
 
 Thin islands: where an island is nowhere thick enough for a second wall but
-thicker than two lines (maximum inscribed radius ``h`` with ``w < h <=
-THIN_WIDEN w``), two lines of width ``w`` would leave a strip of ``2h - 2w``
-unfilled between the two sides of the outer wall, which nothing else can fill.
-Its outer wall is then the level set ``c_0 = h / 2``, extruded ``h`` wide, so the
-two sides meet on the medial axis (as the variable-width walls of PrusaSlicer
-2.5 and Cura 5 lay two wider lines there). Walls and domains are made per island
-by :mod:`slicer.islands`, once for an island that repeats.
+thicker than two lines (the second level would cover under a quarter of what
+the outer wall's beads leave: empty, or specks), two lines of width ``w`` would
+leave a strip unfilled between the two sides of the outer wall, which nothing
+else can fill. Its outer wall is then the level set ``c_0 = W / 2``, extruded
+``W`` wide, ``W`` the width whose beads lay the island's area (at most 1.5 w),
+so the two sides meet about the medial axis (as the variable-width walls of
+PrusaSlicer 2.5 and Cura 5 lay two wider lines there). Walls and domains are
+made per island by :mod:`slicer.islands`, once for an island that repeats.
+
+Hatched solid fill lays no more than its region's area: in a region a few
+lines across (a thin tower's corners), chords and the joints between them
+would lay up to twice the area, so the run's width is cut to lay it exactly.
 """
 
 from __future__ import annotations
