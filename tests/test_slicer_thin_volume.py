@@ -80,3 +80,17 @@ def test_narrow_solid_corners_lay_no_more_than_their_region() -> None:
     assert skin > 0
     assert skin <= domain.area * (1 + 1e-9)
     assert _laid(paths) <= 1.08 * outline.area
+
+
+def test_thin_pin_wall_reaches_its_centre() -> None:
+    # a 1.0 mm pin: one outer wall whose bead reaches the centre (W = r), laying its area
+    import trimesh
+
+    pin = trimesh.creation.cylinder(radius=0.5, height=4.0, sections=32)
+    verts = np.asarray(pin.vertices) + np.array([100.0, 100.0, 2.0])
+    plan = SlicePlan.from_mesh(verts, pin.faces, SETTINGS)
+    paths = plan.layer_toolpaths(LAYER)
+    assert [p.kind for p in paths] == [WALL_OUTER]
+    inscribed = 0.5 * np.cos(np.pi / 32)
+    assert paths[0].width == pytest.approx(inscribed, abs=0.01)
+    assert _laid(paths) == pytest.approx(plan.outline(LAYER).area, rel=0.02)
