@@ -107,9 +107,10 @@ def _offsets(
     outer_width = np.full(len(islands), np.nan)  # NaN: the settings' line width
     if perimeters >= 2:
         walls, outer_width = widen_thin_walls(islands, walls, w)
-    fill = shapely.buffer(islands, -fill_distance, quad_segs=_QUAD_SEGS)
     # a widened wall fills its island: specks of infill domain would lie on it
-    fill[~np.isnan(outer_width)] = shapely.Polygon()
+    fill = np.full(len(islands), shapely.Polygon(), dtype=object)
+    rest = np.isnan(outer_width)
+    fill[rest] = shapely.buffer(islands[rest], -fill_distance, quad_segs=_QUAD_SEGS)
     return outer_width, fill, loops.wall_loops(walls, wall_order)
 
 
@@ -138,25 +139,27 @@ def widen_thin_walls(
     if len(islands) == 0 or walls.shape[1] < 2:
         return walls, width
     area = shapely.area(islands)
-    l0 = shapely.length(walls[:, 0])
+    a1 = shapely.area(walls[:, 1])
+    # the second level covers at least its own area A_1 and R < A: A_1 < THIN_SECOND A is needed
+    cand = np.flatnonzero((a1 < THIN_SECOND * area) & ~shapely.is_empty(walls[:, 0]))
+    if len(cand) == 0:
+        return walls, width
+    first, second_level = walls[cand, 0], walls[cand, 1]
+    l0 = shapely.length(first)
     # how fast the rings shorten per mm of inset (2 pi per exterior of a round island)
-    k = (shapely.length(islands) - l0) / (w / 2.0)
+    k = (shapely.length(islands[cand]) - l0) / (w / 2.0)
     # beyond the outer wall's beads, and what the second level's beads and all inside cover
-    beyond = shapely.area(walls[:, 0]) - w / 2.0 * l0 + k * w * w / 8.0
-    parts = np.where(shapely.is_empty(walls[:, 1]), 0, shapely.get_num_geometries(walls[:, 1]))
-    second = (
-        shapely.area(walls[:, 1])
-        + w / 2.0 * shapely.length(walls[:, 1])
-        + parts * np.pi * w * w / 4.0
-    )
-    thin = (l0 > 0) & (beyond > 0) & (second < THIN_SECOND * beyond)
-    cand = np.flatnonzero(thin)
+    beyond = shapely.area(first) - w / 2.0 * l0 + k * w * w / 8.0
+    parts = np.where(shapely.is_empty(second_level), 0, shapely.get_num_geometries(second_level))
+    second = a1[cand] + w / 2.0 * shapely.length(second_level) + parts * np.pi * w * w / 4.0
+    thin = (beyond > 0) & (second < THIN_SECOND * beyond)
+    cand, l0, k = cand[thin], l0[thin], k[thin]
     if len(cand) == 0:
         return walls, width
     # W L(W/2) = A with L(c) = L_0 - k (c - w/2): a W^2 - b W + A = 0, a = k / 2,
     # b = L_0 + k w / 2; the root near A / L_0, in a form that holds at k = 0
-    a = k[cand] / 2.0
-    b = l0[cand] + a * w
+    a = k / 2.0
+    b = l0 + a * w
     root = np.sqrt(np.maximum(b * b - 4.0 * a * area[cand], 0.0))
     wide = 2.0 * area[cand] / (b + root)
     grow = (wide > w) & (wide <= THIN_MAX * w)

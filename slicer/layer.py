@@ -192,8 +192,9 @@ def layer_paths(
                 hatched_skin.append(len(runs))
             items.append((kind, len(runs)))
             runs.append((pts, ends, k))
-    joined = order.join_runs(runs, fill, 2.0 * w, w / 2.0)
-    widths = _capped_widths(joined, runs, hatched_skin, skin, w)
+    laid = np.zeros(len(runs))
+    joined = order.join_runs(runs, fill, 2.0 * w, w / 2.0, laid)
+    widths = _capped_widths(laid, runs, hatched_skin, skin, w)
     out: list[Path] = []
     for item in items:
         if isinstance(item, Path):
@@ -207,7 +208,7 @@ def layer_paths(
 
 
 def _capped_widths(
-    joined: list[list[np.ndarray]],
+    laid: np.ndarray,
     runs: list[tuple[np.ndarray, np.ndarray, int]],
     capped: list[int],
     regions: np.ndarray,
@@ -215,30 +216,23 @@ def _capped_widths(
 ) -> dict[int, float]:
     """Line width of the runs ``capped`` whose lines would lay more than their region holds.
 
-    ``joined`` the runs' joined paths (coords (k, 2) mm), ``runs`` their
-    ``(points, ends, island)``; ``regions`` (p,) the region each island's run
-    fills (the solid region, inside the infill domain, so already reaching
+    ``laid`` (len(runs),) the length of each run's joined paths, mm; ``runs``
+    their ``(points, ends, island)``; ``regions`` (p,) the region each island's
+    run fills (the solid region, inside the infill domain, so already reaching
     ``infill.overlap`` into the walls). A run whose lines, ``w`` mm wide, cover
     more than that area (chords and their joints in a region a few lines
     across: a thin tower's corners) gets the width that lays the region's area
     exactly; the others keep ``w`` (absent from the result).
     """
-    out: dict[int, float] = {}
-    capped = [r for r in capped if joined[r]]
     if not capped:
-        return out
+        return {}
     area = shapely.area(regions[[runs[r][2] for r in capped]])
-    paths = [c for r in capped for c in joined[r]]
-    pts = np.concatenate(paths)
-    step = np.linalg.norm(np.diff(pts, axis=0), axis=1)
-    # segments joining one path to the next are not laid
-    step[np.cumsum([len(c) for c in paths])[:-1] - 1] = 0.0
-    ends = np.cumsum([sum(len(c) for c in joined[r]) for r in capped])
-    length = np.diff(np.concatenate([[0.0], np.cumsum(step)])[ends - 1], prepend=0.0)
-    over = length * w > area
-    for r, a, ell in zip(np.asarray(capped)[over], area[over], length[over], strict=True):
-        out[int(r)] = float(a / ell)
-    return out
+    length = laid[capped]
+    over = (length * w > area) & (area > 0)  # False for NaN (no region)
+    return {
+        int(r): float(a / ell)
+        for r, a, ell in zip(np.asarray(capped)[over], area[over], length[over], strict=True)
+    }
 
 
 def _solid_small_regions(
