@@ -11,7 +11,7 @@ thicker than two lines (the second level would cover under a quarter of what
 the outer wall's beads leave: empty, or specks), two lines of width ``w`` would
 leave a strip unfilled between the two sides of the outer wall, which nothing
 else can fill. Its outer wall is then the level set ``c_0 = W / 2``, extruded
-``W`` wide, ``W`` the width whose beads lay the island's area (at most 1.5 w),
+``W`` wide, ``W`` the width whose beads lay the island's area (at most 1.375 w),
 so the two sides meet about the medial axis (as the variable-width walls of
 PrusaSlicer 2.5 and Cura 5 lay two wider lines there). Walls and domains are
 made per island by :mod:`slicer.islands`, once for an island that repeats.
