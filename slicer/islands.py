@@ -28,11 +28,12 @@ KEEP = 512
 KEEP_BYTES = 2_000_000
 # arcs of offset corners: segments per quarter circle
 _QUAD_SEGS = 6
-# thin islands up to this inscribed radius (in line widths) get one widened outer
-# wall instead of two lines with a gap between them (Arachne's 2-to-3-line step)
-THIN_WIDEN = 1.375
-# bisection steps for a thin island's inscribed radius (to w/32: 0.0125 mm at w = 0.4)
-_THIN_STEPS = 4
+# a thin island's second wall level would cover less than this fraction of what the
+# outer wall's beads leave uncovered (empty, or specks where the island is thickest)
+THIN_SECOND = 0.25
+# the widest outer wall of a thin island, in line widths: an island that needs wider
+# walls is left as it was (PrusaSlicer lays a third line there, Arachne's 2-to-3 step)
+THIN_MAX = 1.375
 
 # what one island yields: (outer wall width or NaN, infill domain, wall rings by level)
 Island = tuple[float, Any, list[Any]]
@@ -106,49 +107,67 @@ def _offsets(
     outer_width = np.full(len(islands), np.nan)  # NaN: the settings' line width
     if perimeters >= 2:
         walls, outer_width = widen_thin_walls(islands, walls, w)
-    fill = shapely.buffer(islands, -fill_distance, quad_segs=_QUAD_SEGS)
+    # a widened wall fills its island: specks of infill domain would lie on it
+    fill = np.full(len(islands), shapely.Polygon(), dtype=object)
+    rest = np.isnan(outer_width)
+    fill[rest] = shapely.buffer(islands[rest], -fill_distance, quad_segs=_QUAD_SEGS)
     return outer_width, fill, loops.wall_loops(walls, wall_order)
 
 
 def widen_thin_walls(
     islands: np.ndarray, walls: np.ndarray, w: float
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Widen the outer wall of thin islands so its two sides meet (see the module doc).
+    """Widen the outer wall of thin islands so it fills the island (see the module doc).
 
     ``islands`` (p,) Polygons; ``walls`` (p, P) the wall levels from
-    ``buffer(island, -c_k)`` with ``P >= 2``; ``w`` the line width, mm. An island
-    whose second wall is empty and whose maximum inscribed radius ``h`` lies in
-    ``(w, THIN_WIDEN w]`` gets the outer wall level ``buffer(island, -h / 2)``.
-    Returns the walls (a copy when changed) and the outer wall width per
-    island (p,) mm, NaN where it stays ``w``.
+    ``buffer(island, -c_k)`` with ``P >= 2``; ``w`` the line width, mm. The
+    rings of an island shorten by ``k`` mm per mm of inset (``2 pi`` for each
+    exterior of a round island, less for each hole), measured between the
+    outline and the outer level (length ``L_0``, area ``A_0``); an inset by ``r``
+    then takes ``L r - k r^2 / 2`` of area. An island is thin when the outer
+    wall's ``w``-wide beads leave some area uncovered (``R = A_0 - L_0 w / 2 +
+    k w^2 / 8 > 0``) and the second level's beads with all they enclose
+    (``A_1 + L_1 w / 2 + pi w^2 / 4`` per part, 0 when empty) would cover under
+    :data:`THIN_SECOND` of it (empty, or specks where the island is thickest).
+    Its outer wall is then the level ``c_0 = W / 2`` extruded ``W`` wide, ``W``
+    the width whose beads lay the island's area ``A``: ``W L(W/2) = A`` with
+    ``L(c) = L_0 - k (c - w/2)``, when ``w < W <= THIN_MAX w``; its other levels
+    are dropped. Returns the walls (a copy when changed) and the outer wall
+    width per island (p,) mm, NaN where it stays ``w``.
     """
     width = np.full(len(islands), np.nan)
     if len(islands) == 0 or walls.shape[1] < 2:
         return walls, width
-    # no second wall: h <= 1.5 w
-    cand = np.flatnonzero(shapely.is_empty(walls[:, 1]) & ~shapely.is_empty(walls[:, 0]))
+    area = shapely.area(islands)
+    a1 = shapely.area(walls[:, 1])
+    # the second level covers at least its own area A_1 and R < A: A_1 < THIN_SECOND A is needed
+    cand = np.flatnonzero((a1 < THIN_SECOND * area) & ~shapely.is_empty(walls[:, 0]))
     if len(cand) == 0:
         return walls, width
-    # the outer wall level is the island less w/2: h > w where it survives another w/2
-    first = walls[cand, 0]
-    keep = ~shapely.is_empty(shapely.buffer(first, -w / 2.0, quad_segs=_QUAD_SEGS))
-    cand, first = cand[keep], first[keep]
+    first, second_level = walls[cand, 0], walls[cand, 1]
+    l0 = shapely.length(first)
+    # how fast the rings shorten per mm of inset (2 pi per exterior of a round island)
+    k = (shapely.length(islands[cand]) - l0) / (w / 2.0)
+    # beyond the outer wall's beads, and what the second level's beads and all inside cover
+    beyond = shapely.area(first) - w / 2.0 * l0 + k * w * w / 8.0
+    parts = np.where(shapely.is_empty(second_level), 0, shapely.get_num_geometries(second_level))
+    second = a1[cand] + w / 2.0 * shapely.length(second_level) + parts * np.pi * w * w / 4.0
+    thin = (beyond > 0) & (second < THIN_SECOND * beyond)
+    cand, l0, k = cand[thin], l0[thin], k[thin]
     if len(cand) == 0:
         return walls, width
-    # h - w/2 in (w/2, w] by bisection on where the level's inward offset empties
-    lo = np.full(len(cand), w / 2.0)
-    hi = np.full(len(cand), w)
-    for _ in range(_THIN_STEPS):
-        mid = (lo + hi) / 2.0
-        empty = shapely.is_empty(shapely.buffer(first, -mid, quad_segs=_QUAD_SEGS))
-        hi = np.where(empty, mid, hi)
-        lo = np.where(empty, lo, mid)
-    h = w / 2.0 + (lo + hi) / 2.0
-    thin = h <= THIN_WIDEN * w
-    if not thin.any():
+    # W L(W/2) = A with L(c) = L_0 - k (c - w/2): a W^2 - b W + A = 0, a = k / 2,
+    # b = L_0 + k w / 2; the root near A / L_0, in a form that holds at k = 0
+    a = k / 2.0
+    b = l0 + a * w
+    root = np.sqrt(np.maximum(b * b - 4.0 * a * area[cand], 0.0))
+    wide = 2.0 * area[cand] / (b + root)
+    grow = (wide > w) & (wide <= THIN_MAX * w)
+    cand, wide = cand[grow], wide[grow]
+    if len(cand) == 0:
         return walls, width
-    cand, h = cand[thin], h[thin]
     walls = walls.copy()
-    walls[cand, 0] = shapely.buffer(islands[cand], -h / 2.0, quad_segs=_QUAD_SEGS)
-    width[cand] = h
+    walls[cand, 0] = shapely.buffer(islands[cand], -wide / 2.0, quad_segs=_QUAD_SEGS)
+    walls[cand, 1:] = shapely.Polygon()
+    width[cand] = wide
     return walls, width

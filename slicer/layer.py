@@ -7,13 +7,18 @@ outline *is* that level set, so each wall is the boundary of
 level sets of the selected field, clipped to the contracted domain ``w'``.
 
 Thin islands: where an island is nowhere thick enough for a second wall but
-thicker than two lines (maximum inscribed radius ``h`` with ``w < h <=
-THIN_WIDEN w``), two lines of width ``w`` would leave a strip of ``2h - 2w``
-unfilled between the two sides of the outer wall, which nothing else can fill.
-Its outer wall is then the level set ``c_0 = h / 2``, extruded ``h`` wide, so the
-two sides meet on the medial axis (as the variable-width walls of PrusaSlicer
-2.5 and Cura 5 lay two wider lines there). Walls and domains are made per island
-by :mod:`slicer.islands`, once for an island that repeats.
+thicker than two lines (the second level would cover under a quarter of what
+the outer wall's beads leave: empty, or specks), two lines of width ``w`` would
+leave a strip unfilled between the two sides of the outer wall, which nothing
+else can fill. Its outer wall is then the level set ``c_0 = W / 2``, extruded
+``W`` wide, ``W`` the width whose beads lay the island's area (at most 1.375 w),
+so the two sides meet about the medial axis (as the variable-width walls of
+PrusaSlicer 2.5 and Cura 5 lay two wider lines there). Walls and domains are
+made per island by :mod:`slicer.islands`, once for an island that repeats.
+
+Hatched solid fill lays no more than its region's area: in a region a few
+lines across (a thin tower's corners), chords and the joints between them
+would lay up to twice the area, so the run's width is cut to lay it exactly.
 """
 
 from __future__ import annotations
@@ -158,6 +163,7 @@ def layer_paths(
     # walls are final; infill runs are joined for all islands at once after the walk
     items: list[Path | tuple[str, int]] = []
     runs: list[tuple[np.ndarray, np.ndarray, int]] = []
+    hatched_skin: list[int] = []  # the runs of skin chords (capped by their region's area)
     box = shapely.bounds(islands)
     pos = _start_position(box)
     for k in _island_order(box, pos):
@@ -182,18 +188,51 @@ def layer_paths(
                 ends = np.cumsum([len(c) for c in ordered])
             else:
                 continue
+            if stacks is skin_stacks:
+                hatched_skin.append(len(runs))
             items.append((kind, len(runs)))
             runs.append((pts, ends, k))
-    joined = order.join_runs(runs, fill, 2.0 * w, w / 2.0)
+    laid = np.zeros(len(runs))
+    joined = order.join_runs(runs, fill, 2.0 * w, w / 2.0, laid)
+    widths = _capped_widths(laid, runs, hatched_skin, skin, w)
     out: list[Path] = []
     for item in items:
         if isinstance(item, Path):
             out.append(item)
         else:
-            out.extend(Path(item[0], coords) for coords in joined[item[1]])
+            width = widths.get(item[1])
+            out.extend(Path(item[0], coords, width) for coords in joined[item[1]])
     if support_paths is not None and has_support:
         out.extend(_support(regions, ctx, support_paths, pos))
     return out
+
+
+def _capped_widths(
+    laid: np.ndarray,
+    runs: list[tuple[np.ndarray, np.ndarray, int]],
+    capped: list[int],
+    regions: np.ndarray,
+    w: float,
+) -> dict[int, float]:
+    """Line width of the runs ``capped`` whose lines would lay more than their region holds.
+
+    ``laid`` (len(runs),) the length of each run's joined paths, mm; ``runs``
+    their ``(points, ends, island)``; ``regions`` (p,) the region each island's
+    run fills (the solid region, inside the infill domain, so already reaching
+    ``infill.overlap`` into the walls). A run whose lines, ``w`` mm wide, cover
+    more than that area (chords and their joints in a region a few lines
+    across: a thin tower's corners) gets the width that lays the region's area
+    exactly; the others keep ``w`` (absent from the result).
+    """
+    if not capped:
+        return {}
+    area = shapely.area(regions[[runs[r][2] for r in capped]])
+    length = laid[capped]
+    over = (length * w > area) & (area > 0)  # False for NaN (no region)
+    return {
+        int(r): float(a / ell)
+        for r, a, ell in zip(np.asarray(capped)[over], area[over], length[over], strict=True)
+    }
 
 
 def _solid_small_regions(

@@ -127,6 +127,7 @@ def join_runs(
     regions: np.ndarray,
     max_gap: float,
     slack: float = 0.0,
+    laid: np.ndarray | None = None,
 ) -> list[list[np.ndarray]]:
     """:func:`join_paths` of many runs of ordered paths at once (one vectorised check).
 
@@ -134,7 +135,9 @@ def join_runs(
     (m, 2) mm, where each path ends in them (cumulative sizes, (q,) int) and
     the index into ``regions`` (r,) of the region its joints must stay near.
     Paths are joined only within a run. Returns each run's joined paths.
-    ``regions`` are prepared in place: they must be the caller's own.
+    ``regions`` are prepared in place: they must be the caller's own. With
+    ``laid`` (len(runs),) float64, each run's joined paths' length (mm) is
+    written into it.
     """
     if not runs:
         return []
@@ -155,6 +158,12 @@ def join_runs(
         shapely.prepare(regions[sorted_unique(region_of)])
         middle = shapely.points((a[cand] + b[cand]) / 2.0)
         ok[cand] = shapely.dwithin(regions[region_of], middle, slack)
+    if laid is not None:
+        # every step from a point to the next, less the gaps left unjoined
+        step = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        owner = np.repeat(np.arange(len(runs)), [len(r[0]) for r in runs])[:-1]
+        laid[:] = np.bincount(owner, step, minlength=len(runs))
+        laid -= np.bincount(which[~ok], gap[~ok], minlength=len(runs))
     pieces = split_rows(pts, ends[:-1][~ok[:-1]])
     per_run = np.bincount(which[~ok], minlength=len(runs))
     bounds = np.cumsum(per_run)

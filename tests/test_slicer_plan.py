@@ -98,7 +98,7 @@ def test_thin_wall_extrudes_for_its_width() -> None:
     assert code.filament_mm == pytest.approx(expected, rel=3e-3)
 
 
-@pytest.mark.parametrize("thickness", [0.7, 1.15, 1.3, 1.6, 3.0])
+@pytest.mark.parametrize("thickness", [0.7, 1.15, 1.2, 1.3, 1.6, 3.0])
 def test_walls_keep_the_line_width_outside_the_thin_range(thickness: float) -> None:
     plan = _tube_plan(thickness)
     outer = [p for p in plan.layer_toolpaths(5) if p.kind == WALL_OUTER]
