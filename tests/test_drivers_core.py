@@ -11,6 +11,7 @@ import re
 import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from linkcores import connected_core
 
 from drivers.linkconfig import StreamerConfig
 from drivers.linkcore import LinkCore
@@ -41,17 +42,6 @@ def wire(**kw) -> SimulatorConfig:
 
 # -- the transcript's situation, line by line -----------------------------------------------
 
-def _connected_core() -> LinkCore:
-    core = LinkCore(LINK)
-    core.begin_connect(0.0)
-    core.feed("start", 0.0)
-    core.begin_handshake(0, keep_history=False, token=1)
-    assert core.next_bytes(0.0) == frame(1, "M110 N0")
-    core.feed("ok", 0.001)
-    core.connected(0.001)
-    return core
-
-
 def _write_all(core: LinkCore, now: float) -> list[int]:
     numbers = []
     while (data := core.next_bytes(now)) is not None:
@@ -62,7 +52,7 @@ def _write_all(core: LinkCore, now: float) -> list[int]:
 def test_a_refusal_of_a_line_the_printer_took_is_answered_once_and_never_feeds_itself():
     # the transcript: the firmware took 346, then answers "checksum mismatch, Last Line:
     # 346 / Resend: 347 / ok" while 347 and 348 are on the wire and will be taken too
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(350):
         core.queue_job(f"G1 X{i}", 10 + i)
     t, taken = 0.01, 0
@@ -108,7 +98,7 @@ def test_the_ok_of_a_line_taken_after_a_spurious_refusal_is_its_own_not_a_copys(
     # that spuriously too, and only then sends 4's ok: that ok is line 4's, although 4 was
     # dropped from the window and its copy taken for the refused one. Counted for the copy
     # of 5 before the printer ran 5, a board reset then would renumber past 5 and skip it
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(20):
         core.queue_job(f"G1 X{i}", 10 + i)
     assert _write_all(core, 0.01) == [1, 2, 3, 4]
@@ -144,7 +134,7 @@ def test_a_probe_acknowledged_with_the_one_before_it_still_owes_its_answer():
     # answer acknowledges 6 too, job lines 7-10 follow and a probe 11 after silence. 6's
     # own answer then comes: counted for the first probe from the count on (11), it took
     # 7-10 as done before the printer ran them, and a board reset renumbered past them
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(10):
         core.queue_job(f"G1 X{i}", 10 + i)
     assert _write_all(core, 0.01) == [1, 2, 3, 4]
@@ -175,7 +165,7 @@ def test_a_probe_acknowledged_ahead_of_its_answer_then_refused_is_replayed():
     # as done too (its answer owed), but 18 was refused. 18 was no line a request could
     # name, so its Resend was read as a garbled request for 19, and the printer refused
     # 19 by number in a loop until a reset renumbered a line behind and lines ran twice
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(30):
         core.queue_job(f"G1 X{i}", 10 + i)
     while core.last_acked_number < 12:
@@ -203,7 +193,7 @@ def test_a_boot_fragment_run_as_an_unknown_command_while_renumbering_answers_not
     # lost its first bytes (its N, or "N3 G1 ") and its rest ran as an unknown command
     # while the M110 was out. Its ok was taken for the M110's, the M110's for line 2,
     # and a second reset before 2 ran lost it
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(10):
         core.queue_job(f"G1 X{i} Y1", 10 + i)
     assert _write_all(core, 0.01) == [1, 2, 3, 4]
@@ -228,7 +218,7 @@ def test_an_m110_refused_with_its_resend_lost_still_counts_as_answered(between):
     # The second write may keep the printer busy before its ok (seed 1447 of the seeded
     # loop): the first readable line after the Error is then a busy echo, and the refusal
     # still counts (counted for nothing, the first line's ok was taken for a late M110's)
-    core = _connected_core()
+    core = connected_core(LINK)
     core.config = NO_OK_LINK
     for i in range(10):
         core.queue_job(f"G1 X{i}", 10 + i)
@@ -252,7 +242,7 @@ def test_an_m110_refused_with_its_resend_lost_still_counts_as_answered(between):
 def test_a_line_110_run_as_an_unknown_command_is_not_taken_for_an_m110():
     # seed 1793 of the seeded loop: "^110 G1 ..." is line 110 with its N garbled, whose
     # first word is one character from "M110"; its ok is nobody's, not an M110's
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(130):
         core.queue_job(f"G1 X{i}", 10 + i)
     while core.last_acked_number < 109:
@@ -268,7 +258,7 @@ def test_an_error_whose_last_line_noise_changed_takes_back_no_acknowledgement():
     # seed 4524 of the seeded loop: "Error:checksum mismatch, Last Line: 3?" (35 garbled),
     # its Resend unreadable, then the ok after it: the request it implied (4) took back
     # 30 acknowledgements and lines 4-31 ran twice. Only a readable Resend may do that
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(10):
         core.queue_job(f"G1 X{i}", 10 + i)
     assert _write_all(core, 0.01) == [1, 2, 3, 4]
@@ -288,7 +278,7 @@ def test_an_unknown_command_echo_garbled_still_marks_its_ok_as_nobodys():
     # line 118, "O>4 G1 ..." for line 64)
     for echo in ('echo:Tnknown command: "F2 G1 X1"', 'ecxo:Unknown command: "F2 G1 X1"',
                  'echo:Unknown command: "F7 G1 X1"', 'echo:Unknown command: "F> G1 X1"'):
-        core = _connected_core()
+        core = connected_core(LINK)
         for i in range(10):
             core.queue_job(f"G1 X{i}", 10 + i)
         assert _write_all(core, 0.01) == [1, 2, 3, 4]
@@ -306,7 +296,7 @@ def test_an_m110_run_as_an_unknown_command_answers_its_write_once(echo):
     # M110's write: taken for nobody's as well, the renumbering went on waiting for it as
     # a late ok, swallowed the first line's ok, stayed a line behind and, at the next
     # reset, replayed a line the printer had run
-    core = _connected_core()
+    core = connected_core(LINK)
     core.config = NO_OK_LINK
     for i in range(20):
         core.queue_job(f"G1 X{i}", 10 + i)
@@ -491,7 +481,7 @@ def _once_but_boot_fragments(executed: list[str], unnumbered: list[str],
 # -- the core as a state machine ------------------------------------------------------------
 
 def test_the_state_is_an_explicit_enum_and_halts_on_kill():
-    core = _connected_core()
+    core = connected_core(LINK)
     assert core.state is LinkState.READY
     assert core.state == "ready"
     core.queue_job("G1 X1", 5)
@@ -511,7 +501,7 @@ def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
     # probe itself would. It used to let all of it pass at once: the probes of the
     # silence, hundreds of lines under load, into a 128-byte receive buffer, whose
     # overflow was refused and replayed the same way again
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(4):
         core.queue_job(f"G1 X{i} Y{i}", 10 + i)
     t = 0.01
@@ -545,7 +535,7 @@ def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
 
 
 def test_the_window_shrinks_on_refusals_and_grows_back_on_clean_oks():
-    core = _connected_core()
+    core = connected_core(LINK)
     for i in range(40):
         core.queue_job(f"G1 X{i}", 10 + i)
     first = _write_all(core, 0.01)

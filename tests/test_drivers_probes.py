@@ -5,10 +5,11 @@ from __future__ import annotations
 
 import math
 
+from linkcores import connected_core
+
 from drivers.linkconfig import StreamerConfig
 from drivers.linkcore import LinkCore
 from drivers.linkevents import Failed, LinkState, Report
-from drivers.protocol import frame
 from drivers.simconfig import SimulatorConfig
 from drivers.simlinkrun import run_core
 from drivers.simvirtual import VirtualPrinter
@@ -90,17 +91,6 @@ def test_lost_oks_with_a_full_window_on_a_slow_printer_still_finish_exactly_once
     assert run.acked == lines
 
 
-def _connected(config: StreamerConfig) -> LinkCore:
-    core = LinkCore(config)
-    core.begin_connect(0.0)
-    core.feed("start", 0.0)
-    core.begin_handshake(0, keep_history=False, token=1)
-    assert core.next_bytes(0.0) == frame(1, "M110 N0")
-    core.feed("ok", 0.001)
-    core.connected(0.001)
-    return core
-
-
 def _written(core: LinkCore, now: float) -> list[str]:
     out = []
     while (data := core.next_bytes(now)) is not None:
@@ -112,7 +102,7 @@ def test_a_printer_that_only_auto_reports_is_declared_dead_within_the_probes_all
     # M155 reports every 10 ms keep coming, nothing else: the board is powered but runs
     # nothing it is sent. Every report used to reset the unanswered probes: probed for ever
     config = StreamerConfig(temperature_interval_s=0, probe_after_s=0.05, probe_retries=3)
-    core = _connected(config)
+    core = connected_core(config)
     for i in range(10):
         core.queue_job(f"G1 X{i}", 10 + i)
     written = _written(core, 0.01)
@@ -141,7 +131,7 @@ def test_a_long_heating_wait_with_temperature_lines_is_not_declared_dead():
     config = StreamerConfig(temperature_interval_s=0, probe_after_s=0.05, probe_retries=2,
                             long_command_timeout_s=3.0)
     for wait in (" W:?", ""):
-        core = _connected(config)
+        core = connected_core(config)
         core.queue_job("M109 S210", 10)
         core.queue_job("G1 X1", 11)
         events = []
