@@ -121,18 +121,18 @@ class Watching(CoreFields):
         Only when it fits the printer's receive buffer as modelled (every byte written and
         not acknowledged is in it), or, for a buffer the model says full, once the silence
         is long (a probe interval, and ``busy_silence_s``: two of Marlin's 2 s keep-alive
-        intervals) and
-        then as it doubles: a second line past the model after twice that silence, a third
-        after four times... Lost oks leave the model full while the printer holds nothing:
-        a probe must go, and its answer sets the count right; a printer holding half a line
-        (its end lost) needs bytes to answer at all. But Marlin reads its receive buffer
-        only from its main loop, which does not run while a command blocks (a move waiting
-        for room in a full planner): there, one line per interval fills the 128 bytes in a
-        dozen intervals and overruns them (bytes lost, a probe merged with the next line,
-        its checksum matching by chance: a line not run as written). A blocked Marlin with
-        ``HOST_KEEPALIVE_FEATURE`` (on by default) says ``busy:`` every 2 s, so a longer
-        silence means a printer that is not blocked, or a build without it, which then
-        gets a few lines past the model in any silence, not one per interval.
+        intervals) and then as it doubles: a second line past the model after twice that
+        silence, a third after four times... Lost oks leave the model full while the printer
+        holds nothing: a probe must go, and its answer sets the count right; a printer
+        holding half a line (its end lost) needs bytes to answer at all. But Marlin reads
+        its receive buffer only from its main loop, which does not run while a command
+        blocks (a move waiting for room in a full planner): there, one line per interval
+        fills the 128 bytes in a dozen intervals and overruns them (bytes lost, a probe
+        merged with the next line, its checksum matching by chance: a line not run as
+        written). A blocked Marlin with ``HOST_KEEPALIVE_FEATURE`` (on by default) says
+        ``busy:`` every 2 s, so a longer silence means a printer that is not blocked, or a
+        build without it, which then gets a few lines past the model in any silence, not one
+        per interval.
         """
         if self.window.bytes_in_flight + nbytes <= self.window.max_bytes:
             return True

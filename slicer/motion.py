@@ -93,15 +93,15 @@ def run_time(points: np.ndarray, speed: float, accel: float) -> float:
 def rest_time(length: float, speed: float, accel: float) -> float:
     """Seconds of one move of ``length`` mm from rest to rest at ``speed`` mm/s, ``accel``
     mm/s^2: :func:`segment_times` of that move with zero entry and exit speeds, the same
-    float to the bit (the same operations in the same order, on plain floats, without
-    numpy's cost per call on one element)."""
+    float to the bit (its operations in its order, less the exact ones on zero speeds, on
+    plain floats, without numpy's cost per call on one element)."""
     v = float(speed)
-    d_acc = max(v * v - 0.0, 0.0) / (2.0 * accel)
+    d_acc = v * v / (2.0 * accel)
     cruise = length - d_acc - d_acc
     if cruise >= 0:
-        return v / accel + v / accel + max(cruise, 0.0) / v
+        return v / accel + v / accel + cruise / v
     # a triangle (segment_times' "mean" case needs a peak below a zero entry speed: never)
-    peak = math.sqrt(max((2.0 * accel * length + 0.0 + 0.0) / 2.0, 0.0))
+    peak = math.sqrt(max(2.0 * accel * length / 2.0, 0.0))
     return peak / accel + peak / accel
 
 

@@ -41,13 +41,8 @@ class Canvas:
         """:meth:`polygons` for each group of rings in turn (``fills[k]``, ``edges[k]`` for
         ``groups[k]``), the rows crossed by all of them found in one pass."""
         rings = [ring for group in groups for ring in group]
-        rows, lo, hi, owner = self._runs(rings)
         group_of = np.repeat(np.arange(len(groups)), [len(group) for group in groups])
-        # runs come sorted by ring, so each group's runs are one slice
-        cuts = np.searchsorted(group_of[owner], np.arange(len(groups) + 1)).tolist()
-        for k in range(len(groups)):
-            a, b = cuts[k], cuts[k + 1]
-            self.paint(rows[a:b], lo[a:b], hi[a:b], fills[k], edges[k])
+        self._paint_groups(*self._runs(rings), group_of, fills, edges)
 
     def packed_layers(
         self, points: NDArray[np.float64], ring_of: NDArray[np.int64],
@@ -57,7 +52,15 @@ class Canvas:
         ``ring_of`` (m,) each point's ring (ascending, rings numbered from 0), and
         ``group_of_ring`` (r,) each ring's group (ascending): the same pixels, without a
         Python step per ring."""
-        rows, lo, hi, owner = self._packed_runs(points, ring_of)
+        self._paint_groups(*self._packed_runs(points, ring_of), group_of_ring, fills, edges)
+
+    def _paint_groups(
+        self, rows: NDArray[np.int64], lo: NDArray[np.int64], hi: NDArray[np.int64],
+        owner: NDArray[np.int64], group_of_ring: NDArray[np.int64],
+        fills: list[Colour], edges: list[Colour],
+    ) -> None:
+        """Paint runs (sorted by ring; ``owner`` each run's ring) group by group, in turn."""
+        # runs come sorted by ring and rings by group, so each group's runs are one slice
         cuts = np.searchsorted(group_of_ring[owner], np.arange(len(fills) + 1)).tolist()
         for k in range(len(fills)):
             a, b = cuts[k], cuts[k + 1]
