@@ -1,17 +1,21 @@
 """The corpus table of the peer comparison: one row per model, each target checked, the worst ratio.
 
-Targets (design.md): time at most the faster peer's where that peer needs 0.3 s or
-more, else within 0.3 s of it; filament within 10 % of PrusaSlicer's, or between
-the two peers' where they differ by more; the outer wall at least as close to
-PrusaSlicer's (mean per-layer IoU) as CuraEngine's is.
+Targets (design.md, "Targets the benchmarks must show"): time at most the faster
+peer's where that peer needs 0.3 s or more, else a cold `hostd slice` finishing
+within 0.3 s; filament within 10 % of PrusaSlicer's, or between the two peers'
+where they differ by more; the outer wall's mean per-layer IoU with PrusaSlicer's
+at least min(0.97, CuraEngine's own).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
 
-# below this (s) the faster peer's time is dominated by start-up: allow this much slack
+# below this (s) the faster peer's time is dominated by start-up: a cold slice that
+# finishes within it is in target
 SHORT_S = 0.3
+# an outer wall this close to PrusaSlicer's is in target whatever CuraEngine's is
+IOU_ENOUGH = 0.97
 FILAMENT_TOLERANCE = 0.10
 
 
@@ -45,7 +49,7 @@ def verdict(row) -> Verdict:
     ratio = time_ok = None
     if ours is not None and faster:
         ratio = ours / faster
-        time_ok = ours <= faster if faster >= SHORT_S else ours <= faster + SHORT_S
+        time_ok = ours <= faster if faster >= SHORT_S else ours <= SHORT_S
     f_ours, f_prusa, f_cura = (_filament(row, n) for n in ("hostd", "prusaslicer", "curaengine"))
     f_ratio = f_ok = None
     if f_ours and f_prusa:
@@ -55,7 +59,7 @@ def verdict(row) -> Verdict:
             f_ok = min(f_prusa, f_cura) <= f_ours <= max(f_prusa, f_cura)
     iou_ok = None
     if row.iou_vs_prusa is not None and row.iou_cura_vs_prusa is not None:
-        iou_ok = round(row.iou_vs_prusa, 3) >= round(row.iou_cura_vs_prusa, 3)
+        iou_ok = round(row.iou_vs_prusa, 3) >= min(IOU_ENOUGH, round(row.iou_cura_vs_prusa, 3))
     return Verdict(faster, ratio, time_ok, f_ratio, f_ok, iou_ok)
 
 
