@@ -34,6 +34,10 @@ THIN_SECOND = 0.25
 # the widest outer wall of a thin island, in line widths: an island that needs wider
 # walls is left as it was (PrusaSlicer lays a third line there, Arachne's 2-to-3 step)
 THIN_MAX = 1.375
+# the narrowest outer wall of an island thinner than two lines, in line widths: the two
+# sides of its w-wide ring would overlap (a band 0.5 mm across got 0.8 mm of beads);
+# a narrower island keeps its w-wide ring
+THIN_MIN = 0.5
 
 # what one island yields: (outer wall width or NaN, infill domain, wall rings by level)
 Island = tuple[float, Any, list[Any]]
@@ -132,7 +136,10 @@ def widen_thin_walls(
     Its outer wall is then the level ``c_0 = W / 2`` extruded ``W`` wide, ``W``
     the width whose beads lay the island's area ``A``: ``W L(W/2) = A`` with
     ``L(c) = L_0 - k (c - w/2)``, when ``w < W <= THIN_MAX w``; its other levels
-    are dropped. Returns the walls (a copy when changed) and the outer wall
+    are dropped. An island thinner than two lines, whose outer beads overlap
+    (``R < 0``) and which has no second level, gets the same narrowed to
+    ``THIN_MIN w <= W < w``, so the two sides of its ring lay its area instead
+    of up to twice it. Returns the walls (a copy when changed) and the outer wall
     width per island (p,) mm, NaN where it stays ``w``.
     """
     width = np.full(len(islands), np.nan)
@@ -153,7 +160,10 @@ def widen_thin_walls(
     parts = np.where(shapely.is_empty(second_level), 0, shapely.get_num_geometries(second_level))
     second = a1[cand] + w / 2.0 * shapely.length(second_level) + parts * np.pi * w * w / 4.0
     thin = (beyond > 0) & (second < THIN_SECOND * beyond)
-    cand, l0, k = cand[thin], l0[thin], k[thin]
+    # thinner than two lines: the outer beads overlap (R < 0) and there is no second level
+    overlap = (beyond < 0) & (second == 0)
+    pick = thin | overlap
+    cand, l0, k, overlap = cand[pick], l0[pick], k[pick], overlap[pick]
     if len(cand) == 0:
         return walls, width
     # W L(W/2) = A with L(c) = L_0 - k (c - w/2): a W^2 - b W + A = 0, a = k / 2,
@@ -162,7 +172,8 @@ def widen_thin_walls(
     b = l0 + a * w
     root = np.sqrt(np.maximum(b * b - 4.0 * a * area[cand], 0.0))
     wide = 2.0 * area[cand] / (b + root)
-    grow = (wide > w) & (wide <= THIN_MAX * w)
+    grow = np.where(overlap, (wide >= THIN_MIN * w) & (wide < w),
+                    (wide > w) & (wide <= THIN_MAX * w))
     cand, wide = cand[grow], wide[grow]
     if len(cand) == 0:
         return walls, width

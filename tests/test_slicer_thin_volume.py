@@ -94,3 +94,21 @@ def test_thin_pin_wall_reaches_its_centre() -> None:
     inscribed = 0.5 * np.cos(np.pi / 32)
     assert paths[0].width == pytest.approx(inscribed, abs=0.01)
     assert _laid(paths) == pytest.approx(plan.outline(LAYER).area, rel=0.02)
+
+
+@pytest.mark.parametrize("thickness", [0.6, 0.5])
+def test_wall_thinner_than_two_lines_lays_its_area_not_twice_it(thickness: float) -> None:
+    # a tube 0.5-0.6 mm thick: the outer ring's two w-wide sides overlapped and laid
+    # 0.8 mm of beads across it (1.3-1.6 times its area: a gyroid sheet's filament was
+    # 1.24 times PrusaSlicer's); narrowed, the ring lays the tube's area
+    a = np.linspace(0, 2 * np.pi, 180, endpoint=False)
+    unit = np.c_[np.cos(a), np.sin(a)]
+    plan = _ring_prism(15.0 * unit, (15.0 - thickness) * unit, height=4.0)
+    paths = plan.layer_toolpaths(LAYER)
+    area = plan.outline(LAYER).area
+    assert {p.kind for p in paths} == {WALL_OUTER}
+    assert all(p.width is not None and p.width < SETTINGS.line_width for p in paths)
+    assert _laid(paths) == pytest.approx(area, rel=0.02)
+    for p in paths:
+        off = shapely.distance(shapely.points(p.coords), plan.outline(LAYER).boundary)
+        assert np.abs(off - p.width / 2).max() < 0.03
