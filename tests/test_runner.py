@@ -12,6 +12,7 @@ from pathlib import Path
 
 from conftest import DATA
 from stores import RecordingStore
+from waiting import wait_until
 
 from drivers.protocol import strip_comment
 from drivers.simconfig import SimulatorConfig
@@ -34,16 +35,6 @@ FIELD_FILE = "analysis-being-computed.npz"  # a field file a layer waits for (ne
 WAITING_LAYER = 2
 
 
-def wait_until(condition, timeout: float) -> bool:
-    """Poll ``condition`` until true (True) or ``timeout`` s pass (False)."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
-
-
 class CountingSchedule(LayerSchedule):
     """A schedule that counts the layers sliced so far (from the worker threads)."""
 
@@ -61,7 +52,8 @@ class CountingSchedule(LayerSchedule):
             with waiting(FIELD_FILE):
                 self.shown_waiting = wait_until(
                     lambda: self.hub.current.job is not None
-                    and self.hub.current.job.waiting_for == "analysis", 30.0)
+                    and self.hub.current.job.waiting_for == "analysis", 30.0,
+                    "the status to say the layer waits for the analysis")
         lines = super().layer_gcode(layer)
         with self._count_lock:
             self.sliced.append(layer)
@@ -135,7 +127,6 @@ async def print_job(
     seen["output_error"] = runner.output_error
     store.close()
     return seen
-
 
 
 HOUSEKEEPING = ("M110", "M115", "M503", "M155", "M105")
