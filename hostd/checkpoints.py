@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import collections
 import concurrent.futures
 import logging
 import os
@@ -11,7 +12,7 @@ from collections.abc import Callable
 from dataclasses import dataclass
 from typing import IO
 
-from hostd.jobstore import JobStore
+from hostd.jobstore import JobStore, JobStoreError
 
 log = logging.getLogger("hostd.checkpoints")
 
@@ -43,6 +44,12 @@ class CheckpointWriter:
     the serial reader that acknowledges the lines. The writer's commits survive
     the daemon being killed; a power cut may undo the last ones, so that a resume
     starts a little earlier, never later than the printer got.
+
+    A state change found by the acknowledgement follower (the job printing once
+    its start block is acknowledged) is recorded here too (:meth:`submit_state`),
+    before the checkpoints that follow it, on a second connection that commits
+    durably: a power cut never undoes it (a job it undid would be taken for one
+    that printed nothing and started again over its first layer).
     """
 
     def __init__(
@@ -65,6 +72,12 @@ class CheckpointWriter:
         self._synced_bytes = -1
         self._thread = concurrent.futures.ThreadPoolExecutor(1, "hostd-checkpoint")
         self._connection: JobStore | None = None
+        self._durable: JobStore | None = None  # for state changes
+        self._states: collections.deque[
+            tuple[Callable[[JobStore], object], Callable[[], None]]
+        ] = collections.deque()
+        self._states_written = asyncio.Event()
+        self._states_written.set()
         self._file_ok = output is not None
         self._task = asyncio.get_running_loop().create_task(self._run(), name="checkpoints")
 
@@ -72,6 +85,17 @@ class CheckpointWriter:
         """Hand a checkpoint over (from the reader's callbacks); returns at once."""
         self._pending = checkpoint
         self._ready.set()
+
+    def submit_state(self, record: Callable[[JobStore], object], then: Callable[[], None]) -> None:
+        """Have ``record(store)`` (a state change) run in the writer's thread on a durable
+        connection, then ``then()`` in the event loop; returns at once."""
+        self._states.append((record, then))
+        self._states_written.clear()
+        self._ready.set()
+
+    async def states_written(self) -> None:
+        """Wait until every state change handed over is recorded (or failed)."""
+        await self._states_written.wait()
 
     def file_failed(self) -> None:
         """The G-code file failed: checkpoints are no longer recorded (it cannot resume)."""
@@ -91,11 +115,20 @@ class CheckpointWriter:
     async def _run(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
-            if self._pending is None:
+            if self._pending is None and not self._states:
                 if self._closing:
                     return
                 await self._ready.wait()
             self._ready.clear()
+            while self._states:
+                record, then = self._states.popleft()
+                try:
+                    await loop.run_in_executor(self._thread, self._record_state, record)
+                except (sqlite3.Error, JobStoreError) as exc:
+                    self.on_error("store", f"state change not recorded: {exc}")
+                else:
+                    then()
+            self._states_written.set()
             checkpoint, self._pending = self._pending, None
             if checkpoint is None:
                 continue
@@ -130,7 +163,14 @@ class CheckpointWriter:
         self._connection.checkpoint(self.job_id, checkpoint.layer, checkpoint.lines_acked,
                                     checkpoint.gcode_bytes, checkpoint.layer_lines)
 
+    def _record_state(self, record: Callable[[JobStore], object]) -> None:
+        """(Writer thread) a state change, on the durable connection."""
+        if self._durable is None:
+            self._durable = self.store.reopen()
+        record(self._durable)
+
     def _close_connection(self) -> None:
-        if self._connection is not None:
-            self._connection.close()
-            self._connection = None
+        for connection in (self._connection, self._durable):
+            if connection is not None:
+                connection.close()
+        self._connection = self._durable = None

@@ -26,7 +26,9 @@ class JobLife:
 
     Every change of a job's recorded state goes through :meth:`enter`, which
     writes the job store first and then, for the job printing, the snapshot's
-    state, so that the two never disagree. The snapshot's state without a job
+    state, so that the two never disagree (or through its halves :meth:`record`
+    and :meth:`show`, when the store is written in another thread: the
+    checkpoint writer's). The snapshot's state without a job
     (offline, idle) is written by :meth:`printer_offline` and :meth:`idle`.
     """
 
@@ -47,7 +49,21 @@ class JobLife:
         ``status`` replaces the snapshot's job part. Raises ``TransitionError``
         when the state machine forbids the move.
         """
-        job = self.store.transition(job_id, state, note=note, **fields)
+        job = self.record(job_id, state, note, **fields)
+        self.show(state, status)
+        return job
+
+    def record(
+        self, job_id: str, state: JobState, note: str = "", store: JobStore | None = None,
+        **fields: Any,
+    ) -> Job:
+        """The store half of :meth:`enter`: the move recorded, on ``store`` when given
+        (another connection to the same database, for a thread of its own)."""
+        return (store or self.store).transition(job_id, state, note=note, **fields)
+
+    def show(self, state: JobState, status: JobStatus | None = None) -> None:
+        """The snapshot half of :meth:`enter`, once the move is recorded: the state of
+        an active job, and ``status`` as its job part."""
         if state in ACTIVE_STATES:
             changes: dict[str, Any] = {"state": HUB_STATE_OF[state].value}
             if state == JobState.SLICING:
@@ -55,7 +71,6 @@ class JobLife:
             if status is not None:
                 changes["job"] = status
             self.hub.update(**changes)
-        return job
 
     def interrupt(self, job_id: str, note: str) -> Job | None:
         """Leave an active job interrupted at its checkpoint, or queued if it printed nothing.

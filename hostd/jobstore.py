@@ -383,16 +383,6 @@ class JobStore:
                 db.execute("UPDATE jobs SET position = ? WHERE seq = ?", (position, seq))
         return self.queued()
 
-    def recover(self) -> list[Job]:
-        """At start: every job left slicing, heating, printing or paused becomes interrupted.
-
-        Returns those jobs as they were found (their state before the change).
-        """
-        stale = self.jobs(*ACTIVE_STATES)
-        for job in stale:
-            self.transition(job.id, "interrupted", note=f"found {job.state} at start")
-        return stale
-
 
 def _job(row: sqlite3.Row) -> Job:
     return Job(

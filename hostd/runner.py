@@ -175,6 +175,7 @@ class JobRunner:
         async with self._commands:
             if self.state == JobState.PAUSED or self._cancelled:
                 return
+            await self._states_written()
             self._parked = self._print_started is not None and bool(self.park.park)
             await self.link.pause(self.park.park if self._parked else (), settle=False)
             self.eta.pause(time.monotonic())
@@ -188,6 +189,7 @@ class JobRunner:
         async with self._commands:
             if self.state != JobState.PAUSED or self._cancelled:
                 return
+            await self._states_written()
             await self.link.resume(self.park.unpark if self._parked else ())
             self._parked = False
             self.eta.resume(time.monotonic())
@@ -345,7 +347,7 @@ class JobRunner:
                 if mark.offset > 0:
                     self._offset = mark.offset  # a resume in layer 0 keeps the start block
                 if self.state == JobState.HEATING:
-                    self._set_state(JobState.PRINTING)
+                    self._set_state_off_loop(JobState.PRINTING)
             elif mark.layer >= 0:
                 self._layer_complete(mark)
 
@@ -421,6 +423,26 @@ class JobRunner:
         status = self.status()
         self.hub.update(job=status)
         return status
+
+    def _set_state_off_loop(self, state: JobState) -> None:
+        """:meth:`_set_state` for the acknowledgement follower: the store is written in
+        the checkpoint writer's thread (nothing in the loop that reads the printer waits
+        for SQLite), the snapshot once it is recorded."""
+        if self.writer is None:
+            self._set_state(state)
+            return
+        self.state = state
+        job_id, layers = self.job.id, self.layers
+        self.writer.submit_state(
+            lambda store: self.life.record(job_id, state, store=store, layers=layers),
+            lambda: self.life.show(state, self.status()),
+        )
+
+    async def _states_written(self) -> None:
+        """Wait until the state changes handed to the checkpoint writer are recorded
+        (a pause or resume then follows them, in the store as in the snapshot)."""
+        if self.writer is not None:
+            await self.writer.states_written()
 
     def _set_state(self, state: JobState) -> None:
         if state != self.state or self.store.get(self.job.id).state != state:

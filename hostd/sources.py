@@ -80,9 +80,11 @@ class LayerSource(Protocol):
 class SlicedSource:
     """Layers sliced in a thread pool, at most ``depth`` ahead of the one streaming.
 
-    The window is :class:`slicer.pipeline.LayerWindow`, the one `hostd print` and
-    `hostd slice` use too: a layer is submitted only when one is taken, so memory
-    holds at most ``depth`` layers however many the model has. Until a layer with
+    The window is :class:`slicer.pipeline.LayerWindow`, the one bounded-lookahead
+    iterator `hostd print FILE.stl` (also on a thread pool) and `hostd slice` (on
+    forked workers, :class:`slicer.forkslice.ForkedLayers`) take their layers from:
+    a layer is submitted only when one is taken, so memory holds at most ``depth``
+    layers however many the model has. Until a layer with
     something to print is made, layers are sliced one at a time: no other layer
     competes with the one the printer waits for. The layers after the first are
     then held back until the printer acknowledged the first extruding move

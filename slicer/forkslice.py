@@ -1,92 +1,137 @@
-"""Layers sliced in forked worker processes, their G-code text streamed back in order.
+"""Forked worker processes as an engine of the layer window: layers made in other
+processes, their G-code text streamed back.
 
 Each worker is a ``fork`` of the process that holds the plan (nothing is copied
 or pickled to start it) and slices every ``workers``-th task (a task is a range
 of layers). It sends each layer back on a pipe as a fixed header (text length,
-filament mm, time s) and the ASCII text; a thread here drains each pipe so a
-worker never waits on the writer. A worker starts a task only with a credit,
-and a credit is given back when the task's layers are taken: at most ``ahead``
-tasks a worker are held, so memory does not grow with the model. Plain
-``os.fork`` and pipes: the multiprocessing package (and what it imports) is
-not needed.
+filament mm, time s) and the ASCII text; a thread here drains each pipe into
+the layers' futures, so a worker never waits on the writer. A worker starts a
+task only with a credit, and a credit is given when the
+:class:`~slicer.pipeline.LayerWindow` submits the task's first layer: the
+window's depth bounds what is held, so memory does not grow with the model.
+Plain ``os.fork`` and pipes: the multiprocessing package (and what it imports)
+is not needed.
 """
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import gc
 import os
-import queue
 import signal
 import struct
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Sequence
+from types import TracebackType
 from typing import BinaryIO
+
+from slicer.pipeline import Pending
 
 LayerText = tuple[str, float, float]  # (G-code text, filament mm, time s)
 
 _HEADER = struct.Struct("<qdd")  # text length (negative: a pickled error follows), mm, s
 
 
-def forked_layers(
-    layer: Callable[[int], LayerText],
-    tasks: Sequence[tuple[int, int]],
-    workers: int,
-    ahead: int = 2,
-) -> Iterator[LayerText]:
-    """``layer(i)`` for every layer of ``tasks`` (ranges ``[lo, hi)``), in task order,
-    computed by ``workers`` forked processes (task ``k`` by worker ``k % workers``).
+class ForkedLayers:
+    """``layer(i)`` for every layer of ``tasks`` (ranges ``[lo, hi)``, increasing),
+    made by ``workers`` forked processes (task ``k`` by worker ``k % workers``).
 
-    An exception raised by ``layer`` in a worker is raised here (the same type when
-    it can be pickled). Closing the iterator early stops the workers. Needs
-    ``os.fork`` (POSIX).
+    :meth:`submit` is a :class:`~slicer.pipeline.LayerWindow` engine: layers must
+    be submitted in order, and submitting a task's first layer lets its worker
+    start it. An exception raised by ``layer`` in a worker is raised by the
+    layer's future (the same type when it can be pickled). :meth:`close` (or
+    leaving the ``with`` block) ends the workers, killing them if layers are
+    still unmade. Needs ``os.fork`` (POSIX).
     """
-    if not tasks:
-        return
-    workers = max(1, min(workers, len(tasks)))
-    started: list[_Worker] = []
-    gc.freeze()  # objects made so far stay out of the workers' collections: fewer pages copied
-    try:
-        for w in range(workers):
-            started.append(_Worker.fork(layer, tasks[w::workers], started, ahead))
-    finally:
-        gc.unfreeze()
-    for worker in started:  # threads only once every fork is done
-        worker.start_reading()
-    finished = False
-    try:
-        for k in range(len(tasks)):
-            worker = started[k % workers]
-            kind, value = worker.results.get()
-            if kind == "error":
-                assert isinstance(value, BaseException)
-                raise value
-            assert isinstance(value, list)
-            yield from value
-            worker.credit()
-        finished = True
-    finally:
-        for worker in started:
-            worker.stop(kill=not finished)
+
+    def __init__(
+        self, layer: Callable[[int], LayerText], tasks: Sequence[tuple[int, int]], workers: int
+    ) -> None:
+        tasks = list(tasks)
+        self._workers: list[_Worker] = []
+        self._first_of: dict[int, int] = {lo: k for k, (lo, _hi) in enumerate(tasks)}
+        # each future is held here until submitted and by its worker's reader until
+        # made: then only by the window, until taken
+        self._futures: dict[int, Pending[LayerText]] = {
+            i: Pending() for lo, hi in tasks for i in range(lo, hi)
+        }
+        self._closed = False
+        if not tasks:
+            return
+        workers = max(1, min(workers, len(tasks)))
+        gc.freeze()  # objects made so far stay out of the workers' collections: fewer pages
+        try:
+            for w in range(workers):
+                self._workers.append(_Worker.fork(layer, tasks[w::workers], self._workers))
+        finally:
+            gc.unfreeze()
+        for worker in self._workers:  # threads only once every fork is done
+            worker.start_reading(self._futures)
+
+    def submit(self, index: int) -> Pending[LayerText]:
+        """Layer ``index``'s future; the first layer of a task starts its worker on it."""
+        task = self._first_of.get(index)
+        if task is not None:
+            self._workers[task % len(self._workers)].credit()
+        return self._futures.pop(index)
+
+    def close(self) -> None:
+        """Let the workers go (killed when they still owe layers) and reap them."""
+        if self._closed:
+            return
+        self._closed = True
+        for worker in self._workers:
+            worker.stop(kill=not worker.finished)
+
+    def __enter__(self) -> ForkedLayers:
+        return self
+
+    def __exit__(
+        self, kind: type[BaseException] | None, value: BaseException | None,
+        traceback: TracebackType | None,
+    ) -> None:
+        self.close()
 
 
 class _Worker:
-    """One forked worker seen from the parent: its pid, credit pipe and result queue."""
+    """One forked worker seen from the parent: its pid, credit pipe and result pipe."""
 
-    def __init__(
-        self, pid: int, credits: int, stream: BinaryIO, tasks: Sequence[tuple[int, int]]
-    ) -> None:
+    def __init__(self, pid: int, credits: int, stream: BinaryIO,
+                 tasks: Sequence[tuple[int, int]]) -> None:
         self.pid = pid
         self._credits = credits
         self._stream = stream
-        self.results: queue.Queue[tuple[str, object]] = queue.Queue()
-        self._reader = threading.Thread(
-            target=_drain, args=(stream, tasks, self.results), name=f"layers-{pid}", daemon=True
-        )
+        self._tasks = tasks
+        self._reader: threading.Thread | None = None
+        self.finished = False  # every layer of its tasks read back
 
-    def start_reading(self) -> None:
-        """Drain the worker's pipe into :attr:`results` on a thread."""
+    def start_reading(self, futures: dict[int, Pending[LayerText]]) -> None:
+        """Drain the worker's pipe into its layers' ``futures`` on a thread."""
+        mine = collections.deque(futures[i] for lo, hi in self._tasks for i in range(lo, hi))
+        self._reader = threading.Thread(
+            target=self._drain, args=(mine,), name=f"layers-{self.pid}", daemon=True
+        )
         self._reader.start()
+
+    def _drain(self, mine: collections.deque[Pending[LayerText]]) -> None:
+        """On a thread of the parent: read each of the worker's layers from its pipe
+        into the next of ``mine``; on an error, fail that layer and every later one
+        (no taker is left waiting)."""
+        try:
+            with self._stream as stream:
+                while mine:
+                    length, filament, seconds = _HEADER.unpack(_read_exact(stream, _HEADER.size))
+                    if length < 0:
+                        import pickle
+
+                        raise pickle.loads(_read_exact(stream, -length))
+                    text = _read_exact(stream, length).decode("ascii")
+                    mine.popleft().set_result((text, filament, seconds))
+            self.finished = True
+        except BaseException as exc:
+            while mine:
+                mine.popleft().set_exception(exc)
 
     @classmethod
     def fork(
@@ -94,7 +139,6 @@ class _Worker:
         layer: Callable[[int], LayerText],
         tasks: Sequence[tuple[int, int]],
         siblings: Sequence[_Worker],
-        ahead: int,
     ) -> _Worker:
         """Start a worker slicing ``tasks``; ``siblings`` are the workers started before
         (the new process closes its copies of their pipes)."""
@@ -109,9 +153,7 @@ class _Worker:
             _work(layer, tasks, credit_r, result_w)
         os.close(result_w)
         os.close(credit_r)
-        worker = cls(pid, credit_w, os.fdopen(result_r, "rb"), tasks)
-        os.write(credit_w, b"\x01" * ahead)
-        return worker
+        return cls(pid, credit_w, os.fdopen(result_r, "rb"), tasks)
 
     def credit(self) -> None:
         """Let the worker start one more task."""
@@ -125,7 +167,7 @@ class _Worker:
             with contextlib.suppress(ProcessLookupError):
                 os.kill(self.pid, signal.SIGKILL)
         os.waitpid(self.pid, 0)
-        if self._reader.is_alive() or self._reader.ident is not None:
+        if self._reader is not None:
             self._reader.join()
         else:
             self._stream.close()
@@ -178,29 +220,6 @@ def _write_all(fd: int, data: bytes | bytearray) -> None:
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view):]
-
-
-def _drain(
-    stream: BinaryIO, tasks: Sequence[tuple[int, int]], results: queue.Queue[tuple[str, object]]
-) -> None:
-    """In a thread of the parent: read every task's layers from a worker's pipe into
-    ``results`` as ("ok", [LayerText, ...]), or one ("error", exception) and stop."""
-    try:
-        with stream:
-            for lo, hi in tasks:
-                layers: list[LayerText] = []
-                for _ in range(lo, hi):
-                    length, filament, seconds = _HEADER.unpack(_read_exact(stream, _HEADER.size))
-                    if length < 0:
-                        import pickle
-
-                        results.put(("error", pickle.loads(_read_exact(stream, -length))))
-                        return
-                    layers.append((_read_exact(stream, length).decode("ascii"), filament,
-                                   seconds))
-                results.put(("ok", layers))
-    except BaseException as exc:
-        results.put(("error", exc))
 
 
 def _read_exact(stream: BinaryIO, n: int) -> bytes:

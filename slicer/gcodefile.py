@@ -10,33 +10,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 from slicer.annotate import copy_layers, header_extras, object_labels
-from slicer.gcode import GcodeSummary, LayerCode, filament_grams, header_lines
+from slicer.gcode import GcodeSummary, filament_grams, header_lines
 from slicer.labels import ObjectLabels
+from slicer.pipeline import LayerWindow, in_thread
 from slicer.plan import SlicePlan
-
-
-def iter_layers(plan: SlicePlan, workers: int | None = None) -> Iterator[LayerCode]:
-    """Every layer's G-code in order, sliced on a thread pool a bounded window ahead.
-
-    At most ``2 * workers`` layers are held at once (a :class:`LayerWindow`, as in
-    the daemon), so memory does not grow with the layer count. (``hostd slice``
-    itself uses :func:`iter_layer_texts`, which also spreads the Python work over
-    cores.)
-    """
-    import concurrent.futures
-
-    from slicer.pipeline import LayerWindow
-
-    workers = workers or max(1, os.cpu_count() or 1)
-    with concurrent.futures.ThreadPoolExecutor(workers, thread_name_prefix="slice") as pool:
-        window: LayerWindow[LayerCode] = LayerWindow(
-            lambda index: pool.submit(plan.layer_code, index), plan.layer_count, 2 * workers
-        )
-        try:
-            yield from window
-        finally:
-            window.close()
-
 
 # layers per task: the skin cache's block, so each block is computed by one worker
 _CHUNK = 16
@@ -51,6 +28,9 @@ _PROBE = 8
 _FORK_WORTH = 0.15
 # seconds the outline cut runs alone before the first layers are sliced beside it
 _CUT_ALONE = 0.05
+# tasks (of _CHUNK layers) a forked worker may have made or in hand beyond the one
+# being written: the window's depth in layers is _AHEAD * workers * _CHUNK
+_AHEAD = 2
 
 
 def _layer_text(
@@ -85,53 +65,66 @@ def iter_layer_texts(
     """Every layer as (G-code text, filament mm, time s), in order, labelled by
     ``labels`` when given (in the workers, so the labelling is spread over cores too).
 
-    Most of a layer's work is Python and numpy holding the interpreter lock,
-    so threads barely overlap; forked worker processes (which inherit the
-    plan, no copy) slice blocks of layers in parallel instead, a bounded
-    window ahead of the writer. Without ``fork`` or with one core the layers
-    are sliced here, and so are small models: the first layers are sliced
-    here and timed, and workers are forked only when the rest would take
-    long enough to gain (:data:`_FORK_WORTH`). The bytes are the same either
-    way.
+    The layers come out of :class:`~slicer.pipeline.LayerWindow`, the bounded
+    window the daemon and ``hostd print`` take layers from, with one engine or
+    another. Most of a layer's work is Python and numpy holding the
+    interpreter lock, so threads barely overlap: forked worker processes
+    (:class:`~slicer.forkslice.ForkedLayers`, which inherit the plan, no copy)
+    slice blocks of layers in parallel instead, at most
+    ``_AHEAD * workers * _CHUNK`` layers ahead of the writer. Without ``fork``
+    or with one core the layers are sliced in this thread, and so are small
+    models: the first layers are sliced here and timed, and workers are forked
+    only when the rest would take long enough to gain (:data:`_FORK_WORTH`).
+    The bytes are the same either way.
     """
     workers = workers or max(1, os.cpu_count() or 1)
     n = plan.layer_count
-    done = 0
-    if workers >= 2 and hasattr(os, "fork"):
-        # the bottom layers are solid skin, slower than most: time the later half
-        started = time.perf_counter()
-        while done < min(_PROBE, n):
-            if done == _PROBE // 2:
-                started = time.perf_counter()
-            yield _layer_text(plan, done, labels)
-            done += 1
-        timed = done - min(done, _PROBE // 2)
-        per_layer = (time.perf_counter() - started) / max(timed, 1)
-        if per_layer * (n - done) < _FORK_WORTH:
-            workers = 1
-    if workers < 2 or not hasattr(os, "fork"):
-        for i in range(done, n):
-            yield _layer_text(plan, i, labels)
-        return
-    # outlines are cut lazily; cut them all once here so the workers inherit
-    # them instead of each cutting the blocks its layers and their skins need;
-    # the first layers are sliced here meanwhile (they need the first blocks only)
-    cutter = threading.Thread(target=plan.cut_all, kwargs={"threads": workers}, name="cut")
-    cutter.start()
-    try:
-        # a short cut is left alone: layer work here would hold the interpreter
-        # lock the cutting threads need between their array operations
-        cutter.join(_CUT_ALONE)
-        while done < n and cutter.is_alive():
-            yield _layer_text(plan, done, labels)
-            done += 1
-    finally:
-        cutter.join()
-    from slicer.forkslice import forked_layers
 
-    yield from forked_layers(
-        lambda i: _layer_text(plan, i, labels), list(_chunks(done, n)), workers
-    )
+    def layer(i: int) -> tuple[str, float, float]:
+        return _layer_text(plan, i, labels)
+
+    fork = workers >= 2 and hasattr(os, "fork")
+    here: LayerWindow[tuple[str, float, float]] = LayerWindow(in_thread(layer), n, depth=1)
+    try:
+        if fork:
+            # the bottom layers are solid skin, slower than most: time the later half
+            started = time.perf_counter()
+            while here.taken < min(_PROBE, n):
+                if here.taken == _PROBE // 2:
+                    started = time.perf_counter()
+                yield here.take()
+            timed = here.taken - min(here.taken, _PROBE // 2)
+            per_layer = (time.perf_counter() - started) / max(timed, 1)
+            fork = per_layer * (n - here.taken) >= _FORK_WORTH
+        if not fork:
+            yield from here
+            return
+        # outlines are cut lazily; cut them all once here so the workers inherit
+        # them instead of each cutting the blocks its layers and their skins need;
+        # the first layers are sliced here meanwhile (they need the first blocks only)
+        cutter = threading.Thread(target=plan.cut_all, kwargs={"threads": workers}, name="cut")
+        cutter.start()
+        try:
+            # a short cut is left alone: layer work here would hold the interpreter
+            # lock the cutting threads need between their array operations
+            cutter.join(_CUT_ALONE)
+            while here.taken < n and cutter.is_alive():
+                yield here.take()
+        finally:
+            cutter.join()
+    finally:
+        here.close()
+    done = here.taken
+    from slicer.forkslice import ForkedLayers
+
+    with ForkedLayers(layer, list(_chunks(done, n)), workers) as engine:
+        window: LayerWindow[tuple[str, float, float]] = LayerWindow(
+            engine.submit, n, depth=_AHEAD * workers * _CHUNK, first=done
+        )
+        try:
+            yield from window
+        finally:
+            window.close()
 
 
 def write_gcode(

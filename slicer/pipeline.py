@@ -1,26 +1,171 @@
-"""The layer pipeline: layers made a bounded window ahead of the one consumed, in order."""
+"""The layer pipeline: layers made a bounded window ahead of the one consumed, in order.
+
+:class:`LayerWindow` is the one bounded-lookahead layer iterator; what makes the
+layers is its engine, a ``submit(index)`` returning a future: :func:`in_thread`
+(made by the thread that takes them), a thread pool (the daemon and
+``hostd print FILE.stl``) or forked worker processes
+(:class:`slicer.forkslice.ForkedLayers`, ``hostd slice``).
+"""
 
 from __future__ import annotations
 
 import collections
-import concurrent.futures
 import threading
 from collections.abc import Callable, Iterator
-from typing import Generic, TypeVar
+from typing import Generic, Protocol, TypeVar
 
 T = TypeVar("T")
+T_co = TypeVar("T_co", covariant=True)
+
+
+class LayerFuture(Protocol[T_co]):
+    """What an engine's ``submit`` returns: a ``concurrent.futures.Future`` (a thread
+    pool's) or a :class:`Pending` (`hostd slice` never loads concurrent.futures)."""
+
+    def done(self) -> bool:
+        """True once made (or failed, or cancelled)."""
+        ...
+
+    def cancelled(self) -> bool:
+        """True if cancelled before it was made."""
+        ...
+
+    def cancel(self) -> bool:
+        """Drop it if not started; True if it was dropped."""
+        ...
+
+    def result(self, timeout: float | None = None) -> T_co:
+        """The layer, waiting until it is made; raises what making it raised."""
+        ...
+
+    def exception(self, timeout: float | None = None) -> BaseException | None:
+        """What making it raised, or None."""
+        ...
+
+    def add_done_callback(self, fn: Callable[[LayerFuture[T_co]], object]) -> None:
+        """Call ``fn(self)`` once it is done (at once if it is)."""
+        ...
+
+
+class CancelledLayer(Exception):
+    """The result of a :class:`Pending` that was cancelled."""
+
+
+class Pending(Generic[T]):
+    """A thread-safe future without concurrent.futures (and the logging it imports).
+
+    Set once by :meth:`set_result` or :meth:`set_exception` (later calls, and
+    calls after :meth:`cancel`, are ignored). Given ``make``, it is made by the
+    first thread that asks for its :meth:`result` (the in-thread engine).
+    """
+
+    def __init__(self, make: Callable[[], T] | None = None) -> None:
+        self._make = make
+        self._lock = threading.Lock()
+        self._event = threading.Event()
+        self._cancelled = False
+        self._started = False
+        self._result: T | None = None
+        self._error: BaseException | None = None
+        self._callbacks: list[Callable[[LayerFuture[T]], object]] = []
+
+    def done(self) -> bool:
+        """True once made, failed or cancelled."""
+        return self._event.is_set()
+
+    def cancelled(self) -> bool:
+        """True if cancelled before it was made."""
+        return self._cancelled
+
+    def cancel(self) -> bool:
+        """Drop it unless it is made or being made."""
+        with self._lock:
+            if self._event.is_set() or self._started:
+                return self._cancelled
+            self._cancelled = True
+        self._finish()
+        return True
+
+    def set_result(self, value: T) -> None:
+        """Its layer is made."""
+        with self._lock:
+            if self._event.is_set() or self._cancelled:
+                return
+            self._result = value
+        self._finish()
+
+    def set_exception(self, error: BaseException) -> None:
+        """Making it failed with ``error``."""
+        with self._lock:
+            if self._event.is_set() or self._cancelled:
+                return
+            self._error = error
+        self._finish()
+
+    def _finish(self) -> None:
+        self._event.set()
+        with self._lock:
+            callbacks, self._callbacks = self._callbacks, []
+        for callback in callbacks:
+            callback(self)
+
+    def _run_here(self) -> None:
+        with self._lock:
+            make = self._make
+            if make is None or self._started or self._event.is_set():
+                return
+            self._started = True
+        try:
+            value = make()
+        except BaseException as exc:
+            self._error = exc
+        else:
+            self._result = value
+        self._finish()
+
+    def result(self, timeout: float | None = None) -> T:
+        """The layer (made here first if it was deferred); raises what making it raised."""
+        self._run_here()
+        if not self._event.wait(timeout):
+            raise TimeoutError("the layer is not made yet")
+        if self._cancelled:
+            raise CancelledLayer()
+        if self._error is not None:
+            raise self._error
+        return self._result  # type: ignore[return-value]  # set whenever no error
+
+    def exception(self, timeout: float | None = None) -> BaseException | None:
+        """What making it raised, or None."""
+        self._run_here()
+        if not self._event.wait(timeout):
+            raise TimeoutError("the layer is not made yet")
+        return CancelledLayer() if self._cancelled else self._error
+
+    def add_done_callback(self, fn: Callable[[LayerFuture[T]], object]) -> None:
+        """Call ``fn(self)`` once done (here and now if it is)."""
+        with self._lock:
+            if not self._event.is_set():
+                self._callbacks.append(fn)
+                return
+        fn(self)
+
+
+def in_thread(make: Callable[[int], T]) -> Callable[[int], Pending[T]]:
+    """The in-thread engine: layer ``i`` is ``make(i)``, made when it is taken, by the
+    thread taking it (nothing runs beside the consumer)."""
+    return lambda index: Pending(lambda: make(index))
 
 
 class LayerWindow(Generic[T]):
     """Layers ``first..count-1`` made by ``submit(index)``, at most ``depth`` ahead.
 
-    ``submit`` starts making one layer and returns its future (a thread pool's,
-    or any object with ``done()``, ``result()``, ``cancel()`` and
-    ``add_done_callback()``). A layer is submitted only when one is taken, so
-    memory holds at most ``depth`` layers however many there are
-    (backpressure). With ``alone`` set, layers are made one at a time until one
-    is "worth" something (``worth(result)`` true): the first layers a printer
-    waits for do not compete with the ones after them.
+    ``submit`` is the engine: it starts making one layer and returns its future
+    (a :class:`LayerFuture`: :func:`in_thread`'s, a thread pool's, or forked
+    workers'). A layer is submitted only when one is taken, so memory holds at
+    most ``depth`` layers however many there are (backpressure). With ``alone``
+    set, layers are made one at a time until one is "worth" something
+    (``worth(result)`` true): the first layers a printer waits for do not compete
+    with the ones after them.
 
     Take layers in order with :meth:`take` (blocking), ``await``
     :meth:`take_async`, or by iterating; :meth:`close` drops pending work.
@@ -28,7 +173,7 @@ class LayerWindow(Generic[T]):
 
     def __init__(
         self,
-        submit: Callable[[int], concurrent.futures.Future[T]],
+        submit: Callable[[int], LayerFuture[T]],
         count: int,
         depth: int,
         first: int = 0,
@@ -40,10 +185,9 @@ class LayerWindow(Generic[T]):
         self.submit = submit
         self.count = count
         self.depth = depth
-        self._futures: collections.deque[tuple[int, concurrent.futures.Future[T]]] = (
-            collections.deque()
-        )
+        self._futures: collections.deque[tuple[int, LayerFuture[T]]] = collections.deque()
         self._next = first
+        self._taken = 0
         self._closed = False
         self._alone = alone
         self._worth = worth or (lambda _result: True)
@@ -64,12 +208,12 @@ class LayerWindow(Generic[T]):
                 if self._alone:
                     future.add_done_callback(self._made_alone)
 
-    def _made_alone(self, future: concurrent.futures.Future[T]) -> None:
+    def _made_alone(self, future: LayerFuture[T]) -> None:
         if future.cancelled() or future.exception() is not None or self._worth(future.result()):
             self._alone = False  # from now on, the full window
         self._fill()
 
-    def _head(self, index: int | None) -> concurrent.futures.Future[T]:
+    def _head(self, index: int | None) -> LayerFuture[T]:
         with self._lock:
             if not self._futures:
                 self._fill()
@@ -83,6 +227,7 @@ class LayerWindow(Generic[T]):
     def _pop(self) -> None:
         with self._lock:
             self._futures.popleft()
+            self._taken += 1
         self._fill()
 
     def take(self, index: int | None = None) -> T:
@@ -92,11 +237,15 @@ class LayerWindow(Generic[T]):
         return result
 
     async def take_async(self, index: int | None = None) -> T:
-        """:meth:`take` for a coroutine: the event loop runs on while the layer is made."""
+        """:meth:`take` for a coroutine: the event loop runs on while the layer is made
+        (the engine's futures must be ``concurrent.futures.Future``: a thread pool's)."""
         import asyncio  # only the daemon awaits layers: `hostd slice` never loads asyncio
+        import concurrent.futures
 
         future = self._head(index)
-        result = await asyncio.wrap_future(future)
+        if not isinstance(future, concurrent.futures.Future):
+            raise TypeError("take_async needs an engine returning concurrent.futures futures")
+        result: T = await asyncio.wrap_future(future)
         self._pop()
         return result
 
@@ -114,6 +263,11 @@ class LayerWindow(Generic[T]):
     def next_unsliced(self) -> int:
         """The first layer not yet submitted."""
         return self._next
+
+    @property
+    def taken(self) -> int:
+        """Layers taken so far."""
+        return self._taken
 
     def close(self) -> None:
         """Submit nothing more and cancel what has not started."""

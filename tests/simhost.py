@@ -9,6 +9,9 @@ import select
 import termios
 import time
 import tty
+from collections.abc import Callable
+
+from waiting import wait_until
 
 from drivers.protocol import frame
 
@@ -32,10 +35,15 @@ class Host:
         self._buffer = b""
         self.received: list[str] = []
 
-    def reopen(self, timeout: float = 5.0) -> None:
-        """Close and open the device path again, waiting for it to come back."""
+    def reopen(self, timeout: float = 5.0, hung_up: Callable[[], bool] | None = None) -> None:
+        """Close and open the device path again, waiting for it to come back.
+
+        ``hung_up``: true once the printer saw the port closed (its reset needs it); a
+        port that vanished has no one to tell.
+        """
         self.close()
-        time.sleep(0.05)  # closed long enough for the printer to see the hang-up
+        if hung_up is not None:
+            wait_until(hung_up, timeout, "the printer to see the port closed")
         self._buffer = b""
         deadline = time.monotonic() + timeout
         while True:

@@ -12,6 +12,7 @@ import asyncio
 from typing import Any
 
 import pytest
+from waiting import until
 
 from drivers.tasks import cancel_and_wait
 from hostd.mqtt_calls import publish
@@ -31,9 +32,8 @@ class AckedLikeAiomqtt:
 
 
 async def _ack_and_cancel_together(client: AckedLikeAiomqtt, task: asyncio.Task[Any]) -> None:
-    while client.acknowledged is None:
-        await asyncio.sleep(0)
-    client.acknowledged.set_result(None)  # the broker's PUBACK ...
+    acknowledged = await until(lambda: client.acknowledged, 10, "the publication", interval=0)
+    acknowledged.set_result(None)  # the broker's PUBACK ...
     task.cancel()  # ... and the task group's cancellation in the same iteration
 
 
@@ -58,28 +58,27 @@ def test_a_cancellation_that_meets_the_acknowledgement_still_stops_the_publisher
 
 def test_cancel_and_wait_takes_the_child_s_cancellation_but_not_the_caller_s() -> None:
     async def scenario() -> bool:
-        child_finished = asyncio.Event()
+        second_cleaning = asyncio.Event()
 
-        async def slow_to_stop() -> None:
+        async def slow_to_stop(cleaning: asyncio.Event | None = None) -> None:
             try:
                 await asyncio.Event().wait()
             finally:
+                if cleaning is not None:
+                    cleaning.set()
                 await asyncio.sleep(0.05)  # cleans up before it ends
-                child_finished.set()
 
         async def caller() -> str:
             child = asyncio.create_task(slow_to_stop())
             await asyncio.sleep(0)
             await cancel_and_wait(child)  # the child's cancellation is not an error
-            second = asyncio.create_task(slow_to_stop())
+            second = asyncio.create_task(slow_to_stop(second_cleaning))
             await asyncio.sleep(0)
             await cancel_and_wait(second)  # the caller is cancelled while it waits here
             return "ran on"
 
         task = asyncio.create_task(caller())
-        await child_finished.wait()
-        child_finished.clear()
-        await asyncio.sleep(0.01)
+        await second_cleaning.wait()  # the caller waits for the second child to end
         task.cancel()
         with pytest.raises(asyncio.CancelledError):
             await task

@@ -18,6 +18,7 @@ import pytest
 from doubles import RecordingController
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
+from waiting import until
 
 from hostd.api import ControlClient, ControlError, JobStatus, Snapshot
 from hostd.control import ControlSocketError, serve_control
@@ -297,17 +298,20 @@ def test_hostd_status_without_a_daemon_fails_with_a_reason(tmp_path: Path) -> No
 
 def test_many_clients_at_once_all_follow_the_hub(tmp_path: Path) -> None:
     async def scenario(path: Path, hub: StatusHub, _: RecordingController) -> None:
+        following: set[int] = set()  # clients that have their first snapshot: subscribed
+
         async def client(number: int) -> str:
             async with ControlClient(str(path)) as control:
                 await control.request("pause", id=number)
                 async for item in control.subscribe():
+                    following.add(number)
                     status = item.get("status")
                     if status is not None and status.job is not None and status.job.layer == 99:
                         return status.state
             return "closed"
 
         clients = [asyncio.create_task(client(n)) for n in range(40)]
-        await asyncio.sleep(0.2)
+        await until(lambda: len(following) == 40, 10, "every client subscribed")
         for layer in range(100):
             hub.update(state="printing", job=JobStatus(id="1", name="a.stl", layer=layer))
             await asyncio.sleep(0.001)

@@ -5,7 +5,6 @@ from __future__ import annotations
 import asyncio
 import sqlite3
 import subprocess
-import time
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -13,6 +12,7 @@ from typing import Any
 import pytest
 import trimesh
 from conftest import DATA, HOSTD, ROOT, commands_of, executed_job_lines, sim_config
+from waiting import wait_until
 
 from drivers.protocol import strip_comment
 from hostd.api import ControlClient, ControlError, Snapshot
@@ -256,15 +256,10 @@ def test_an_absent_printer_leaves_the_daemon_serving_offline(tmp_path):
                             stderr=subprocess.PIPE, text=True, env={"PYTHONPATH": str(ROOT)})
     try:
         socket = tmp_path / "var" / "hostd.sock"
-        deadline = time.monotonic() + 20
-        while not socket.exists() and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(socket.exists, 20, "the control socket")
         (tmp_path / "jobs" / "wait.stl").write_bytes((DATA / "cube20_xyz.stl").read_bytes())
-        while time.monotonic() < deadline:
-            snap = status(socket)
-            if snap.queue == ("wait.stl",) and snap.state == "offline":
-                break
-            time.sleep(0.05)
+        snap = wait_until(lambda: (s := status(socket)).queue == ("wait.stl",)
+                          and s.state == "offline" and s, 20, "the job taken, offline")
         assert snap.state == "offline"
         assert not snap.printer.connected
         assert "hostd-no-such-port" in (snap.error or "")

@@ -11,6 +11,7 @@ import tty
 from collections.abc import Callable
 
 import pytest
+from waiting import until
 
 from drivers.protocol import checksum
 from drivers.simlinkrun import arc_job as job
@@ -489,7 +490,8 @@ def test_no_autoreport_means_m105_polling():
         async with Streamer(await open_transport(printer.path, 115200), config) as link:
             link.on_temperature = reports.append
             await link.connect()
-            await asyncio.sleep(0.4)
+            await until(lambda: sum("M105" in line for line in list(printer.received)) >= 3
+                        and reports, 10, "three M105 polls answered")
             await link.drain()
 
     with scripted() as printer:
@@ -675,7 +677,7 @@ def test_emergency_stop_halts_the_printer_at_once(parser):
                 await task
             with pytest.raises(LinkError):
                 await link.send("G1 X0")
-            await asyncio.sleep(0.2)
+            await until(lambda: "M112" in list(sim.executed), 5, "the M112 carried out")
             return link
 
     with SimulatedPrinter(sim_config(time_scale=0.05, emergency_parser=parser)) as sim:

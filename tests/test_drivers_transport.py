@@ -7,6 +7,7 @@ import os
 import tty
 
 import pytest
+from waiting import until
 
 from drivers.transport import TransportError, open_transport
 
@@ -78,7 +79,7 @@ def test_unplugging_fails_a_pending_read_within_a_second():
         async with await open_transport(path, 250000) as transport:
             loop = asyncio.get_running_loop()
             reader = asyncio.create_task(transport.readline(), name="reader")
-            await asyncio.sleep(0.05)
+            await until(lambda: transport._readers, 2, "the read to be waiting")
             unplugged = loop.time()
             os.close(master)
             with pytest.raises(TransportError):
@@ -105,7 +106,7 @@ def test_close_fails_pending_reads():
         try:
             transport = await open_transport(path, 250000)
             reader = asyncio.create_task(transport.readline(), name="reader")
-            await asyncio.sleep(0.02)
+            await until(lambda: transport._readers, 2, "the read to be waiting")
             await transport.close()
             with pytest.raises(TransportError):
                 await asyncio.wait_for(reader, 1.0)

@@ -6,7 +6,6 @@ import dataclasses
 import itertools
 import shutil
 import threading
-import time
 from concurrent.futures import Future
 from pathlib import Path
 
@@ -15,6 +14,7 @@ import pytest
 import shapely
 import trimesh
 from slicer_helpers import extrusions, write_mesh
+from waiting import wait_until
 
 from slicer.fea.tailor import tailored_plan
 from slicer.fields.density_levels import density_plan
@@ -109,10 +109,7 @@ def test_the_lattice_is_read_as_interpolated_in_3d_and_a_layer_waits_for_it(
     got: list[np.ndarray] = []
     worker = threading.Thread(target=lambda: got.append(waiter.stress(x + xmin, y + ymin, ctx)))
     worker.start()
-    deadline = time.monotonic() + 30.0
-    while not waited_for(path) and time.monotonic() < deadline:
-        time.sleep(0.01)
-    assert waited_for(path)
+    wait_until(lambda: waited_for(path), 30.0, "the field to be waited for", interval=0.01)
     assert not got
     shutil.copyfile(tailoring.field.path, path)
     running.set_result(None)

@@ -6,12 +6,13 @@ import asyncio
 import os
 import subprocess
 import sys
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
 from brokers import HOST, Broker, free_port, start_broker
 from textual.widgets import Static
+from waiting import until
 
 from tui.fleet import FleetApp, FleetScreen
 from tui.fleet_model import RANKS
@@ -38,17 +39,6 @@ def publisher(broker: Broker, *args: str) -> subprocess.Popen[bytes]:
         cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )
-
-
-async def until(predicate: Callable[[], bool], timeout: float = 15.0,
-                what: Callable[[], object] | None = None) -> None:
-    """Wait for ``predicate``; on timeout fail, showing ``what()`` when given."""
-    deadline = asyncio.get_running_loop().time() + timeout
-    while not predicate():
-        if asyncio.get_running_loop().time() > deadline:
-            seen = f": {what()!r}" if what is not None else ""
-            raise AssertionError(f"condition not met in time{seen}")
-        await asyncio.sleep(0.02)
 
 
 def rows(app: FleetApp) -> list[tuple[str, str]]:

@@ -12,27 +12,25 @@ from typing import Any
 import aiomqtt
 from brokers import HOST, start_broker, start_nats_cluster
 from conftest import DATA, sim_config
-from test_fleet import rows, until
+from doubles import RecordingController
+from test_fleet import rows
+from waiting import until
 
 from hostd.api import Snapshot
 from hostd.config import MqttConfig
 from hostd.jobstore import JobStore
 from hostd.mqtt import Backoff, MqttBridge
-from hostd.status import CommandError, StatusHub
+from hostd.status import StatusHub
 from tui.fleet import FleetApp, FleetScreen
 from tui.sources import MqttSource
-
-
-class Refuse:
-    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
-        raise CommandError("not in this test")
 
 
 def test_the_bridge_fails_over_to_the_next_broker_of_mqtt_hosts(tmp_path: Path) -> None:
     first, second = start_broker(tmp_path / "a"), start_broker(tmp_path / "b")
     config = MqttConfig(enabled=True, hosts=((HOST, first.port), (HOST, second.port)))
     hub = StatusHub(Snapshot(state="idle"))
-    bridge = MqttBridge(config, "fo1", hub, Refuse(), status_interval_s=0.1,
+    controller = RecordingController(refuse_all="not in this test")
+    bridge = MqttBridge(config, "fo1", hub, controller, status_interval_s=0.1,
                         backoff=Backoff(initial_s=0.1, maximum_s=1.0))
 
     async def scenario() -> None:
@@ -57,6 +55,7 @@ def test_the_bridge_fails_over_to_the_next_broker_of_mqtt_hosts(tmp_path: Path) 
     finally:
         first.stop()
         second.stop()
+    assert controller.calls == []  # failing over sends the printer no command
 
 
 def test_a_print_goes_on_when_its_nats_node_stops_and_the_fleet_sees_it_through_another(

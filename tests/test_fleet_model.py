@@ -114,14 +114,21 @@ def test_wire_client_reports_a_refusal_and_reads_messages(tmp_path: Path) -> Non
                               password="right") as reader:
             reader.subscribe("hostd/+/status", qos=1)
             reader.subscribe("hostd/+/event", qos=0)
-            await asyncio.sleep(0.3)  # let the SUBACKs come back before publishing
+            # the broker takes a client's packets in order: the reader's own message
+            # comes back once both subscriptions are in place
+            stream = reader.messages()
+            await reader.publish("hostd/ready/status", b"", qos=1)
+            async with asyncio.timeout(10):
+                async for message in stream:
+                    if message.topic == "hostd/ready/status":
+                        break
             async with WireClient(HOST, broker.port, client_id="t2", username="fleet",
                                   password="right") as sender:
                 await sender.publish("hostd/p1/status", b"x" * 300, qos=1)  # 2-byte length
                 await sender.publish("hostd/p2/event", b'{"event":"done"}', qos=1)
                 got: list[tuple[str, bytes, bool]] = []
                 async with asyncio.timeout(10):
-                    async for message in reader.messages():
+                    async for message in stream:
                         got.append((message.topic, message.payload, message.retain))
                         if len(got) == 2:
                             return got
@@ -139,7 +146,8 @@ def test_fleet_view_over_tls_with_its_own_ca_and_a_client_certificate(tmp_path: 
     """``--tls --cafile --certfile --keyfile``: a broker whose CA is not the system's and
     which admits only clients with a certificate that CA signed (and a password)."""
     from brokers import make_ca_chain
-    from test_fleet import rows, until
+    from test_fleet import rows
+    from waiting import until
 
     from tui.fleet import FleetApp
     from tui.sources import MqttSource, tls_context

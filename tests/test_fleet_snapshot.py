@@ -64,7 +64,7 @@ def test_fleet_opens_the_printer_screen(snap_compare: Any) -> None:
     """Enter: the dashboard of the printer on top, from the statuses the fleet heard."""
 
     async def opened(pilot: Any) -> None:
-        from test_fleet import until
+        from waiting import until
 
         from tui.printer_screen import PrinterScreen
 
@@ -135,7 +135,7 @@ class QueuedFleet(FixedFleet):
 
 
 def test_the_open_printer_gets_its_own_items_its_refusals_and_its_last_will() -> None:
-    from test_fleet import until
+    from waiting import until
 
     from tui.printer_screen import PrinterScreen
     from tui.sources import GONE

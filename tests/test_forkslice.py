@@ -1,20 +1,34 @@
-"""Layers sliced in forked workers: the same bytes as in one process, errors carried back."""
+"""Layers sliced in forked workers, an engine of the layer window: the same bytes as in one
+process, errors carried back, the window's depth bounding what the workers make."""
 
 from __future__ import annotations
 
 import os
+from collections.abc import Iterator
 
 import pytest
 
 from slicer import gcodefile
 from slicer.errors import ModelError
-from slicer.forkslice import forked_layers
+from slicer.forkslice import ForkedLayers, LayerText
 from slicer.gcodefile import _chunks, _layer_text, write_gcode
+from slicer.pipeline import LayerWindow
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tests.slicer_helpers import box_stl
 
 pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
+
+
+def forked_layers(layer, tasks: list[tuple[int, int]], workers: int, depth: int = 8
+                  ) -> Iterator[LayerText]:
+    """The layers of ``tasks`` through the window with forked workers as its engine."""
+    with ForkedLayers(layer, tasks, workers) as engine:
+        window = LayerWindow(engine.submit, tasks[-1][1], depth, first=tasks[0][0])
+        try:
+            yield from window
+        finally:
+            window.close()
 
 
 @pytest.fixture(scope="module")
@@ -87,3 +101,49 @@ def test_closing_early_stops_the_workers() -> None:
     for pid in pids:
         with pytest.raises(ChildProcessError):
             os.waitpid(pid, os.WNOHANG)
+
+
+def test_the_window_s_depth_bounds_what_the_workers_make(tmp_path) -> None:
+    log = tmp_path / "made"
+    log.touch()
+
+    def layer(i: int) -> LayerText:
+        with open(log, "a") as out:  # one short append per layer: the lines never mix
+            out.write(f"{i}\n")
+        return f";{i}\n", 0.0, 0.0
+
+    def made() -> int:
+        return len(log.read_text().split())
+
+    taken = 0
+    for text, _f, _s in forked_layers(layer, [(k, k + 1) for k in range(30)], 2, depth=4):
+        taken += 1
+        assert text == f";{taken - 1}\n"
+        # a worker starts a layer only once the window submitted it: the one taken
+        # and the 4 the window refilled
+        assert made() <= taken + 4
+    assert taken == 30
+    assert sorted(int(i) for i in log.read_text().split()) == list(range(30))
+
+
+def test_hostd_slice_takes_every_layer_from_the_layer_window(
+    tall_box: SlicePlan, tmp_path, monkeypatch
+) -> None:
+    taken: list[str] = []
+    take = LayerWindow.take
+
+    def counted(self, index=None):
+        layer = take(self, index)
+        taken.append(type(self.submit.__self__).__name__ if hasattr(self.submit, "__self__")
+                     else "in_thread")
+        return layer
+
+    monkeypatch.setattr(LayerWindow, "take", counted)
+    write_gcode(tall_box, tmp_path / "one.gcode", workers=1)
+    assert taken == ["in_thread"] * tall_box.layer_count
+    taken.clear()
+    monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
+    write_gcode(tall_box, tmp_path / "two.gcode", workers=2)
+    assert len(taken) == tall_box.layer_count
+    assert taken[: gcodefile._PROBE] == ["in_thread"] * gcodefile._PROBE  # timed here
+    assert taken[-1] == "ForkedLayers"

@@ -12,7 +12,9 @@ from pathlib import Path
 
 import pytest
 
+from hostd.joblife import JobLife
 from hostd.jobstore import TRANSITIONS, JobNotFound, JobStore, TransitionError
+from hostd.status import StatusHub
 
 
 @pytest.fixture
@@ -85,19 +87,26 @@ def test_queue_order_move_and_remove(store: JobStore) -> None:
 
 
 def test_checkpoint_recover_and_resume_goes_first(store: JobStore) -> None:
-    first, second = add(store, "one.stl"), add(store, "two.stl")
+    first, second, third = add(store, "one.stl"), add(store, "two.stl"), add(store, "3.stl")
     store.transition(first.id, "slicing")
     store.transition(first.id, "printing", layers=30)
     store.checkpoint(first.id, 7, 1234, 5678)
+    store.transition(third.id, "slicing")
+    store.transition(third.id, "heating", layers=30)  # stopped before its first layer
     reopened = JobStore(Path(store._db.execute("PRAGMA database_list").fetchone()[2]))
-    recovered = reopened.recover()
-    assert [job.id for job in recovered] == [first.id]
+    # the daemon's one recovery rule: every active job interrupted, or queued again
+    # when it printed nothing
+    recovered = JobLife(reopened, StatusHub()).recover()
+    assert [(job.id, job.state) for job in recovered] == [(first.id, "interrupted"),
+                                                          (third.id, "queued")]
     job = reopened.get(first.id)
     assert (job.state, job.layer) == ("interrupted", 7)
     assert (job.lines_acked, job.gcode_bytes) == (1234, 5678)
     assert [j.id for j in reopened.interrupted()] == [first.id]
+    assert [entry.to_state for entry in reopened.history(third.id)][-2:] == [
+        "interrupted", "queued"]
     reopened.transition(first.id, "queued", resume_from=8)
-    assert [j.id for j in reopened.queued()] == [first.id, second.id]
+    assert [j.id for j in reopened.queued()] == [first.id, third.id, second.id]
     reopened.close()
 
 
@@ -168,6 +177,6 @@ def test_kill_9_at_any_instant_leaves_a_consistent_store(tmp_path: Path, seed: i
         assert history[-1].to_state == job.state  # each transition is one transaction
         assert -1 <= job.layer < 50
         assert job.lines_acked == max(job.layer, 0) * 10
-    store.recover()
+    JobLife(store, StatusHub()).recover()
     assert not store.jobs("slicing", "heating", "printing", "paused")
     store.close()

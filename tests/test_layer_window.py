@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from slicer.pipeline import LayerWindow
+from slicer.pipeline import CancelledLayer, LayerWindow, Pending, in_thread
 
 
 class Maker:
@@ -68,3 +68,41 @@ def test_async_take_checks_the_order_and_close_drops_pending_work() -> None:
             assert maker.submitted == [0, 1, 2]
 
     asyncio.run(main())
+
+
+def test_the_in_thread_engine_makes_each_layer_when_taken_by_the_taker() -> None:
+    made: list[tuple[int, int]] = []
+
+    def make(index: int) -> list[int]:
+        made.append((index, threading.get_ident()))
+        return [index]
+
+    window = LayerWindow(in_thread(make), 5, depth=2)
+    assert made == []  # submitted, not made: nothing runs beside the consumer
+    assert window.take(0) == [0]
+    assert made == [(0, threading.get_ident())]
+    assert [layer[0] for layer in window] == [1, 2, 3, 4]
+    assert made == [(i, threading.get_ident()) for i in range(5)]
+
+
+def test_a_pending_layer_cancelled_is_never_made_and_its_error_is_raised() -> None:
+    calls: list[int] = []
+
+    def make(index: int) -> list[int]:
+        calls.append(index)
+        if index == 1:
+            raise ValueError("layer 1 cannot be made")
+        return [index]
+
+    window = LayerWindow(in_thread(make), 4, depth=3)
+    assert window.take() == [0]
+    with pytest.raises(ValueError, match="layer 1 cannot be made"):
+        window.take()
+    window.close()  # layers 2 and 3 were submitted, never made
+    assert calls == [0, 1]
+    pending: Pending[int] = Pending()
+    assert pending.cancel()
+    assert pending.cancelled()
+    pending.set_result(3)  # too late: ignored
+    with pytest.raises(CancelledLayer):
+        pending.result()

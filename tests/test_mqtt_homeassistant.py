@@ -17,7 +17,9 @@ import pytest
 import trimesh
 from brokers import HOST, Broker, start_broker
 from conftest import ROOT
+from doubles import RecordingController
 from PIL import Image
+from waiting import until
 
 from hostd.api import JobStatus, Snapshot, Temperature, Temps
 from hostd.config import MqttConfig
@@ -80,15 +82,6 @@ def check_discovery(config: dict[str, Any], commands: bool) -> dict[str, dict[st
     return {key.removeprefix(f"{NODE}_"): component for key, component in components.items()}
 
 
-class Controller:
-    def __init__(self) -> None:
-        self.commands: list[str] = []
-
-    async def handle(self, cmd: str, args: dict[str, Any]) -> dict[str, Any]:
-        self.commands.append(cmd)
-        return {}
-
-
 def timestamp_custom(value: float, fmt: str, local: bool = True) -> str:
     """Home Assistant's ``timestamp_custom`` filter."""
     zone = None if local else datetime.UTC
@@ -107,7 +100,7 @@ def test_device_discovery_replaces_the_old_configs_and_follows_home_assistant(
 ) -> None:
     broker = start_broker(tmp_path / "broker", users={USER: SECRET})
     hub = StatusHub(Snapshot(state="idle"))
-    controller = Controller()
+    controller = RecordingController()
     config = MqttConfig(enabled=True, host=HOST, port=broker.port, homeassistant=True,
                         username=USER, password=SECRET, allow_commands=True)
     bridge = MqttBridge(config, PRINTER, hub, controller)
@@ -135,9 +128,7 @@ def test_device_discovery_replaces_the_old_configs_and_follows_home_assistant(
                         break
             button = check_discovery(json.loads(again[-1].payload), True)["pause"]
             await client.publish(button["command_topic"], button["payload_press"], qos=1)
-            async with asyncio.timeout(10):
-                while not controller.commands:
-                    await asyncio.sleep(0.02)
+            await until(lambda: controller.commands, 10, "the button's command")
         async with aiomqtt.Client(HOST, broker.port, username=USER, password=SECRET) as fresh:
             await fresh.subscribe("homeassistant/#", qos=1)
             retained: dict[str, Any] = {}

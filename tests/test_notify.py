@@ -7,7 +7,6 @@ import io
 import json
 import socket
 import threading
-import time
 from http.server import BaseHTTPRequestHandler, ThreadingHTTPServer
 from pathlib import Path
 from typing import Any
@@ -17,6 +16,7 @@ import trimesh
 from conftest import sim_config
 from PIL import Image
 from test_daemon import command, printing_layer, small_box
+from waiting import wait_until
 
 from hostd.config import NotifyConfig
 from hostd.notify import Message, Notifier
@@ -156,9 +156,8 @@ def test_a_hung_endpoint_never_blocks_the_caller_and_the_queue_is_bounded() -> N
         # all six were queued or dropped while the first send still waits for its timeout
         assert notifier.failed == 0
         assert notifier.dropped >= 3
-        deadline = time.monotonic() + 20
-        while notifier.failed + notifier.dropped < 6 and time.monotonic() < deadline:
-            time.sleep(0.05)
+        wait_until(lambda: notifier.failed + notifier.dropped >= 6, 20,
+                   lambda: (notifier.failed, notifier.dropped))
         assert notifier.failed + notifier.dropped == 6
         assert notifier.sent == 0
         notifier.close()

@@ -12,12 +12,16 @@ from pathlib import Path
 
 from conftest import DATA
 from stores import RecordingStore
+from waiting import wait_until
 
 from drivers.protocol import strip_comment
 from drivers.simconfig import SimulatorConfig
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer, StreamerConfig
 from drivers.transport import open_transport
+from hostd.checkpoints import CheckpointWriter
+from hostd.joblife import JobLife
+from hostd.jobstate import JobState
 from hostd.runner import JobRunner, _extrudes, open_output
 from hostd.schedule import LayerSchedule
 from hostd.sources import SlicedSource
@@ -29,16 +33,6 @@ from slicer.settings import SliceSettings
 MODEL = DATA / "dogbone_100x30x5.stl"
 FIELD_FILE = "analysis-being-computed.npz"  # a field file a layer waits for (never written)
 WAITING_LAYER = 2
-
-
-def wait_until(condition, timeout: float) -> bool:
-    """Poll ``condition`` until true (True) or ``timeout`` s pass (False)."""
-    deadline = time.monotonic() + timeout
-    while not condition():
-        if time.monotonic() > deadline:
-            return False
-        time.sleep(0.02)
-    return True
 
 
 class CountingSchedule(LayerSchedule):
@@ -58,7 +52,8 @@ class CountingSchedule(LayerSchedule):
             with waiting(FIELD_FILE):
                 self.shown_waiting = wait_until(
                     lambda: self.hub.current.job is not None
-                    and self.hub.current.job.waiting_for == "analysis", 30.0)
+                    and self.hub.current.job.waiting_for == "analysis", 30.0,
+                    "the status to say the layer waits for the analysis")
         lines = super().layer_gcode(layer)
         with self._count_lock:
             self.sliced.append(layer)
@@ -76,7 +71,8 @@ async def print_job(
     job = store.add("dogbone.stl", str(MODEL), str(MODEL), "stl", "00", settings.to_mapping())
     store.transition(job.id, "slicing")
     hub = StatusHub()
-    seen: dict = {"ahead": [], "sliced_at_first_send": None, "sliced_at_first_extrusion": None}
+    seen: dict = {"ahead": [], "sliced_at_first_send": None, "sliced_at_first_extrusion": None,
+                  "acks": 0, "acks_in_commits": 0, "sends_in_commits": 0, "ack_times": []}
     printer = SimulatedPrinter(SimulatorConfig(time_scale=time_scale, baud=0))
     path = printer.start()
     executor = concurrent.futures.ThreadPoolExecutor(2)
@@ -98,9 +94,20 @@ async def print_job(
                     with schedule._count_lock:
                         seen["sliced_at_first_extrusion"] = sorted(schedule.sliced)
                 seen["ahead"].append(source.ready_ahead)
+                seen["sends_in_commits"] += bool(store.commits.under_way)
                 return await original_send(command, tag)
 
             link.send = send  # type: ignore[method-assign]
+            original_ack = runner.on_ack
+
+            def on_ack(ack) -> None:
+                # read by the serial reader and handed over: was a commit under way?
+                seen["acks_in_commits"] += bool(store.commits.under_way)
+                seen["acks"] += 1
+                seen["ack_times"].append(time.monotonic())
+                original_ack(ack)
+
+            runner.on_ack = on_ack  # type: ignore[method-assign]
             await runner.run()
             with contextlib.suppress(OSError):
                 output.close()
@@ -111,6 +118,7 @@ async def print_job(
     seen["loop_thread"] = threading.current_thread().name
     seen["checkpoints"] = store.checkpoints
     seen["threads"] = store.threads
+    seen["commits"] = store.commits.spans
     seen["job"] = store.get(job.id)
     seen["executed"] = list(printer.executed)
     seen["plan"] = plan
@@ -119,7 +127,6 @@ async def print_job(
     seen["output_error"] = runner.output_error
     store.close()
     return seen
-
 
 
 HOUSEKEEPING = ("M110", "M115", "M503", "M155", "M105")
@@ -191,18 +198,35 @@ def test_checkpoints_go_on_when_the_streamer_renumbers_lines(tmp_path: Path) -> 
 
 
 def test_a_store_whose_commits_take_200_ms_does_not_hold_up_the_printer(tmp_path: Path) -> None:
-    seen = asyncio.run(print_job(tmp_path, depth=3, commit_delay_s=0.2, time_scale=0.002))
+    instant = asyncio.run(print_job(tmp_path / "instant", depth=3, time_scale=0.002))
+    seen = asyncio.run(print_job(tmp_path / "slow", depth=3, commit_delay_s=0.2,
+                                 time_scale=0.002))
     plan = seen["plan"]
     expected = whole_program(plan)
-    # every line carried out exactly once, in order
-    assert job_lines(seen["executed"]) == expected
-    stats = seen["stats"]
+    # every line carried out exactly once, in order, as with a store that takes no time
+    assert job_lines(seen["executed"]) == expected == job_lines(instant["executed"])
+    assert len(seen["executed"]) == len(instant["executed"])
+    stats, before = seen["stats"], instant["stats"]
     assert (stats.resends, stats.lines_resent, stats.probes, stats.errors) == (0, 0, 0, 0)
-    # the commits ran in the writer's thread, never in the loop that reads the printer
+    assert (stats.resends, stats.lines_resent, stats.probes, stats.errors) == (
+        before.resends, before.lines_resent, before.probes, before.errors)
+    # the commits ran in the writer's thread, never in the loop that reads the printer:
+    # while the printer acknowledged lines, no commit ran there (the job's move to
+    # printing included), and acknowledgements went on being read and lines sent
+    # while commits were under way
     assert seen["threads"]
-    assert seen["loop_thread"] not in seen["threads"]
     assert set(seen["threads"]) == {"hostd-checkpoint_0"}
-    # the store still ends at the last layer, with every line acknowledged
+    first_ack, last_ack = seen["ack_times"][0], seen["ack_times"][-1]
+    while_printing = [(a, b, thread) for a, b, thread in seen["commits"]
+                      if b > first_ack and a < last_ack]
+    assert len(while_printing) >= 5
+    assert {thread for _a, _b, thread in while_printing} == {"hostd-checkpoint_0"}
+    assert seen["loop_thread"] != "hostd-checkpoint_0"
+    assert seen["acks_in_commits"] > seen["acks"] // 2
+    assert seen["sends_in_commits"] > len(expected) // 2
+    # the move to printing is recorded all the same, and the store ends at the last
+    # layer, with every line acknowledged
+    assert seen["job"].state == "printing"
     assert seen["checkpoints"][-1][0] == plan.layer_count - 1
     assert seen["job"].lines_acked == seen["checkpoints"][-1][1]
 
@@ -276,3 +300,50 @@ def test_a_resume_within_a_layer_sends_the_rest_of_it_after_lifted_moves_back(
         reference += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
     reference += [c for c in map(strip_comment, plan.end_gcode()) if c]
     assert [c for c in map(strip_comment, partial.read_text().splitlines()) if c] == reference
+
+
+def test_a_state_change_handed_to_the_checkpoint_writer_is_committed_off_the_loop_in_order(
+    tmp_path: Path,
+) -> None:
+    store = RecordingStore(tmp_path / "jobs.sqlite3", commit_delay_s=0.2)
+    job = store.add("dogbone.stl", str(MODEL), str(MODEL), "stl", "00", {})
+    for state in ("slicing", "heating"):
+        store.transition(job.id, state)
+    hub = StatusHub()
+    life = JobLife(store, hub)
+    shown: list[tuple[str, str]] = []
+
+    async def main() -> int:
+        writer = CheckpointWriter(store, job.id, None, lambda what, message: None)
+        ticks_in_commits = 0
+        stop = asyncio.Event()
+
+        async def ticker() -> None:
+            nonlocal ticks_in_commits
+            while not stop.is_set():
+                ticks_in_commits += bool(store.commits.under_way)
+                await asyncio.sleep(0.005)
+
+        ticking = asyncio.create_task(ticker())
+        writer.submit_state(
+            lambda connection: life.record(job.id, JobState.PRINTING, store=connection),
+            lambda: shown.append((store.get(job.id).state, threading.current_thread().name)),
+        )
+        assert shown == []  # handed over: nothing waited for the store here
+        await writer.states_written()
+        life.enter(job.id, JobState.PAUSED)  # a command after it, in the loop
+        stop.set()
+        await ticking
+        await writer.close()
+        return ticks_in_commits
+
+    ticks = asyncio.run(main())
+    # shown once recorded, in the loop; the loop ran on while the commit was under way
+    assert shown == [("printing", threading.current_thread().name)]
+    assert ticks > 0
+    moves = [entry.to_state for entry in store.history(job.id)]
+    assert moves == ["queued", "slicing", "heating", "printing", "paused"]
+    printing = [thread for _a, _b, thread in store.commits.spans][-2]
+    assert printing == "hostd-checkpoint_0"
+    assert hub.current.state == "paused"
+    store.close()

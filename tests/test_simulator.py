@@ -212,7 +212,7 @@ def test_emergency_parser_stops_a_heating_wait_at_once():
 
 def test_reopening_the_port_resets_the_printer(host, sim):
     host.command(1, "G1 X1")
-    host.reopen()
+    host.reopen(hung_up=lambda: not sim.connected)
     host.wait_start()
     assert sim.last_line == 0
     host.read_until(lambda line: line.startswith("echo: Free"))

@@ -5,11 +5,11 @@ from __future__ import annotations
 import signal
 import subprocess
 import sys
-import time
 from pathlib import Path
 
 import pytest
 import serial
+from waiting import wait_until
 
 from drivers.protocol import frame
 
@@ -34,10 +34,8 @@ def test_hostd_simulate_serves_a_port_until_signalled(tmp_path, stop_signal):
             assert reply.startswith("ok T:"), reply
             port.write(frame(2, "G1 X10 F600"))
             assert port.readline() == b"ok N2 P15 B3\n"
-        deadline = time.monotonic() + 3
-        while log.read_text().splitlines() != ["M105", "G1 X10 F600"]:
-            assert time.monotonic() < deadline, log.read_text()
-            time.sleep(0.02)
+        wait_until(lambda: log.read_text().splitlines() == ["M105", "G1 X10 F600"], 3,
+                   log.read_text)
         proc.send_signal(stop_signal)
         assert proc.wait(timeout=5) == 0
     finally:

@@ -7,6 +7,7 @@ import time
 
 import pytest
 from simhost import Host
+from waiting import wait_until
 
 from drivers.heater import BED, HOTEND, Heater
 from drivers.protocol import frame
@@ -196,7 +197,7 @@ def test_receive_buffer_overflow_loses_bytes():
     commands = [f"G1 X{n} Y{n} F3000" for n in range(2, 22)]
     try:
         link.send(1, "G4 P400")  # the firmware is busy for 0.4 s and reads nothing
-        time.sleep(0.1)
+        wait_until(lambda: sim.last_line == 1, 2.0, "the G4 taken (the firmware then dwells)")
         burst = b"".join(frame(n, c) for n, c in enumerate(commands, start=2))
         link.write(burst)
         assert link.readline(2.0) == "ok"  # G4

@@ -12,6 +12,7 @@ import numpy as np
 from conftest import DATA
 from doubles import RecordingController
 from textual.widgets._footer import FooterKey
+from waiting import until
 
 from hostd.api import (
     ControlError,
@@ -115,15 +116,6 @@ class FixedSource:
         reply = layer_view(self.schedule, args.get("layer", 12), args.get("tolerance", 0.2), field)
         commands = reply["commands"]
         return {**reply, "job": "7", "acked_before": 2400 - commands // 2, "next_unsliced": 16}
-
-
-async def until(check, timeout: float = 30.0) -> None:
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while not check():
-        if loop.time() > deadline:
-            raise AssertionError("condition not met in time")
-        await asyncio.sleep(0.02)
 
 
 def test_text_helpers() -> None:

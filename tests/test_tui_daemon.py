@@ -3,13 +3,13 @@
 from __future__ import annotations
 
 import asyncio
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
 import pytest
 from conftest import DATA, commands_of, executed_job_lines, sim_config
 from test_daemon import commands, layer_commands, two_bodies
+from waiting import until
 
 from hostd.api import ControlClient, ControlError
 from hostd.layerview import parse_layer
@@ -23,19 +23,6 @@ from tui.widgets.layer import LayerView
 
 PARK = ["G91", "G1 Z5.00 F600", "G90", "M83"]
 UNPARK = ["G91", "G1 Z-5.00 F600", "G90", "M83"]
-
-
-async def until(check: Callable[[], object], timeout: float, what: str) -> object:
-    """Wait for ``check()`` to be true, polling the event loop; fail after ``timeout`` s."""
-    loop = asyncio.get_running_loop()
-    deadline = loop.time() + timeout
-    while True:
-        result = check()
-        if result:
-            return result
-        if loop.time() > deadline:
-            raise AssertionError(f"timed out waiting for {what}")
-        await asyncio.sleep(0.05)
 
 
 def picture(screen: PrinterScreen) -> str:

@@ -10,6 +10,8 @@ import shutil
 import time
 from pathlib import Path
 
+from waiting import until
+
 from hostd.config import load_config
 from hostd.filecheck import open_for_writing
 from hostd.intake import Intake
@@ -49,12 +51,12 @@ async def watch_for(config, jobs: int, action, sentinel: bool = False,
     stop = asyncio.Event()
     watcher = Watcher(config.jobs.folder, config.jobs.settle_s, on_settled)
     task = asyncio.create_task(watcher.run(stop))
-    await wait_until(lambda: config.jobs.folder.is_dir(), timeout)
+    await until(lambda: config.jobs.folder.is_dir(), timeout)
     await action(config.jobs.folder)
     if sentinel:
         (config.jobs.folder / SENTINEL).write_text("G28\n")
         jobs += 1
-    await wait_until(lambda: len(store.jobs()) >= jobs, timeout)
+    await until(lambda: len(store.jobs()) >= jobs, timeout)
     stop.set()
     task.cancel()
     with contextlib.suppress(asyncio.CancelledError):
@@ -62,14 +64,6 @@ async def watch_for(config, jobs: int, action, sentinel: bool = False,
     if sentinel:
         taken.remove(SENTINEL)
     return taken, store
-
-
-async def wait_until(check, timeout: float) -> None:
-    """Poll ``check`` until it is true; fail after ``timeout`` seconds."""
-    deadline = time.monotonic() + timeout
-    while not check():
-        assert time.monotonic() < deadline, "timed out"
-        await asyncio.sleep(0.02)
 
 
 def test_a_growing_file_is_taken_only_once_it_settled(tmp_path: Path) -> None:
@@ -130,7 +124,7 @@ def test_same_name_twice_becomes_two_jobs(tmp_path: Path) -> None:
 
     async def drop_twice(folder: Path) -> None:
         shutil.copyfile(CUBE, folder / "part.stl")
-        await wait_until(lambda: not (folder / "part.stl").exists(), 10)
+        await until(lambda: not (folder / "part.stl").exists(), 10)
         shutil.copyfile(CUBE, folder / "part.stl")
 
     taken, store = asyncio.run(watch_for(config, 2, drop_twice))
