@@ -60,7 +60,8 @@ def _chunks(lo: int, n: int) -> Iterator[tuple[int, int]]:
 
 
 def iter_layer_texts(
-    plan: SlicePlan, workers: int | None = None, labels: ObjectLabels | None = None
+    plan: SlicePlan, workers: int | None = None, labels: ObjectLabels | None = None,
+    meanwhile: Callable[[], None] | None = None,
 ) -> Iterator[tuple[str, float, float]]:
     """Every layer as (G-code text, filament mm, time s), in order, labelled by
     ``labels`` when given (in the workers, so the labelling is spread over cores too).
@@ -75,7 +76,10 @@ def iter_layer_texts(
     or with one core the layers are sliced in this thread, and so are small
     models: the first layers are sliced here and timed, and workers are forked
     only when the rest would take long enough to gain (:data:`_FORK_WORTH`).
-    The bytes are the same either way.
+    The bytes are the same either way. ``meanwhile``, when given, is called once
+    here while forked workers slice (their first tasks handed out), so work of
+    this process that the layers do not need (the file's header) overlaps
+    theirs; it is not called when no workers are forked.
     """
     workers = workers or max(1, os.cpu_count() or 1)
     n = plan.layer_count
@@ -122,6 +126,8 @@ def iter_layer_texts(
             engine.submit, n, depth=_AHEAD * workers * _CHUNK, first=done
         )
         try:
+            if meanwhile is not None:
+                meanwhile()
             yield from window
         finally:
             window.close()
@@ -147,8 +153,15 @@ def write_gcode(
     labels = object_labels(plan, plan.settings)
     lengths: list[int] = []
     times: list[float] = []
+    extras: list[str] = []
+    made: list[bool] = []
+
+    def make_extras() -> None:  # thumbnails and objects' definitions: the outlines only
+        extras.extend(header_extras(plan, plan.settings, labels))
+        made.append(True)
+
     with tempfile.TemporaryFile("w+", encoding="ascii", newline="\n") as body:
-        layers = iter_layer_texts(plan, workers, labels)
+        layers = iter_layer_texts(plan, workers, labels, meanwhile=make_extras)
         for i, (text, layer_filament, layer_time) in enumerate(layers):
             body.write(text)
             lengths.append(len(text))
@@ -164,7 +177,8 @@ def write_gcode(
         try:
             with os.fdopen(fd, "w", encoding="ascii", newline="\n") as fh:
                 fh.write("\n".join(header_lines(summary, plan.settings)) + "\n")
-                extras = header_extras(plan, plan.settings, labels)
+                if not made:
+                    make_extras()
                 fh.write("".join(line + "\n" for line in extras))
                 fh.write("\n".join(plan.start_gcode()) + "\n")
                 copy_layers(fh, body, lengths, times)
