@@ -16,6 +16,7 @@ from drivers.motionreport import PrinterMotion
 from drivers.streamer import LinkError, Streamer
 from hostd.api import JobStatus
 from hostd.config import Config
+from hostd.endgcode import CANCEL_GCODE
 from hostd.eta import slicer_totals
 from hostd.filecheck import Fingerprint, fingerprint, wait_complete
 from hostd.intake import Intake
@@ -38,9 +39,6 @@ from slicer.gcode import header_lines, summarize
 from slicer.settings import SettingsError, SliceSettings
 
 log = logging.getLogger("hostd.job")
-
-# sent when a job is cancelled: heaters and fan off, motors released
-CANCEL_GCODE = ("M104 S0", "M140 S0", "M107", "M84")
 
 
 class PrintJob:
