@@ -108,7 +108,7 @@ class PrinterInfo:
 
 @dataclass(frozen=True)
 class JobStatus:
-    """The job being printed. ``progress`` is 0..1; times in seconds."""
+    """The job being printed. ``progress`` is 0..1; times in seconds; filament in mm."""
 
     id: str
     name: str
@@ -122,6 +122,12 @@ class JobStatus:
     # what the next layer waits for, when printing stops for it: "analysis" (the
     # stress analysis still running); None when nothing is waited for
     waiting_for: str | None = None
+    # filament (mm) of the layers printed and of the whole job, estimated: the slicer's
+    # figure of each layer sliced, a calibrated guess from the model's geometry for the
+    # others (a retune or a cancelled body moves it at once); None for a G-code job and
+    # before the first layer is sliced
+    filament_used_mm: float | None = None
+    filament_total_mm: float | None = None
 
 
 _JOB_KEYS = frozenset(JobStatus.__dataclass_fields__)
