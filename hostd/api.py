@@ -187,6 +187,16 @@ class Snapshot:
         )
 
 
+def accepted(cmd: str, request_id: Any, extra: dict[str, Any]) -> dict[str, Any]:
+    """The reply to a request carried out: its fields and the envelope (socket and MQTT)."""
+    return {**extra, "reply": cmd, "ok": True, "id": request_id, "error": None}
+
+
+def refused(cmd: str | None, request_id: Any, reason: str) -> dict[str, Any]:
+    """The reply to a request refused, with the reason (socket and MQTT)."""
+    return {"reply": cmd, "ok": False, "id": request_id, "error": reason}
+
+
 class ControlError(RuntimeError):
     """The daemon refused a command or could not be reached."""
 
