@@ -131,7 +131,8 @@ def tls_context(settings: MqttSettings) -> ssl.SSLContext | None:
 
 
 class MqttBridge:
-    """Publishes the hub's status and events to a broker and carries allowed commands back.
+    """Publishes the hub's status and events to a broker, carries allowed commands back
+    and answers read-only requests (:attr:`requests`).
 
     ``run()`` lasts until cancelled. It never blocks the hub: it reads
     ``hub.snapshots()`` and ``hub.events()``, which drop old snapshots for a

@@ -8,14 +8,16 @@ from pathlib import Path
 from typing import Any
 
 import pytest
-from brokers import Broker, start_broker
+from brokers import Broker, start_broker, start_nats_cluster
 from doubles import RecordingController
 from test_mqtt_bridge import PRINTER, Observer, observe, settings, topic, with_bridge
 
-from hostd.api import Snapshot
+from hostd.api import ControlError, Snapshot
+from hostd.config import MqttConfig
 from hostd.mqtt import MqttBridge
 from hostd.mqtt_requests import MAX_PER_CLIENT, MAX_REPLY_BYTES, MAX_REQUEST_BYTES
 from hostd.status import StatusHub
+from tui.sources import MqttSource, StatusItem, parse_brokers
 
 MINE = topic("reply/observer-1")
 
@@ -206,3 +208,46 @@ def test_a_flood_of_requests_is_told_busy_while_status_and_commands_go_on(
 
     asyncio.run(observe(broker, body))
     assert [cmd for cmd, _args in controller.calls] == ["layer"] * (MAX_PER_CLIENT + 1)
+
+
+def test_the_fleet_views_requests_cross_a_nats_cluster(tmp_path: Path) -> None:
+    """The bridge on one node, the view on another: MQTT 3.1.1 only, QoS 1, no retain."""
+    cluster = start_nats_cluster(tmp_path / "nats")
+    first, last = cluster.hosts()[0], cluster.hosts()[-1]
+    controller = RecordingController(refuse={"estimate": "no job is printing"})
+    config = MqttConfig(enabled=True, hosts=tuple(parse_brokers(first)))
+    bridge = MqttBridge(config, PRINTER, StatusHub(Snapshot(state="idle")), controller)
+    source = MqttSource(parse_brokers(last))
+
+    async def scenario() -> None:
+        task = asyncio.create_task(bridge.run())
+        seen: list[Any] = []
+
+        async def follow() -> None:
+            async for item in source.fleet_stream():
+                seen.append(item)
+
+        view = asyncio.create_task(follow())
+        try:
+            async with asyncio.timeout(30):
+                await bridge.connected.wait()
+                while not any(getattr(item, "printer", "") == PRINTER for item in seen):
+                    await asyncio.sleep(0.05)  # the view hears the printer across the cluster
+            source.open_replies(PRINTER)
+            reply = await source.query(PRINTER, "layer", layer=2)
+            assert reply["done"] == "layer"
+            assert reply["id"].startswith(source.token)
+            with pytest.raises(ControlError, match="no job is printing"):
+                await source.query(PRINTER, "estimate")
+            assert not any(isinstance(item, StatusItem) and item.printer != PRINTER
+                           for item in seen)  # replies are never taken for a printer
+        finally:
+            view.cancel()
+            task.cancel()
+            await asyncio.gather(view, task, return_exceptions=True)
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        cluster.stop()
+    assert controller.calls == [("layer", {"layer": 2}), ("estimate", {})]
