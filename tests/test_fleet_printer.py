@@ -17,7 +17,8 @@ import pytest
 from brokers import HOST, Broker, start_broker
 from conftest import commands_of
 from test_daemon import commands, layer_commands, two_bodies
-from test_fleet import REPO, rows, until
+from test_fleet import REPO, rows
+from waiting import until
 
 from hostd.api import ControlError
 from slicer.plan import SlicePlan

@@ -11,6 +11,7 @@ import pytest
 from brokers import Broker, start_broker, start_nats_cluster
 from doubles import RecordingController
 from test_mqtt_bridge import PRINTER, Observer, observe, settings, topic, with_bridge
+from waiting import until
 
 from hostd.api import ControlError, Snapshot
 from hostd.config import MqttConfig
@@ -191,11 +192,8 @@ def test_a_flood_of_requests_is_told_busy_while_status_and_commands_go_on(
             assert refused["id"] == "c1"
             await publish(topic("req"), request("layer", "other", reply_to=theirs), qos=1)
             # queued behind the flooder's own (one of them being answered), not told busy
-            loop = asyncio.get_running_loop()
-            deadline = loop.time() + 10
-            while bridge.requests.waiting < MAX_PER_CLIENT:  # (MAX_PER_CLIENT - 1) + 1
-                assert loop.time() < deadline, "the other client's request was not queued"
-                await asyncio.sleep(0.01)
+            await until(lambda: bridge.requests.waiting >= MAX_PER_CLIENT,  # (MAX - 1) + 1
+                        10, "the other client's request queued", interval=0.01)
             controller.gate.set()
             await observer.wait_for(lambda: replies(observer, theirs))
             answered = await observer.wait_for(
@@ -231,8 +229,9 @@ def test_the_fleet_views_requests_cross_a_nats_cluster(tmp_path: Path) -> None:
         try:
             async with asyncio.timeout(30):
                 await bridge.connected.wait()
-                while not any(getattr(item, "printer", "") == PRINTER for item in seen):
-                    await asyncio.sleep(0.05)  # the view hears the printer across the cluster
+            # the view hears the printer across the cluster
+            await until(lambda: any(getattr(item, "printer", "") == PRINTER for item in seen),
+                        30, "the printer in the fleet view", interval=0.05)
             source.open_replies(PRINTER)
             reply = await source.query(PRINTER, "layer", layer=2)
             assert reply["done"] == "layer"
