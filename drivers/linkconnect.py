@@ -14,6 +14,7 @@ from drivers.linkevents import Event
 from drivers.linkprofile import Profile, profile_for, tuned
 from drivers.linkwaiters import Waiters
 from drivers.motionreport import PrinterMotion, parse_motion_report
+from drivers.numbering import NumberingProbe, probe_line
 from drivers.transport import Transport, TransportError
 
 log = logging.getLogger("drivers.link")
@@ -31,7 +32,10 @@ class Connecting:
     _reopen: Callable[[], Awaitable[Transport]] | None
     _waiters: Waiters
     _started: asyncio.Event
+    _probed: asyncio.Event
     _wake: asyncio.Event
+    numbering_kept: bool | None
+    numbering_last_line: int | None
 
     @property
     def firmware(self) -> str:
@@ -54,10 +58,12 @@ class Connecting:
     def _dispatch(self, events: list[Event]) -> None:
         raise NotImplementedError
 
-    async def connect(self) -> None:
+    async def connect(self, probe_numbering: bool = False) -> None:
         """Wait for ``start`` (or a timeout), then ``M110 N0``, ``M115``, ``M503`` (the
         motion settings, :attr:`motion`; with ``read_motion``) and auto-report.
 
+        ``probe_numbering``: first find out whether the printer still counts the lines
+        of an earlier session (:mod:`drivers.numbering`; :attr:`numbering_kept`).
         Raises :class:`LinkError` if the printer does not answer in ``connect_timeout_s``.
         """
         self._start_tasks()
@@ -68,6 +74,8 @@ class Connecting:
                 await self._started.wait()
         with contextlib.suppress(TransportError):
             await self._transport.write(b"\n")  # end any noise the printer has buffered
+        if probe_numbering:
+            await self._probe_numbering()
         try:
             async with asyncio.timeout(self.config.connect_timeout_s):
                 token, waiter = self._waiters.new()
@@ -86,6 +94,37 @@ class Connecting:
             self._dispatch(self.core.take_events())
             raise LinkError(self.core.error) from exc
         self.core.connected(loop.time())
+
+    async def _probe_numbering(self) -> None:
+        """``N1 M105`` before any ``M110``: :attr:`numbering_kept` and
+        :attr:`numbering_last_line` from the answer (None when there is none within
+        ``connect_timeout_s``). Once refused, the rest of the answer (``Resend``, its
+        ``ok``) is awaited for ``resync_quiet_s`` at most: a build that sends no ``ok``
+        then costs that long, not an ``ok`` counted for the handshake's ``M110``."""
+        probe = self.core.numbering_probe = NumberingProbe(self.config.ok_after_resend)
+        self._probed.clear()
+        try:
+            with contextlib.suppress(TransportError):
+                await self._transport.write(probe_line())
+            with contextlib.suppress(TimeoutError):
+                async with asyncio.timeout(self.config.connect_timeout_s):
+                    while probe.kept is None:
+                        await self._probed.wait()
+                        self._probed.clear()
+                async with asyncio.timeout(self.config.resync_quiet_s):
+                    while not probe.done:
+                        await self._probed.wait()
+                        self._probed.clear()
+        finally:
+            self.core.numbering_probe = None
+        self.numbering_kept, self.numbering_last_line = probe.kept, probe.last_line
+        if probe.kept is None:
+            log.info("printer line numbering: no answer to the probe (unknown)")
+        elif probe.kept:
+            log.info("printer line numbering kept from its last host (last line %d): it "
+                     "kept its power", probe.last_line)
+        else:
+            log.info("printer line numbering starts at 1: it booted since its last host")
 
     def _tune(self) -> None:
         """Settings for the firmware just identified (``M115``), logged."""

@@ -12,12 +12,22 @@ import re
 from collections import deque
 
 from drivers.linkconfig import StreamerConfig, StreamStats
-from drivers.linkevents import Acked, Event, Failed, LinkState, Report, Started, Temperature
+from drivers.linkevents import (
+    Acked,
+    Event,
+    Failed,
+    LinkState,
+    Probed,
+    Report,
+    Started,
+    Temperature,
+)
 from drivers.linkmodel import PrinterModel
 from drivers.linkoks import Acknowledging
 from drivers.linkresync import Resync
 from drivers.linkwatch import Watching
 from drivers.linkwrite import Control, Renumber, Writing
+from drivers.numbering import NumberingProbe
 from drivers.resend import edit_distance, recover
 from drivers.responses import Response, parse_response
 from drivers.window import InFlight, SendWindow
@@ -76,6 +86,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self._answers_owed: list[int] = []  # probes acknowledged ahead of their answers
         self.advanced_ok = False
         self.transcript: list[str] | None = None  # when a list, every line received goes in
+        self.numbering_probe: NumberingProbe | None = None  # out before the handshake
         self.init_resync()
 
     # -- the shell's side -----------------------------------------------------------------
@@ -161,6 +172,15 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
 
     def handle(self, response: Response, now: float) -> None:
         """Act on one classified response."""
+        probe = self.numbering_probe
+        if probe is not None:
+            taken = probe.take(response)
+            if taken or probe.done:
+                self._events.append(Probed())
+            if taken:  # its answer is no line's of ours
+                if response.temperatures:
+                    self._events.append(Temperature(response))
+                return
         kind = response.kind
         if kind == "other":
             # unreadable noise (a Resend garbled beyond repair): keep what came before;

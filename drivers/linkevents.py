@@ -73,4 +73,9 @@ class Started:
     """The ``start`` banner of a board reset arrived while connecting."""
 
 
-Event = Written | Acked | Temperature | Report | Failed | Started
+@dataclass(frozen=True)
+class Probed:
+    """The line-number probe written before the handshake was answered (or given up)."""
+
+
+Event = Written | Acked | Temperature | Report | Failed | Started | Probed

@@ -30,6 +30,7 @@ from drivers.linkevents import (
     Event,
     Failed,
     LinkState,
+    Probed,
     Report,
     Started,
     Temperature,
@@ -107,6 +108,11 @@ class Streamer(Connecting):
         self._reopen = reopen
         self._waiters = Waiters()
         self._started = asyncio.Event()
+        self._probed = asyncio.Event()  # the line-number probe answered
+        # after connect(probe_numbering=True): whether the printer still counted the lines
+        # of an earlier session (None: not probed, or no answer)
+        self.numbering_kept: bool | None = None
+        self.numbering_last_line: int | None = None  # the printer's, before the handshake
         self._wake = asyncio.Event()
         self._progress = asyncio.Event()
         self._failed = asyncio.Event()  # set when the core reports the link failed or halted
@@ -417,6 +423,8 @@ class Streamer(Connecting):
                 self._failed.set()
             elif isinstance(event, Started):
                 self._started.set()
+            elif isinstance(event, Probed):
+                self._probed.set()
         if wake:
             self._wake.set()
         self._progress.set()

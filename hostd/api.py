@@ -1,4 +1,4 @@
-"""The daemon's public API: the status snapshot schema and the control-socket protocol.
+"""The daemon's public API: the status snapshot schema, the control socket's and MQTT's protocol.
 
 This is the one module of `hostd` that clients (the dashboard in `tui/`, scripts)
 import. It depends on the standard library only.
@@ -15,7 +15,8 @@ firmware has an emergency parser. The printer halts; the job printing, if any, f
 (the board resets). The reply's ``job`` is the failed job's id, or null when idle; it
 is refused ("no printer is connected") while the printer is offline.
 
-Requests for the dashboard (control socket only; over MQTT they are refused):
+Requests for the dashboard (on the control socket as above; ``layer`` and
+``estimate`` change nothing and are MQTT requests too, see below):
 
 - ``{"cmd": "layer", "layer": N, "tolerance": MM, "field": [COLS, ROWS]}``: one layer
   of the job printing (``layer`` defaults to the one printing; ``tolerance``, default
@@ -38,7 +39,27 @@ Requests for the dashboard (control socket only; over MQTT they are refused):
   ``settings`` (optional, checked as ``set`` checks them, not applied) ``retuned``:
   ``{"filament_total_mm", "eta_s", "time_ratio"}`` if the retune were made now.
 - ``{"cmd": "restore_object", "object": N}``: undo ``cancel_object`` while no layer
-  without that body has been sliced yet.
+  without that body has been sliced yet (a command, like ``cancel_object``).
+
+Over MQTT (3.1.1, topics ``hostd/<printer>/...``; the daemon's side is
+``hostd.mqtt`` and ``hostd.mqtt_requests``):
+
+- ``status`` (retained): the snapshot's JSON, as :meth:`Snapshot.to_json`; its job's
+  ``filament_used_mm`` and ``filament_total_mm`` are the daemon's estimates.
+- ``cmd``: the commands pause, resume, cancel, resume_job, cancel_object,
+  restore_object, set and emergency_stop, as ``{"cmd": NAME, "id": ..., ...args}``;
+  carried out only with ``mqtt.allow_commands`` and broker credentials on the
+  printer's side. They have no reply: a refusal is an ``error`` event
+  ``{"event": "error", "cmd", "reason", "id"}`` on ``event``.
+- ``req``: the read-only requests ``layer`` and ``estimate`` as ``{"req": NAME, "id":
+  ..., "reply_to": TOPIC, ...args}`` (the arguments above); allowed without
+  ``allow_commands``. The reply, the same object as on the control socket, is
+  published on ``reply_to`` (QoS 1, not retained), which must be
+  ``hostd/<printer>/reply/<client>`` with ``<client>`` 1 to 64 letters, digits,
+  ``-`` or ``_``; a request naming any other topic is not answered and is refused
+  on ``event``. Requests are 16 KiB at most, replies 900 KiB (a larger one is
+  refused); a client with 4 requests waiting, or a printer with 16, answers
+  ``busy``.
 """
 
 from __future__ import annotations
@@ -108,7 +129,7 @@ class PrinterInfo:
 
 @dataclass(frozen=True)
 class JobStatus:
-    """The job being printed. ``progress`` is 0..1; times in seconds."""
+    """The job being printed. ``progress`` is 0..1; times in seconds; filament in mm."""
 
     id: str
     name: str
@@ -122,6 +143,12 @@ class JobStatus:
     # what the next layer waits for, when printing stops for it: "analysis" (the
     # stress analysis still running); None when nothing is waited for
     waiting_for: str | None = None
+    # filament (mm) of the layers printed and of the whole job, estimated: the slicer's
+    # figure of each layer sliced, a calibrated guess from the model's geometry for the
+    # others (a retune or a cancelled body moves it at once); None for a G-code job and
+    # before the first layer is sliced
+    filament_used_mm: float | None = None
+    filament_total_mm: float | None = None
 
 
 _JOB_KEYS = frozenset(JobStatus.__dataclass_fields__)
@@ -179,6 +206,16 @@ class Snapshot:
             ts=float(data.get("ts", 0.0)),
             history=tuple(dict(item) for item in data.get("history") or ()),
         )
+
+
+def accepted(cmd: str, request_id: Any, extra: dict[str, Any]) -> dict[str, Any]:
+    """The reply to a request carried out: its fields and the envelope (socket and MQTT)."""
+    return {**extra, "reply": cmd, "ok": True, "id": request_id, "error": None}
+
+
+def refused(cmd: str | None, request_id: Any, reason: str) -> dict[str, Any]:
+    """The reply to a request refused, with the reason (socket and MQTT)."""
+    return {"reply": cmd, "ok": False, "id": request_id, "error": reason}
 
 
 class ControlError(RuntimeError):

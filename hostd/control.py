@@ -13,7 +13,7 @@ import stat
 from pathlib import Path
 from typing import Any
 
-from hostd.api import COMMANDS
+from hostd.api import COMMANDS, accepted, refused
 from hostd.status import CommandError, Controller, StatusHub
 
 log = logging.getLogger(__name__)
@@ -107,7 +107,7 @@ class _Connection:
             try:
                 line = await self._reader.readline()
             except ValueError:  # longer than the reader's limit: the stream is out of step
-                await self.send(_refusal(None, None, "request line too long"))
+                await self.send(refused(None, None, "request line too long"))
                 return
             if not line:
                 return
@@ -136,30 +136,30 @@ class _Connection:
         try:
             request = json.loads(line)
         except ValueError as exc:  # JSONDecodeError, UnicodeDecodeError
-            return _refusal(None, None, f"malformed JSON: {exc}")
+            return refused(None, None, f"malformed JSON: {exc}")
         except RecursionError:
-            return _refusal(None, None, "malformed JSON: nested too deeply")
+            return refused(None, None, "malformed JSON: nested too deeply")
         if not isinstance(request, dict):
-            return _refusal(None, None, "a request must be a JSON object")
+            return refused(None, None, "a request must be a JSON object")
         cmd = request.get("cmd")
         request_id = request.get("id")
         if not isinstance(cmd, str):
-            return _refusal(None, request_id, 'missing "cmd"')
+            return refused(None, request_id, 'missing "cmd"')
         if cmd not in COMMANDS:
-            return _refusal(cmd, request_id, f"unknown command {cmd!r}")
+            return refused(cmd, request_id, f"unknown command {cmd!r}")
         if cmd == "status":
-            return _accepted(cmd, request_id, {"status": self._hub.current.to_dict()})
+            return accepted(cmd, request_id, {"status": self._hub.current.to_dict()})
         if cmd == "subscribe":
-            return _accepted(cmd, request_id, {})
+            return accepted(cmd, request_id, {})
         args = {key: value for key, value in request.items() if key not in ("cmd", "id")}
         try:
             result = await self._controller.handle(cmd, args)
         except CommandError as exc:
-            return _refusal(cmd, request_id, str(exc))
+            return refused(cmd, request_id, str(exc))
         except Exception as exc:  # a controller bug must not take the socket down
             log.exception("control command %s failed", cmd)
-            return _refusal(cmd, request_id, f"internal error: {type(exc).__name__}: {exc}")
-        return _accepted(cmd, request_id, dict(result or {}))
+            return refused(cmd, request_id, f"internal error: {type(exc).__name__}: {exc}")
+        return accepted(cmd, request_id, dict(result or {}))
 
     async def _stream_status(self) -> None:
         async for snapshot in self._hub.snapshots():
@@ -168,14 +168,6 @@ class _Connection:
     async def _stream_events(self) -> None:
         async for event in self._hub.events():
             await self.send({"event": event})
-
-
-def _accepted(cmd: str, request_id: Any, extra: dict[str, Any]) -> dict[str, Any]:
-    return {**extra, "reply": cmd, "ok": True, "id": request_id, "error": None}
-
-
-def _refusal(cmd: str | None, request_id: Any, reason: str) -> dict[str, Any]:
-    return {"reply": cmd, "ok": False, "id": request_id, "error": reason}
 
 
 async def serve_control(path: Path, hub: StatusHub, controller: Controller) -> None:

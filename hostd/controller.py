@@ -174,8 +174,10 @@ class DaemonController:
         ):
             raise CommandError("\"field\" must be [columns, rows], each 1..1000")
         stored = self.store.get(job.job.id)
+        held = job.source.held(index)  # the lines streamed or made ahead, when there are
         reply = await asyncio.to_thread(
-            layerview.layer_view, schedule, index, float(tolerance), tuple(field) if field else None
+            layerview.layer_view, schedule, index, float(tolerance),
+            tuple(field) if field else None, held,
         )
         reply["job"] = job.job.id
         reply["acked_before"] = layerview.acked_before(schedule, runner, job.source, stored, index)

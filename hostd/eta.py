@@ -48,8 +48,9 @@ class EtaModel:
         self.done_at: dict[int, float] = {}  # layer -> active seconds when it was done
         self.last_done = first - 1
         self._geometry: Geometry | None = None
-        # layer -> (estimate s, retunes made then, bodies left out then)
-        self._samples: dict[int, tuple[float, int, frozenset[int]]] = {}
+        # layer -> ((estimate s, filament mm), retunes made then, bodies left out then)
+        self._samples: dict[int, tuple[tuple[float, float], int, frozenset[int]]] = {}
+        self._filament: tuple[Any, tuple[float, float] | None] | None = None  # (key, figures)
         self._thread: threading.Thread | None = None
         self._stop = threading.Event()
         self._paused_total = 0.0
@@ -126,18 +127,19 @@ class EtaModel:
                 retunes = len(schedule.changes)
                 excluded = schedule.excluded_at(layer)
                 code = schedule.plan_at(layer).layer_code(layer, excluded)
-                self._samples[layer] = (code.time_s, retunes, excluded)
+                self._samples[layer] = ((code.time_s, code.filament_mm), retunes, excluded)
         except Exception:  # the ETA falls back to the slicer's recent layers
             log.debug("layer geometry for the ETA not measured", exc_info=True)
 
-    def _guess(self, lo: int, hi: int) -> np.ndarray:
-        """Guessed seconds of layers ``lo..hi-1`` with their settings, less the cancelled
-        bodies, (hi - lo,); needs the geometry."""
+    def _guess(self, lo: int, hi: int, column: int = 0) -> np.ndarray:
+        """Guessed seconds (``column`` 0) or filament mm (1) of layers ``lo..hi-1`` with
+        their settings, less the cancelled bodies, (hi - lo,); needs the geometry."""
         geometry = self._geometry
         assert geometry is not None
         schedule = self.schedule
+        guess = geometry.filament if column else geometry.seconds
         bounds = sorted({lo, hi, *(f for f, _ in schedule.changes if lo < f < hi)})
-        rows = [geometry.seconds(schedule.settings_at(a), slice(a, b))
+        rows = [guess(schedule.settings_at(a), slice(a, b))
                 for a, b in itertools.pairwise(bounds)]
         seconds = np.concatenate(rows) if rows else np.zeros((0, geometry.walls.shape[1]))
         bodies = seconds.shape[1]
@@ -146,27 +148,58 @@ class EtaModel:
                 seconds[max(first, lo) - lo:, body] = 0.0
         return seconds.sum(axis=1)
 
-    def _valid_samples(self) -> dict[int, float]:
-        """The sampled estimates (s) no later retune or cancel made stale."""
+    def _valid_samples(self, column: int = 0) -> dict[int, float]:
+        """The sampled estimates (``column`` 0: s, 1: filament mm) no later retune or
+        cancel made stale."""
         schedule = self.schedule
         out = {}
-        for layer, (seconds, retunes, excluded) in list(self._samples.items()):
+        for layer, (figures, retunes, excluded) in list(self._samples.items()):
             if all(first > layer for first, _ in schedule.changes[retunes:]) \
                     and schedule.excluded_at(layer) == excluded:
-                out[layer] = seconds
+                out[layer] = figures[column]
         return out
 
     def _estimates(self) -> np.ndarray | None:
         """Estimated seconds of every layer: the slicer's, or the calibrated guess, (layers,)."""
+        return self._per_layer(0)
+
+    def filament(self) -> tuple[float, float] | None:
+        """Filament (mm) of the layers printed and of the whole job, or None (a G-code job,
+        or before a layer is sliced).
+
+        Each layer counts the slicer's figure when it was sliced in this run, else the
+        geometry's guess with its own settings and bodies, calibrated on the layers
+        sliced and sampled as the time is (a retune or a cancel moves the total at once).
+        Worked out again only when one of these changed.
+        """
+        schedule = self.schedule
+        if schedule is None:
+            return None
+        key = (len(schedule.estimates), len(self._samples), len(schedule.changes),
+               tuple(schedule.cancelled), self._geometry is not None, self.last_done)
+        cached = self._filament
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        per_layer = self._per_layer(1)
+        figures = None
+        if per_layer is not None:
+            done = max(0, min(self.last_done + 1, self.layers))
+            figures = (float(per_layer[:done].sum()), float(per_layer.sum()))
+        self._filament = (key, figures)
+        return figures
+
+    def _per_layer(self, column: int) -> np.ndarray | None:
+        """Every layer's estimated seconds (``column`` 0) or filament mm (1): the slicer's,
+        or the calibrated guess, (layers,)."""
         if self.schedule is None:
             return None
         known = dict(self.schedule.estimates)
         if not known:
             return None
         out = np.full(self.layers, np.nan)
-        for layer, (seconds, _filament) in known.items():
+        for layer, figures in known.items():
             if 0 <= layer < self.layers:
-                out[layer] = seconds
+                out[layer] = figures[column]
         missing = np.isnan(out)
         if not missing.any():
             return out
@@ -174,8 +207,8 @@ class EtaModel:
             recent = out[~missing][-RECENT_LAYERS:]
             out[missing] = recent.mean()
             return out
-        guess = self._guess(0, self.layers)
-        sampled = self._valid_samples()
+        guess = self._guess(0, self.layers, column)
+        sampled = self._valid_samples(column)
         sliced = np.flatnonzero(~missing)
         sampled.update(zip(sliced.tolist(), out[sliced].tolist(), strict=True))
         anchors = {k: (v, float(guess[k])) for k, v in sampled.items()}

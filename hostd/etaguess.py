@@ -53,6 +53,17 @@ class Geometry:
         total = np.maximum(islands.sum(axis=1, keepdims=True), 1.0)
         return seconds + islands * ISLAND_COST_S + LAYER_COST_S * islands / total
 
+    def filament(self, settings: SliceSettings, layers: slice = slice(None)) -> np.ndarray:
+        """Guessed filament (mm) of ``layers`` with ``settings``, (k, bodies): the roads'
+        volume (walls, solid fill, sparse fill at its density; one line wide, one layer
+        high) over the filament's cross-section."""
+        rows = np.arange(len(self.walls))[layers]
+        height = np.where(rows == 0, settings.first_layer_height, settings.layer_height)[:, None]
+        w = settings.line_width
+        sparse = self.sparse[layers] * max(settings.infill_density, 0.0)
+        volume = (self.walls[layers] * w + self.solid[layers] + sparse) * height
+        return volume / settings.filament_area
+
 
 def measure(plan: SlicePlan, settings: SliceSettings) -> Geometry:
     """The :class:`Geometry` of every layer of ``plan`` (outlines offset, vectorised)."""

@@ -1,4 +1,5 @@
-"""Whether a dropped file is still being written: writers found under /proc, and its digest."""
+"""Whether a dropped file is still being written: writers found under /proc, and its
+fingerprint (length and digest)."""
 
 from __future__ import annotations
 
@@ -6,6 +7,7 @@ import asyncio
 import hashlib
 import os
 import time
+from dataclasses import dataclass
 from pathlib import Path
 
 PROC = Path("/proc")
@@ -58,13 +60,37 @@ def _writable(fdinfo: Path) -> bool:
     return False
 
 
-def sha256_of(path: Path) -> str:
-    """The SHA-256 of a file's bytes, as hex."""
+@dataclass(frozen=True)
+class Fingerprint:
+    """What a file held when it was read: its length and the SHA-256 of those bytes."""
+
+    size: int
+    sha256: str
+
+    def still(self, path: Path) -> bool:
+        """True when ``path`` still has the length read (a write since that changed it
+        shows; the hash read again tells the rest)."""
+        try:
+            return path.stat().st_size == self.size
+        except OSError:
+            return False
+
+
+def fingerprint(path: Path) -> Fingerprint:
+    """The length and SHA-256 of a file's bytes, read once (the length is of the bytes
+    hashed, not of a stat that a writer may have moved on since)."""
     digest = hashlib.sha256()
+    size = 0
     with open(path, "rb") as handle:
         for block in iter(lambda: handle.read(1 << 20), b""):
             digest.update(block)
-    return digest.hexdigest()
+            size += len(block)
+    return Fingerprint(size, digest.hexdigest())
+
+
+def sha256_of(path: Path) -> str:
+    """The SHA-256 of a file's bytes, as hex."""
+    return fingerprint(path).sha256
 
 
 def _signature(path: Path) -> tuple[int, int] | None:

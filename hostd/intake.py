@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import asyncio
-import hashlib
 import logging
 import os
 import shutil
@@ -13,6 +12,7 @@ import uuid
 from pathlib import Path
 
 from hostd.config import Config, ConfigError, slicing_settings
+from hostd.filecheck import Fingerprint, fingerprint, open_for_writing
 from hostd.jobfolder import LOAD_SUFFIX, free_stem, leaves_folder, move, split_name
 from hostd.jobstate import Queued
 from hostd.jobstore import Job, JobStore
@@ -55,20 +55,28 @@ class Intake:
                 reason = await self.load_checks.refusal(path, load, settings)
                 if reason is not None:
                     raise Rejected(reason)
-            digest = await asyncio.to_thread(_sha256, path)
+            digest = await asyncio.to_thread(fingerprint, path)
         except Rejected as exc:
             job = self.store.add(path.name, str(path), str(path), kind, "", {})
             extra = [p for p in (override, load) if p.exists() and p != path]
             self.fail(job, str(exc), extra=extra)
             return None
         incoming = self.area / f"incoming-{uuid.uuid4().hex}"
-        staged = await asyncio.to_thread(
-            _stage, path, override, load if kind == "stl" else None, incoming
-        )
-        job = self.store.add(path.name, str(path), str(staged), kind, digest, settings)
+        try:
+            staged = await asyncio.to_thread(
+                _stage, path, override, load if kind == "stl" else None, incoming, digest
+            )
+        except StillWritten as exc:
+            # left in the job folder: its writer's next change makes it settle again
+            await asyncio.to_thread(shutil.rmtree, incoming, True)
+            log.warning("%s; not taken yet", exc)
+            return None
+        job = self.store.add(path.name, str(path), str(staged), kind, digest.sha256, settings,
+                             size=digest.size)
         home = move(incoming, self.area / job.id)
         job = self.store.set_path(job.id, str(home / path.name))
-        log.info("job %s: %s queued (sha256 %s)", job.id, job.name, digest[:12])
+        log.info("job %s: %s queued (%d bytes, sha256 %s)", job.id, job.name, digest.size,
+                 digest.sha256[:12])
         self.outcomes.life.publish(Queued(job.id, job.name))
         return job
 
@@ -176,27 +184,53 @@ class Intake:
             incoming.rmdir()
 
 
-def _sha256(path: Path) -> str:
-    digest = hashlib.sha256()
-    with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+class StillWritten(Exception):
+    """The model changed while it was being taken (a writer that kept writing)."""
 
 
-def _stage(path: Path, override: Path, load: Path | None, incoming: Path) -> Path:
+def _stage(path: Path, override: Path, load: Path | None, incoming: Path,
+           taken: Fingerprint) -> Path:
     """Move the model and its side files into ``incoming``; return the model's new path.
 
-    A link inside the folder is taken as a copy of what it points to (the copy of
-    a large file is why this runs in a thread). The load case is found beside the
-    model when it is sliced.
+    On one filesystem the model is renamed (the file itself: a writer that goes on
+    is caught by the size and hash checked again before slicing). Across two (the
+    job folder and the state folder on different disks), and for a link inside the
+    folder (taken as a copy of what it points to), it is copied: a file still open
+    for writing is not copied, and the copy must have the length and hash ``taken``
+    from the file, with the file unchanged meanwhile, before the file is removed;
+    else StillWritten. The copy of a large file is why this runs in a thread. The
+    load case is found beside the model when it is sliced.
     """
     incoming.mkdir(parents=True)
-    if path.is_symlink():
-        staged = Path(shutil.copyfile(path, incoming / path.name))
-        path.unlink()
-    else:
-        staged = move(path, incoming / path.name)
+    staged = incoming / path.name
+    if not path.is_symlink():
+        try:
+            os.replace(path, staged)
+        except OSError:  # EXDEV: another filesystem (or one that cannot rename): copied
+            pass
+        else:
+            return _stage_side_files(override, load, incoming, staged)
+    _copy_checked(path, staged, taken)
+    path.unlink()
+    return _stage_side_files(override, load, incoming, staged)
+
+
+def _copy_checked(path: Path, staged: Path, taken: Fingerprint) -> None:
+    """Copy ``path`` to ``staged`` and check the copy holds what was ``taken``."""
+    if open_for_writing(path):
+        raise StillWritten(f"{path.name} is open for writing again")
+    before = path.stat()
+    shutil.copyfile(path, staged)
+    after = path.stat()
+    copied = fingerprint(staged)
+    moved = (before.st_size, before.st_mtime_ns) != (after.st_size, after.st_mtime_ns)
+    if copied != taken or moved:
+        staged.unlink()
+        raise StillWritten(f"{path.name} changed while it was taken ({taken.size} bytes "
+                           f"hashed, {after.st_size} now)")
+
+
+def _stage_side_files(override: Path, load: Path | None, incoming: Path, staged: Path) -> Path:
     if override.is_file() and not override.is_symlink():
         move(override, incoming / override.name)
     if load is not None and load.is_file() and not load.is_symlink():

@@ -28,6 +28,7 @@ CREATE TABLE IF NOT EXISTS jobs (
     path TEXT NOT NULL,
     kind TEXT NOT NULL,
     sha256 TEXT NOT NULL,
+    size INTEGER NOT NULL DEFAULT -1,
     settings TEXT NOT NULL,
     state TEXT NOT NULL,
     position REAL NOT NULL,
@@ -104,6 +105,7 @@ class Job:
     started: float | None
     finished: float | None
     layer_lines: int = 0  # commands of layer ``layer + 1`` acknowledged
+    size: int = -1  # bytes of the model whose ``sha256`` was taken (-1: not known)
 
 
 @dataclass(frozen=True)
@@ -144,6 +146,8 @@ class JobStore:
                 self._db.execute(
                     "ALTER TABLE jobs ADD COLUMN layer_lines INTEGER NOT NULL DEFAULT 0"
                 )
+            if "size" not in columns:  # a store made before the column: sizes unknown
+                self._db.execute("ALTER TABLE jobs ADD COLUMN size INTEGER NOT NULL DEFAULT -1")
 
     def close(self) -> None:
         """Close the database (every change is already committed)."""
@@ -244,15 +248,18 @@ class JobStore:
         kind: str,
         sha256: str,
         settings: dict[str, Any],
+        size: int = -1,
     ) -> Job:
-        """Record a new queued job at the end of the queue and return it."""
+        """Record a new queued job at the end of the queue and return it (``size``: the
+        bytes of the model ``sha256`` is the hash of)."""
         now = time.time()
         with self._tx() as db:
             (last,) = db.execute("SELECT COALESCE(MAX(position), 0) FROM jobs").fetchone()
             cur = db.execute(
-                "INSERT INTO jobs (name, source, path, kind, sha256, settings, state, position,"
-                " created, updated) VALUES (?, ?, ?, ?, ?, ?, 'queued', ?, ?, ?)",
-                (name, source, path, kind, sha256, json.dumps(settings), last + 1, now, now),
+                "INSERT INTO jobs (name, source, path, kind, sha256, size, settings, state, "
+                "position, created, updated) VALUES (?, ?, ?, ?, ?, ?, ?, 'queued', ?, ?, ?)",
+                (name, source, path, kind, sha256, size, json.dumps(settings), last + 1, now,
+                 now),
             )
             seq = cur.lastrowid
             db.execute(
@@ -266,11 +273,11 @@ class JobStore:
             db.execute("UPDATE jobs SET path = ? WHERE seq = ?", (path, int(job_id)))
         return self.get(job_id)
 
-    def set_digest(self, job_id: str, sha256: str) -> Job:
-        """Record the SHA-256 of the job's model (taken again after it changed)."""
+    def set_digest(self, job_id: str, sha256: str, size: int = -1) -> Job:
+        """Record the SHA-256 and size of the job's model (taken again after it changed)."""
         with self._tx() as db:
-            db.execute("UPDATE jobs SET sha256 = ?, updated = ? WHERE seq = ?",
-                       (sha256, time.time(), int(job_id)))
+            db.execute("UPDATE jobs SET sha256 = ?, size = ?, updated = ? WHERE seq = ?",
+                       (sha256, size, time.time(), int(job_id)))
         return self.get(job_id)
 
     def transition(self, job_id: str, to_state: str, note: str = "", **fields: Any) -> Job:
@@ -401,6 +408,7 @@ def _job(row: sqlite3.Row) -> Job:
         gcode_bytes=row["gcode_bytes"],
         resume_from=row["resume_from"],
         layer_lines=row["layer_lines"],
+        size=row["size"],
         error=row["error"],
         outcome=row["outcome"],
         created=row["created"],

@@ -1,8 +1,8 @@
 """One layer as the dashboard draws it: toolpaths as simplified polylines, bodies, field samples.
 
-Served by the ``layer`` and ``estimate`` commands of the control socket
-(see :mod:`hostd.api` for the reply's fields). Everything here reads the job's
-schedule (the same plans and excluded bodies that slice the layer for the
+Served by the ``layer`` and ``estimate`` requests of the control socket and of
+MQTT (see :mod:`hostd.api` for the reply's fields). Everything here reads the
+job's schedule (the same plans and excluded bodies that slice the layer for the
 printer) and never changes it.
 """
 
@@ -96,15 +96,20 @@ def layer_view(
     index: int,
     tolerance: float = 0.2,
     field: tuple[int, int] | None = None,
+    lines: list[str] | None = None,
 ) -> dict[str, Any]:
     """The reply of the ``layer`` command for layer ``index`` of a sliced job.
 
     ``tolerance`` (mm) simplifies polylines and outlines; ``field`` = (columns,
     rows) adds the infill field sampled on that grid over the model's bounds.
+    ``lines`` is the layer's G-code when the daemon holds it already (streamed or
+    made ahead: :meth:`hostd.sources.SlicedSource.held`); otherwise the layer is
+    sliced again for the view (:meth:`LayerSchedule.layer_preview`), which leaves the
+    schedule as it was. Either way nothing the printer streams changes.
     """
     plan = schedule.plan_at(index)
     excluded = schedule.excluded_at(index)
-    paths, commands = parse_layer(schedule.layer_gcode(index))
+    paths, commands = parse_layer(lines if lines is not None else schedule.layer_preview(index))
     count = int(plan.body_count)
     bodies = []
     if count > 1:

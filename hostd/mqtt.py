@@ -1,4 +1,5 @@
-"""The MQTT bridge: status, events and availability out; guarded commands in (design.md topics)."""
+"""The MQTT bridge: status, events and availability out; guarded commands and read-only
+requests in (design.md topics; the requests: :mod:`hostd.mqtt_requests`)."""
 
 from __future__ import annotations
 
@@ -11,6 +12,7 @@ import ssl
 import time
 from collections import deque
 from dataclasses import dataclass
+from functools import partial
 from typing import Any, Protocol
 
 import aiomqtt
@@ -19,16 +21,19 @@ from drivers.backoff import Backoff  # the one reconnect policy (also the printe
 from hostd.api import Snapshot
 from hostd.homeassistant import HA_STATUS_TOPIC, DeviceTopics, discovery_messages
 from hostd.mqtt_calls import publish, subscribe
+from hostd.mqtt_requests import RequestDesk
 from hostd.status import CommandError, Controller, StatusHub
 
 log = logging.getLogger(__name__)
 
 # The commands MQTT may carry (design.md); nothing else, and never raw G-code.
 MQTT_COMMANDS = (
-    "pause", "resume", "cancel", "resume_job", "cancel_object", "set", "emergency_stop",
+    "pause", "resume", "cancel", "resume_job", "cancel_object", "restore_object", "set",
+    "emergency_stop",
 )
 MAX_COMMAND_BYTES = 64 * 1024
 EVENT_BUFFER = 1000  # events kept while the broker is unreachable (oldest dropped)
+INCOMING_BUFFER = 1000  # messages received and not read yet (a flood's further ones dropped)
 
 
 class MqttSettings(Protocol):
@@ -126,7 +131,8 @@ def tls_context(settings: MqttSettings) -> ssl.SSLContext | None:
 
 
 class MqttBridge:
-    """Publishes the hub's status and events to a broker and carries allowed commands back.
+    """Publishes the hub's status and events to a broker, carries allowed commands back
+    and answers read-only requests (:attr:`requests`).
 
     ``run()`` lasts until cancelled. It never blocks the hub: it reads
     ``hub.snapshots()`` and ``hub.events()``, which drop old snapshots for a
@@ -159,6 +165,7 @@ class MqttBridge:
         self._tls = tls_context(settings)
         self._status = _StatusFeed(hub.current)
         self._events = _EventFeed()
+        self.requests = RequestDesk(printer_id, controller)  # hostd/<id>/req
         # set while a session is up: connected, announced and subscribed
         self.connected = asyncio.Event()
         self.broker: tuple[str, int] | None = None  # the broker of the current or last session
@@ -193,6 +200,7 @@ class MqttBridge:
             keepalive=settings.keepalive,
             tls_context=self._tls,
             timeout=10,
+            max_queued_incoming_messages=INCOMING_BUFFER,
         )
 
     async def _stay_connected(self) -> None:
@@ -238,10 +246,11 @@ class MqttBridge:
     async def _session(self, client: aiomqtt.Client) -> None:
         """One connection: subscribe, announce, then publish and listen until it drops.
 
-        Commands are subscribed before ``online`` is published, so a client that
-        sees ``online`` can send a command at once.
+        Commands and requests are subscribed before ``online`` is published, so a
+        client that sees ``online`` can send one at once.
         """
         await subscribe(client, self.topics.cmd, qos=1)
+        await subscribe(client, self.requests.topic, qos=1)
         await publish(client, self.topics.online, "online", qos=1, retain=True)
         if self._settings.homeassistant:
             await subscribe(client, HA_STATUS_TOPIC, qos=1)
@@ -251,6 +260,8 @@ class MqttBridge:
             group.create_task(self._publish_status(client), name="mqtt-publish-status")
             group.create_task(self._publish_events(client), name="mqtt-publish-events")
             group.create_task(self._listen(client), name="mqtt-commands")
+            group.create_task(self.requests.serve(partial(self._reply, client)),
+                              name="mqtt-requests")
             if self._extras is not None:
                 group.create_task(self._extras.publish(client), name="mqtt-extras")
 
@@ -307,11 +318,24 @@ class MqttBridge:
             if feed.items and feed.items[0] is item:
                 feed.items.popleft()
 
+    async def _reply(self, client: aiomqtt.Client, topic: str, payload: str) -> None:
+        """One answer to a request: QoS 1, never retained (the desk checked the topic)."""
+        await publish(client, topic, payload, qos=1, retain=False)
+
     async def _listen(self, client: aiomqtt.Client) -> None:
         async for message in client.messages:
             if message.topic.matches(HA_STATUS_TOPIC):
                 if message.payload == b"online":
                     await self._announce(client)
+                continue
+            if message.topic.matches(self.requests.topic):
+                unanswerable = self.requests.take(message.payload, retained=message.retain)
+                if unanswerable is not None:
+                    name, reason, request_id = unanswerable
+                    answer = refusal(name, reason, request_id)
+                    await publish(client, self.topics.event, json.dumps(answer, default=str),
+                                  qos=1)
+                await asyncio.sleep(0)  # a flood of requests never holds the event loop
                 continue
             if not message.topic.matches(self.topics.cmd):
                 continue

@@ -24,8 +24,12 @@ async def printer_link(
 ) -> AsyncIterator[Streamer]:
     """Open the configured printer and yield a connected streamer; close everything on exit.
 
-    ``on_boot`` is called when the printer announces a boot (``start``) while
-    connecting: it reset on opening the port, or was just switched on.
+    ``on_boot`` is called when the printer booted since its last host: it announced
+    a boot (``start``) while connecting (it reset on opening the port, or was just
+    switched on), or its line numbering starts at 1 again although its banner went
+    unread (it rebooted while no host had the port open: power cut, reset button;
+    :mod:`drivers.numbering`). A printer that kept its power is told by the lines of
+    the last session it still counts.
 
     ``port = "sim"`` starts the simulated printer in-process on a pseudo-terminal,
     at ``[simulator]`` speed, logging every executed line to
@@ -53,7 +57,9 @@ async def printer_link(
         if on_boot is not None:
             transport = BootWatch(transport, on_boot)  # type: ignore[assignment]
         async with Streamer(transport, config.printer.link) as streamer:
-            await streamer.connect()
+            await streamer.connect(probe_numbering=on_boot is not None)
+            if streamer.numbering_kept is False and on_boot is not None:
+                on_boot()  # (again, if its banner was read too: the same news)
             log.info("printer connected on %s: %s", port, streamer.firmware or "unknown firmware")
             log.info("slicing for this printer: %s", motion_note(config, streamer.motion))
             yield streamer

@@ -16,8 +16,9 @@ from drivers.motionreport import PrinterMotion
 from drivers.streamer import LinkError, Streamer
 from hostd.api import JobStatus
 from hostd.config import Config
+from hostd.endgcode import CANCEL_GCODE
 from hostd.eta import slicer_totals
-from hostd.filecheck import sha256_of, wait_complete
+from hostd.filecheck import Fingerprint, fingerprint, wait_complete
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
 from hostd.joblife import JobLife
@@ -38,9 +39,6 @@ from slicer.gcode import header_lines, summarize
 from slicer.settings import SettingsError, SliceSettings
 
 log = logging.getLogger("hostd.job")
-
-# sent when a job is cancelled: heaters and fan off, motors released
-CANCEL_GCODE = ("M104 S0", "M140 S0", "M107", "M84")
 
 
 class PrintJob:
@@ -150,18 +148,23 @@ class PrintJob:
         self.intake.finish(self.store.get(job.id))
         return "done"
 
-    async def check_model(self, job: Job, resume: bool, digest: str | None = None) -> Job:
-        """The model is still the file that was taken: its hash again, before slicing.
+    async def check_model(self, job: Job, resume: bool, digest: Fingerprint | None = None
+                          ) -> Job:
+        """The model is still the file that was taken: its size and hash again, before
+        slicing.
 
-        A file its writer went on changing after it was taken (a writer the daemon
-        could not see) is waited for until complete, and the job starts over from
-        the complete file: the job returned has the new hash. A resumed job's model
-        must not change: ModelError. ``digest``: the file's hash, when taken already.
+        The bytes read now must be as many as were taken, with the same hash, and
+        the file must still be that long once they are read (a writer that went on
+        after the hash was read). A file its writer went on changing after it was
+        taken (a writer the daemon could not see) is waited for until complete, and
+        the job starts over from the complete file: the job returned has the new
+        hash and size. A resumed job's model must not change: ModelError.
+        ``digest``: the file's fingerprint, when read already.
         """
         path = Path(job.path)
         if digest is None:
-            digest = await asyncio.to_thread(sha256_of, path)
-        if digest == job.sha256:
+            digest = await asyncio.to_thread(fingerprint, path)
+        if digest.sha256 == job.sha256 and job.size in (-1, digest.size) and digest.still(path):
             return job
         if resume:
             raise ModelError(f"{job.name} changed after it was taken: the part on the bed "
@@ -169,11 +172,12 @@ class PrintJob:
         log.warning("job %s %s: the file changed after it was taken; waiting for it to be "
                     "complete, then starting over", job.id, job.name)
         await wait_complete(path, self.config.jobs.settle_s)
-        digest = await asyncio.to_thread(sha256_of, path)
-        job = self.store.set_digest(job.id, digest)
+        digest = await asyncio.to_thread(fingerprint, path)
+        job = self.store.set_digest(job.id, digest.sha256, digest.size)
         self.life.publish(JobError(job.id, f"{job.name} changed after it was taken; "
                                            f"started over from the complete file "
-                                           f"(sha256 {digest[:12]})"))
+                                           f"({digest.size} bytes, sha256 "
+                                           f"{digest.sha256[:12]})"))
         return job
 
     async def _source(self, job: Job, first: int, resume: bool, link: Streamer) -> LayerSource:
@@ -189,7 +193,7 @@ class PrintJob:
         started = time.monotonic()
         # the model is hashed again beside the whole-model pass (hashing leaves the
         # interpreter free), and checked before any layer is sliced
-        hashing = asyncio.ensure_future(asyncio.to_thread(sha256_of, Path(job.path)))
+        hashing = asyncio.ensure_future(asyncio.to_thread(fingerprint, Path(job.path)))
         error: ModelError | None = None
         ahead = await self._made_ahead(job, settings)
         try:
@@ -206,7 +210,7 @@ class PrintJob:
         finally:
             digest = await hashing
         checked = await self.check_model(job, resume, digest)
-        if checked.sha256 != job.sha256:  # started over from the complete file
+        if checked is not job:  # started over from the complete file
             job = checked
             plan, tailoring = await asyncio.to_thread(
                 tailored_plan, Path(job.path), settings, self.config.printer.bed,

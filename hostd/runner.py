@@ -405,6 +405,9 @@ class JobRunner:
         progress = done / self.layers if self.layers else 0.0
         eta = self.eta.remaining(time.monotonic())
         eta = None if eta is None else round(eta, 1)
+        filament = self.eta.filament()
+        used, total = (None, None) if filament is None else (
+            round(filament[0], 1), round(filament[1], 1))
         return JobStatus(
             id=self.job.id,
             name=self.job.name,
@@ -416,6 +419,8 @@ class JobRunner:
             eta_s=eta,
             layers_ready_ahead=self.source.ready_ahead,
             waiting_for=self.waiting(),
+            filament_used_mm=used,
+            filament_total_mm=total,
         )
 
     def _publish(self) -> JobStatus:

@@ -75,19 +75,34 @@ class LayerSchedule:
         return plan
 
     def layer_gcode(self, layer: int) -> list[str]:
-        """G-code lines of one layer (safe to call from worker threads).
+        """G-code lines of one layer for the printer (safe to call from worker threads).
 
-        On the first layer of a retune that changed a temperature or the fan, the
-        new values are set right after the ``;LAYER:`` line (the slicer sets them
-        only in the start block).
+        Takes the layer's code made ahead, if any, and records the layer's estimate
+        and command count (the ETA's). On the first layer of a retune that changed a
+        temperature or the fan, the new values are set right after the ``;LAYER:``
+        line (the slicer sets them only in the start block).
         """
-        code = self._ahead.pop(layer, None)
-        if code is None or self.settings_at(layer) != self.base_settings or (
-                self.excluded_at(layer)):
-            code = self.plan_at(layer).layer_code(layer, self.excluded_at(layer))
+        code = self._code(layer, self._ahead.pop(layer, None))
         self.estimates[layer] = (code.time_s, code.filament_mm)
         self.lines[layer] = sum(1 for line in code.lines if line[:1] not in ("", ";"))
-        lines = list(code.lines)
+        return self._retuned(layer, code.lines)
+
+    def layer_preview(self, layer: int) -> list[str]:
+        """Layer ``layer``'s lines as :meth:`layer_gcode` makes them, for a view: nothing
+        of the schedule changes (the code made ahead stays for the printer, no estimate
+        is recorded), so any thread may call it while the job prints."""
+        return self._retuned(layer, self._code(layer, self._ahead.get(layer)).lines)
+
+    def _code(self, layer: int, ahead: gcode.LayerCode | None) -> gcode.LayerCode:
+        """The layer's code: ``ahead`` when it was made with what the layer has now."""
+        if ahead is None or self.settings_at(layer) != self.base_settings or (
+                self.excluded_at(layer)):
+            return self.plan_at(layer).layer_code(layer, self.excluded_at(layer))
+        return ahead
+
+    def _retuned(self, layer: int, code_lines: list[str]) -> list[str]:
+        """``code_lines`` (copied) with a retune's temperatures and fan set on its first layer."""
+        lines = list(code_lines)
         if layer > 0 and any(first == layer for first, _changes in self.changes):
             extra = _retune_gcode(self.settings_at(layer - 1), self.settings_at(layer), layer)
             if extra:

@@ -19,6 +19,8 @@ from slicer.pipeline import LayerWindow
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
+KEPT_TAKEN = 3  # layers taken (streamed) whose lines are kept for views
+
 # a 10 mm cube: 8 corners, 12 triangles wound outwards
 _CUBE_VERTICES = np.array(
     [[x, y, z] for z in (0.0, 10.0) for y in (0.0, 10.0) for x in (0.0, 10.0)]
@@ -65,6 +67,11 @@ class LayerSource(Protocol):
     @property
     def ready_ahead(self) -> int:
         """Layers already made and waiting to be streamed."""
+        ...
+
+    def held(self, index: int) -> list[str] | None:
+        """Layer ``index``'s lines if they are made already (streamed lately, or made
+        ahead and waiting), else None; never waits and changes nothing."""
         ...
 
     @property
@@ -116,6 +123,8 @@ class SlicedSource:
             worth=lambda lines: len(lines) > 1,  # more than its ;LAYER line
         )
         self._at: np.ndarray | None = None  # where the nozzle is after the last layer taken
+        # the last layers taken, as streamed (for views of the layer printing)
+        self._taken: dict[int, list[str]] = {}
 
     def preamble(self) -> list[str]:
         if self.first >= self.layer_count:
@@ -160,7 +169,14 @@ class SlicedSource:
             lines = await asyncio.to_thread(self.schedule.entered, index, lines, self._at)
         end = last_xy(lines)
         self._at = end if end is not None else self._at
+        self._taken[index] = lines
+        for old in [i for i in self._taken if i <= index - KEPT_TAKEN]:
+            del self._taken[old]
         return lines
+
+    def held(self, index: int) -> list[str] | None:
+        taken = self._taken.get(index)
+        return taken if taken is not None else self._window.made(index)
 
     def ending(self) -> list[str]:
         return list(self.schedule.plan_at(self.layer_count - 1).end_gcode())
@@ -225,6 +241,9 @@ class FileSource:
 
     def started(self) -> None:
         pass
+
+    def held(self, index: int) -> list[str] | None:
+        return None
 
     @property
     def ready_ahead(self) -> int:

@@ -108,30 +108,42 @@ class _Worker:
 
     def start_reading(self, futures: dict[int, Pending[LayerText]]) -> None:
         """Drain the worker's pipe into its layers' ``futures`` on a thread."""
-        mine = collections.deque(futures[i] for lo, hi in self._tasks for i in range(lo, hi))
+        mine = collections.deque(
+            [futures[i] for i in range(lo, hi)] for lo, hi in self._tasks
+        )
         self._reader = threading.Thread(
             target=self._drain, args=(mine,), name=f"layers-{self.pid}", daemon=True
         )
         self._reader.start()
 
-    def _drain(self, mine: collections.deque[Pending[LayerText]]) -> None:
-        """On a thread of the parent: read each of the worker's layers from its pipe
-        into the next of ``mine``; on an error, fail that layer and every later one
-        (no taker is left waiting)."""
+    def _drain(self, mine: collections.deque[list[Pending[LayerText]]]) -> None:
+        """On a thread of the parent: read each of the worker's tasks from its pipe and
+        give its layers to the next futures of ``mine`` (a task's all at once: the
+        writer wakes once a task, not once a layer); on an error, fail the layers not
+        made and every later one (no taker is left waiting)."""
         try:
             with self._stream as stream:
                 while mine:
-                    length, filament, seconds = _HEADER.unpack(_read_exact(stream, _HEADER.size))
-                    if length < 0:
-                        import pickle
+                    made = []
+                    for _future in mine[0]:
+                        length, filament, seconds = _HEADER.unpack(
+                            _read_exact(stream, _HEADER.size))
+                        if length < 0:
+                            import pickle
 
-                        raise pickle.loads(_read_exact(stream, -length))
-                    text = _read_exact(stream, length).decode("ascii")
-                    mine.popleft().set_result((text, filament, seconds))
+                            raise pickle.loads(_read_exact(stream, -length))
+                        made.append((_read_exact(stream, length).decode("ascii"), filament,
+                                     seconds))
+                    # the last first: the writer, waiting for the first, then finds
+                    # the rest made
+                    for future, layer in reversed(list(zip(mine.popleft(), made,
+                                                           strict=True))):
+                        future.set_result(layer)
             self.finished = True
         except BaseException as exc:
             while mine:
-                mine.popleft().set_exception(exc)
+                for future in mine.popleft():
+                    future.set_exception(exc)
 
     @classmethod
     def fork(

@@ -253,6 +253,17 @@ class LayerWindow(Generic[T]):
         while self.next_unsliced < self.count or self._futures:
             yield self.take()
 
+    def made(self, index: int) -> T | None:
+        """Layer ``index`` if it is made and not taken yet, else None; never waits, and the
+        layer stays in the window for :meth:`take`."""
+        with self._lock:
+            for queued, future in self._futures:
+                if queued == index:
+                    if future.done() and not future.cancelled() and future.exception() is None:
+                        return future.result()
+                    return None
+        return None
+
     @property
     def ready_ahead(self) -> int:
         """Layers already made and not yet taken."""

@@ -135,3 +135,31 @@ def test_the_daemon_measures_only_after_the_first_layer_that_laid_filament(tmp_p
     model.layer_done(1, 2.0)
     assert model._thread is not None
     assert model.wait_measured(60)
+
+
+def test_the_filament_used_and_total_follow_the_slicer_a_retune_and_a_cancel(tmp_path) -> None:
+    plan = SlicePlan.from_file(pair(tmp_path / "pair.stl", height=6.0), SETTINGS)
+    schedule = LayerSchedule(plan, SETTINGS)
+    model = EtaModel(schedule, schedule.layer_count, 0)
+    assert model.filament() is None  # nothing sliced yet
+    model.start(0.0)
+    assert model.wait_measured(60)
+    half, _clock = print_half(model, schedule, 1.0)
+    used, total = model.filament()
+    truth = [plan.layer_code(i).filament_mm for i in range(plan.layer_count)]
+    assert used == pytest.approx(sum(truth[:half]))  # the layers printed, as sliced
+    assert total == pytest.approx(sum(truth), rel=0.05)  # the others guessed, calibrated
+    # denser infill from the next unsliced layer on: more filament before it is sliced
+    schedule.retune(half + 2, {"infill.density": 0.6})
+    denser = model.filament()[1]
+    retuned = SlicePlan.from_file(tmp_path / "pair.stl", SliceSettings.from_mapping(
+        {"acceleration": 3000.0, "infill.density": 0.6}))
+    expected = sum(truth[:half + 2]) + sum(retuned.layer_code(i).filament_mm
+                                           for i in range(half + 2, plan.layer_count))
+    assert denser > total
+    assert denser == pytest.approx(expected, rel=0.08)
+    # a body left out: the total drops at once, the filament used does not change
+    schedule.cancel_body(1, half + 2)
+    less_used, less = model.filament()
+    assert less_used == pytest.approx(used)
+    assert less < denser * 0.85

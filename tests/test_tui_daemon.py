@@ -148,3 +148,54 @@ def test_cancel_a_body_from_the_dashboard_and_undo_another(daemon, tmp_path: Pat
         xs = np.concatenate([coords[:, 0] for _kind, coords, _end in paths])
         sides = {bool(x > middle) for x in (xs.min(), xs.max())}
         assert len(sides) == (1 if index >= first else 2), index
+
+
+def test_layer_requests_during_a_print_leave_its_gcode_byte_for_byte(daemon, tmp_path) -> None:
+    model = two_bodies(tmp_path / "pair.stl")
+    hostd = daemon(sim_config(time_scale=0.003, extra="[runner]\nlookahead = 2\n"))
+    socket = hostd.state / "hostd.sock"
+    hostd.wait_for(socket.exists, 10, "the control socket")
+    hostd.drop(model, "quiet.stl")
+    quiet = hostd.jobs / "done" / "quiet.gcode"
+    hostd.wait_for(quiet.exists, 120, "the job without requests done")
+    hostd.drop(model, "asked.stl")
+    asked = hostd.jobs / "done" / "asked.gcode"
+    answered: list[tuple[int, int]] = []  # (layer asked, first layer not sliced then)
+
+    async def started() -> str:
+        async with ControlClient(str(socket)) as client:
+            loop = asyncio.get_running_loop()
+            deadline = loop.time() + 60
+            while True:
+                job = (await client.status()).job
+                if job is not None and job.name == "asked.stl":
+                    return job.id
+                assert loop.time() < deadline, "asked.stl never started"
+                await asyncio.sleep(0.02)
+
+    async def ask(job: str, worker: int, workers: int) -> None:
+        async with ControlClient(str(socket)) as client:
+            index = worker
+            while not asked.exists():
+                field = [20, 10] if index % 2 else None
+                try:
+                    reply = await client.request("layer", layer=index % 50, field=field)
+                except ControlError:  # no job printing any more
+                    await asyncio.sleep(0.02)
+                    continue
+                if reply["job"] == job:
+                    answered.append((reply["layer"], reply["next_unsliced"]))
+                index += workers
+
+    async def scenario() -> None:
+        job = await started()
+        async with asyncio.timeout(180):
+            await asyncio.gather(*(ask(job, worker, 3) for worker in range(3)))
+
+    asyncio.run(scenario())
+    # answered while it printed: layers not sliced yet (sliced again for the view) and
+    # layers the daemon held (streamed or made ahead)
+    assert any(layer >= ahead for layer, ahead in answered)
+    assert any(layer < ahead for layer, ahead in answered)
+    assert asked.read_bytes() == quiet.read_bytes()
+    assert hostd.stop() == 0

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import asyncio
+import concurrent.futures
 import json
 
 import numpy as np
@@ -12,6 +14,7 @@ from test_daemon import two_bodies
 from drivers.protocol import strip_comment
 from hostd.layerview import estimate, field_samples, layer_view, parse_layer, sample_layers
 from hostd.schedule import LayerSchedule
+from hostd.sources import SlicedSource
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
@@ -107,3 +110,65 @@ def test_a_cancelled_body_is_outlined_and_leaves_no_skin(tmp_path) -> None:
         assert any(p["kind"] == "SKIN" for p in view["paths"])
         xs = np.concatenate([np.asarray(p["points"])[:, 0] for p in view["paths"]])
         assert len({bool(xs.min() > middle), bool(xs.max() > middle)}) == sides
+
+
+def test_a_layer_view_leaves_the_schedule_as_the_print_has_it(tmp_path) -> None:
+    plan = SlicePlan.from_file(two_bodies(tmp_path / "pair.stl"), SliceSettings())
+    schedule = LayerSchedule(plan, SliceSettings())
+    schedule.made_ahead(0, plan.layer_code(0))  # as the whole-model pass made it ahead
+    schedule.cancel_body(1, 4)
+    views = [layer_view(schedule, index) for index in range(schedule.layer_count)]
+    assert [v["layer"] for v in views] == list(range(schedule.layer_count))
+    # nothing of the print's: the code made ahead is still there, no estimate was recorded
+    assert list(schedule._ahead) == [0]
+    assert schedule.estimates == {}
+    assert schedule.lines == {}
+    assert schedule.layer_preview(0) == schedule.layer_gcode(0)
+    assert list(schedule._ahead) == []  # the printer's slicing took it
+    assert set(schedule.estimates) == {0}
+
+
+def test_held_layers_are_served_without_slicing_and_the_lookahead_stays(tmp_path) -> None:
+    plan = SlicePlan.from_file(two_bodies(tmp_path / "pair.stl"), SliceSettings())
+    depth = 3
+
+    def print_layers(views: bool) -> list[list[str]]:
+        schedule = LayerSchedule(plan, SliceSettings())
+        schedule.cancel_body(0, 5)
+
+        async def run() -> list[list[str]]:
+            with concurrent.futures.ThreadPoolExecutor(2) as executor:
+                source = SlicedSource(schedule, 0, depth, executor, resume=False)
+                taken = []
+                try:
+                    for index in range(schedule.layer_count):
+                        taken.append(await source.layer(index))
+                        if views and index in (0, 4):
+                            await look(schedule, source, index)
+                finally:
+                    source.close()
+                return taken
+
+        return asyncio.run(run())
+
+    async def look(schedule: LayerSchedule, source: SlicedSource, index: int) -> None:
+        source.started()
+        loop = asyncio.get_running_loop()
+        deadline = loop.time() + 60
+        while source.ready_ahead < depth:  # every layer of the window made
+            assert loop.time() < deadline
+            await asyncio.sleep(0.01)
+        before = (source.ready_ahead, source.next_unsliced, dict(schedule.estimates),
+                  dict(schedule.lines))
+        assert source.held(index) is not None  # the layer printing, as streamed
+        for ahead in range(index + 1, index + 1 + depth):
+            held = source.held(ahead)
+            assert held is not None
+            assert layer_view(schedule, ahead, lines=held) == layer_view(schedule, ahead)
+        for other in range(schedule.layer_count):
+            layer_view(schedule, other, lines=source.held(other))
+        after = (source.ready_ahead, source.next_unsliced, dict(schedule.estimates),
+                 dict(schedule.lines))
+        assert after == before
+
+    assert print_layers(views=True) == print_layers(views=False)

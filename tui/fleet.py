@@ -114,6 +114,7 @@ class FleetScreen(Screen[None]):
     def _forward(self, opened: PrinterScreen, item: Any) -> None:
         """Pass one item of the open printer to its screen (a last will as an offline status)."""
         if opened not in self.app.screen_stack:
+            self._replies(opened.printer, False)
             self.opened = None
             return
         if isinstance(item, AvailabilityItem):
@@ -127,6 +128,7 @@ class FleetScreen(Screen[None]):
         """Push the printer's own screen, showing at once the last status heard from it."""
         screen = PrinterScreen(self.source, printer, own_stream=False, back=True)
         self.opened = screen
+        self._replies(printer, True)  # its requests' replies, while the screen is open
         await self.app.push_screen(screen)
         entry = self.model.entries.get(printer)
         snap = shown_snapshot(entry) if entry is not None else None
@@ -134,7 +136,15 @@ class FleetScreen(Screen[None]):
             screen.feed(StatusItem(printer, snap))
 
     def on_screen_resume(self) -> None:
-        self.opened = None  # back from the printer's screen
+        if self.opened is not None:  # back from the printer's screen
+            self._replies(self.opened.printer, False)
+        self.opened = None
+
+    def _replies(self, printer: str, follow: bool) -> None:
+        """Follow (or stop following) the replies of ``printer`` to this view's requests."""
+        method = getattr(self.source, "open_replies" if follow else "close_replies", None)
+        if method is not None:
+            method(printer)
 
     def _event(self, item: EventItem) -> None:
         event = item.event

@@ -4,8 +4,9 @@ The fleet view receives every printer's status (1,000 printers: 1,000 messages a
 second). A general client that handles one packet per socket event spends most
 of the view's CPU on that; this one reads the socket in large chunks and parses
 every complete packet in them. It speaks plain MQTT 3.1.1 (no v5 feature):
-CONNECT with optional credentials, SUBSCRIBE, PUBLISH in (QoS 0 and 1, acked)
-and out (QoS 1, for commands), PINGREQ keep-alive.
+CONNECT with optional credentials, SUBSCRIBE (its SUBACK awaitable) and
+UNSUBSCRIBE, PUBLISH in (QoS 0 and 1, acked) and out (QoS 1, for commands and
+requests), PINGREQ keep-alive.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ from collections.abc import AsyncIterator
 from dataclasses import dataclass
 
 CONNECT, CONNACK, PUBLISH, PUBACK, SUBSCRIBE, SUBACK = 1, 2, 3, 4, 8, 9
+UNSUBSCRIBE = 10
 PINGREQ, PINGRESP, DISCONNECT = 12, 13, 14
 REFUSALS = {
     1: "unacceptable protocol version",
@@ -74,6 +76,7 @@ class WireClient:
         self._buffer = bytearray()
         self._next_id = 0
         self._pinger: asyncio.Task[None] | None = None
+        self._subacks: dict[int, asyncio.Future[int]] = {}  # packet id -> granted QoS
 
     async def __aenter__(self) -> WireClient:
         try:
@@ -136,10 +139,20 @@ class WireClient:
                 await asyncio.sleep(self.keepalive / 2)
                 self._send(_packet(PINGREQ, 0, b""))
 
-    def subscribe(self, topic: str, qos: int = 0) -> None:
-        """Ask for ``topic`` (wildcards allowed); the SUBACK is read with the messages."""
-        body = struct.pack("!H", self._packet_id()) + _text(topic) + bytes([qos])
+    def subscribe(self, topic: str, qos: int = 0) -> asyncio.Future[int]:
+        """Ask for ``topic`` (wildcards allowed). The SUBACK is read with the messages:
+        the future returned gets its granted QoS (0x80: refused) while they are read."""
+        packet_id = self._packet_id()
+        body = struct.pack("!H", packet_id) + _text(topic) + bytes([qos])
         self._send(_packet(SUBSCRIBE, 0x02, body))
+        acked: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+        self._subacks[packet_id] = acked
+        return acked
+
+    def unsubscribe(self, topic: str) -> None:
+        """Stop receiving ``topic`` (as it was subscribed)."""
+        body = struct.pack("!H", self._packet_id()) + _text(topic)
+        self._send(_packet(UNSUBSCRIBE, 0x02, body))
 
     async def publish(self, topic: str, payload: bytes, qos: int = 1,
                       retain: bool = False) -> None:
@@ -196,7 +209,11 @@ class WireClient:
             while (packet := self._split()) is not None:
                 kind, flags, body = packet
                 if kind != PUBLISH:
-                    continue  # SUBACK, PUBACK, PINGRESP
+                    if kind == SUBACK and len(body) >= 3:
+                        acked = self._subacks.pop(struct.unpack_from("!H", body)[0], None)
+                        if acked is not None and not acked.done():
+                            acked.set_result(body[2])
+                    continue  # PUBACK, UNSUBACK, PINGRESP
                 size = struct.unpack_from("!H", body)[0]
                 topic = body[2:2 + size].decode(errors="replace")
                 start = 2 + size

@@ -3,7 +3,8 @@
 ``PrinterScreen(source, printer)`` reads ``source.stream()`` itself (``own_stream``)
 or is fed by its owner through :meth:`PrinterScreen.feed` (a fleet view that
 already reads the broker). The layer picture and the estimates use
-``source.query``; a source that cannot answer (MQTT) gets a note instead.
+``source.query`` (the control socket, or requests over MQTT); a source that
+cannot answer gets a note instead.
 """
 
 from __future__ import annotations
@@ -221,8 +222,8 @@ class PrinterScreen(Screen[None]):
 
     def _follow_estimate(self) -> None:
         job = self.snapshot.job
-        if job is None or not job.layers:
-            return
+        if job is None or not job.layers or job.filament_total_mm is not None:
+            return  # the status carries the daemon's own filament figures
         step = max(1, job.layers // 10)
         last = self._estimated_at
         if last is None or last[0] != job.id or job.layer - last[1] >= step:

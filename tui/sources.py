@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import dataclasses
 import itertools
 import json
@@ -16,6 +17,7 @@ from typing import Any, Protocol
 from hostd.api import ControlClient, ControlError, Snapshot
 
 GONE = "offline: its connection to the broker was lost"  # a printer's last will, as shown
+QUERY_TIMEOUT_S = 15.0  # a request over MQTT unanswered this long fails with a message
 
 
 @dataclass(frozen=True)
@@ -46,10 +48,10 @@ class Source(Protocol):
     """A stream of status and events, and a way to send commands back.
 
     ``query`` sends a request whose reply the dashboard reads (``layer``,
-    ``estimate``: see :mod:`hostd.api`) and returns the reply; a source that
-    cannot answer such requests (MQTT carries status and commands only) raises
-    :class:`Unanswered`, and the dashboard says that view needs the control socket.
-    A source without ``query`` is treated the same way.
+    ``estimate``: see :mod:`hostd.api`) and returns the reply, or raises
+    :class:`ControlError` with the reason (refused, or no reply in time). A source
+    that cannot answer such requests at all raises :class:`Unanswered` (or has no
+    ``query``), and the dashboard says that view is not available.
     """
 
     label: str
@@ -62,7 +64,7 @@ class Source(Protocol):
 
 
 class Unanswered(ControlError):
-    """This source cannot answer that request (it needs the daemon's control socket)."""
+    """This source cannot answer that request."""
 
 
 class SocketSource:
@@ -146,6 +148,11 @@ class MqttSource:
     or is refused, the next one is tried after a short jittered pause that grows
     while none answers. With ``printer`` set, only that printer is followed and its
     last will (``offline``) arrives as a status with state ``offline``.
+
+    Commands go to ``hostd/<printer>/cmd`` (refusals come back as events);
+    :meth:`query` sends a read-only request to ``hostd/<printer>/req`` and waits for
+    its reply on ``hostd/<printer>/reply/<token>`` (this source's own token), which
+    is subscribed only while :meth:`open_replies` holds it open (a printer's screen).
     """
 
     def __init__(
@@ -172,8 +179,43 @@ class MqttSource:
         names = ",".join(f"{h}:{p}" for h, p in self.brokers)
         self.label = f"mqtt {names}" + (f" · {printer}" if printer else "")
         self.connected_to = ""
+        self.query_timeout = QUERY_TIMEOUT_S
         self._client: Any = None
         self._requests = itertools.count(1)
+        # replies: this source's topic level, the printers whose replies are subscribed
+        # (and the SUBACK of each on this connection), the requests waiting for one
+        self.token = f"tui-{random.getrandbits(48):012x}"
+        self._reply_suffix = f"/reply/{self.token}"
+        self._replies: dict[str, asyncio.Future[int] | None] = {}
+        self._waiting: dict[str, asyncio.Future[dict[str, Any]]] = {}
+
+    def reply_topic(self, printer: str) -> str:
+        """The topic ``printer`` answers this source's requests on."""
+        return f"hostd/{printer}{self._reply_suffix}"
+
+    def open_replies(self, printer: str) -> None:
+        """Subscribe to ``printer``'s replies to this source (again after a reconnect)."""
+        if printer not in self._replies:
+            self._replies[printer] = None
+            self._subscribe_replies(printer)
+
+    def close_replies(self, printer: str) -> None:
+        """Unsubscribe from ``printer``'s replies (its screen was closed)."""
+        if printer not in self._replies:
+            return
+        subscribed = self._replies.pop(printer)
+        if subscribed is not None and self._client is not None:
+            with contextlib.suppress(OSError):
+                self._client.unsubscribe(self.reply_topic(printer))
+
+    def _subscribe_replies(self, printer: str) -> None:
+        client = self._client
+        if client is None:
+            return  # subscribed on connect
+        try:
+            self._replies[printer] = client.subscribe(self.reply_topic(printer), qos=1)
+        except OSError:
+            self._replies[printer] = None
 
     async def stream(self) -> AsyncIterator[StatusItem | EventItem]:
         """Status and events; a printer's last will arrives as an ``offline`` status."""
@@ -191,12 +233,17 @@ class MqttSource:
             yield item
 
     async def fleet_stream(self) -> AsyncIterator[StatusItem | EventItem | AvailabilityItem]:
-        """Status, events and availability of every printer followed, across reconnects."""
+        """Status, events and availability of every printer followed, across reconnects.
+
+        Replies to :meth:`query` arrive on the same connection and are handed to the
+        requests waiting for them, never yielded.
+        """
         from tui.mqtt_wire import WireClient, WireError
 
         rng = random.Random()
         failures = 0
         who = self.printer or "+"
+        suffix = self._reply_suffix
         for host, port in itertools.cycle(self.brokers):
             client = WireClient(
                 host, port, client_id=f"hostd-tui-{rng.getrandbits(48):012x}",
@@ -211,7 +258,12 @@ class MqttSource:
                     client.subscribe(f"hostd/{who}/status", qos=0)  # the newest wins anyway
                     client.subscribe(f"hostd/{who}/online", qos=1)
                     client.subscribe(f"hostd/{who}/event", qos=1)
+                    for printer in list(self._replies):
+                        self._subscribe_replies(printer)
                     async for message in client.messages():
+                        if message.topic.endswith(suffix):
+                            self._replied(message.payload)
+                            continue
                         item = _decode(message.topic, message.payload)
                         if item is not None:
                             yield item
@@ -220,11 +272,24 @@ class MqttSource:
             finally:
                 self._client = None
                 self.connected_to = ""
+                for printer in self._replies:
+                    self._replies[printer] = None
             failures += 1
             # the next node at once after a drop; a growing pause once every node refused
             ceiling = min(10.0, 0.5 * 2 ** max(0, failures // len(self.brokers)))
             await asyncio.sleep(rng.uniform(ceiling / 4, ceiling / 2))
         raise AssertionError("unreachable")  # pragma: no cover
+
+    def _replied(self, payload: bytes) -> None:
+        """A reply on this source's topic: to the request waiting for its id, if any."""
+        try:
+            reply = json.loads(payload)
+        except (ValueError, RecursionError):
+            return
+        if isinstance(reply, dict):
+            waiting = self._waiting.get(str(reply.get("id")))
+            if waiting is not None and not waiting.done():
+                waiting.set_result(reply)
 
     async def command(self, printer: str, cmd: str, **args: Any) -> None:
         """Publish a command to ``hostd/<printer>/cmd``; a refusal comes back as an event."""
@@ -238,8 +303,38 @@ class MqttSource:
             raise ControlError(f"not sent: {exc}") from exc
 
     async def query(self, printer: str, cmd: str, **args: Any) -> dict[str, Any]:
-        """MQTT carries no replies to read: always :class:`Unanswered`."""
-        raise Unanswered(f"{cmd}: needs the daemon's control socket (hostd tui --socket)")
+        """Send a read-only request (``layer``, ``estimate``) to ``hostd/<printer>/req`` and
+        return its reply; ControlError with the reason when refused, not sent, or not
+        answered within ``query_timeout`` seconds (never waits longer)."""
+        self.open_replies(printer)
+        request_id = f"{self.token}-{next(self._requests)}"
+        reply: asyncio.Future[dict[str, Any]] = asyncio.get_running_loop().create_future()
+        self._waiting[request_id] = reply
+        request = {"req": cmd, **args, "id": request_id, "reply_to": self.reply_topic(printer)}
+        try:
+            async with asyncio.timeout(self.query_timeout):
+                client = self._client
+                if client is None:
+                    raise ControlError(f"{cmd}: not connected to the broker")
+                subscribed = self._replies.get(printer)
+                # the SUBACK first: a reply published before it could be lost
+                if subscribed is not None and await asyncio.shield(subscribed) >= 0x80:
+                    raise ControlError(f"{cmd}: the broker refused this client the topic "
+                                       f"{self.reply_topic(printer)}")
+                try:
+                    await client.publish(f"hostd/{printer}/req", json.dumps(request).encode(),
+                                         qos=1)
+                except OSError as exc:
+                    raise ControlError(f"{cmd}: not sent: {exc}") from exc
+                answer = await reply
+        except TimeoutError:
+            raise ControlError(f"{cmd}: no reply from {printer} in "
+                               f"{self.query_timeout:g} s") from None
+        finally:
+            self._waiting.pop(request_id, None)
+        if not answer.get("ok", False):
+            raise ControlError(answer.get("error") or f"{cmd} refused")
+        return answer
 
 
 def _decode(topic: str, payload: Any) -> StatusItem | EventItem | AvailabilityItem | None:

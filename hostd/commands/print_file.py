@@ -21,12 +21,11 @@ from drivers.simulator import SimulatedPrinter, SimulatorConfig
 from drivers.streamer import AckChannel, LinkError, StreamCancelled, Streamer, StreamerConfig
 from drivers.transport import TransportError, open_transport
 from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
+from hostd.endgcode import CANCEL_GCODE
 from slicer.pipeline import LayerWindow
 
 GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
 LAYERS_AHEAD = 3
-# what a cancelled G-code file gets: heaters and fan off, motors released
-DEFAULT_END_GCODE = ("M104 S0", "M140 S0", "M107", "M84")
 
 
 @dataclass
@@ -229,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
     elif suffix in GCODE_SUFFIXES:
         total, commands = gcode_commands(path)
         progress = Progress("lines", total)
-        end_gcode = DEFAULT_END_GCODE
+        end_gcode = CANCEL_GCODE  # what the daemon's cancelled jobs get too
     else:
         raise UsageError(f"{path}: not a G-code file ({', '.join(GCODE_SUFFIXES)}) or an STL")
     bar = ProgressBar(sys.stderr, enabled=not args.quiet)

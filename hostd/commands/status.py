@@ -43,6 +43,9 @@ def format_summary(snapshot: Snapshot) -> str:
             f"job {job.name} ({job.id}): layer {job.layer + 1} of {job.layers}, {job.progress:.1%},"
             f" elapsed {_seconds(job.elapsed_s)}, ETA {_seconds(job.eta_s)},"
             f" {job.layers_ready_ahead} layers ready ahead"
+            + (f", filament {job.filament_used_mm / 1000:.2f} of about"
+               f" {job.filament_total_mm / 1000:.2f} m"
+               if job.filament_used_mm is not None and job.filament_total_mm is not None else "")
             + (f"; waiting for the stress {job.waiting_for}" if job.waiting_for else "")
         )
     if snapshot.queue:

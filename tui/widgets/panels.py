@@ -60,7 +60,8 @@ class JobPanel(Widget):
     def __init__(self, **kwargs) -> None:
         super().__init__(**kwargs)
         self.snapshot = Snapshot()
-        self.filament: tuple[float, float] | None = None  # used, total mm (estimated)
+        # used, total mm (an `estimate`), for a status without the daemon's own figures
+        self.filament: tuple[float, float] | None = None
 
     def show(self, snapshot: Snapshot) -> None:
         self.snapshot = snapshot
@@ -77,6 +78,8 @@ class JobPanel(Widget):
         pct = f" {job.progress * 100:3.0f}%"
         bar_width = max(4, width - len(layer) - len(pct) - 2)
         used, total = self.filament if self.filament else (None, None)
+        if job.filament_total_mm is not None:  # the daemon's own figures, in every status
+            used, total = job.filament_used_mm, job.filament_total_mm
         return Group(
             line((job.name, "bold"), (f"  job {job.id}", "dim")),
             line(layer, "  ", (bar(job.progress, bar_width), "green"), pct),
