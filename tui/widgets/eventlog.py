@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from collections.abc import Iterable
+from typing import Any
 
 from rich.text import Text
 from textual.events import Resize
@@ -22,7 +23,7 @@ class EventLog(RichLog):
     them: every resize lays the lines out again.
     """
 
-    def __init__(self, max_lines: int, **kwargs) -> None:
+    def __init__(self, max_lines: int, **kwargs: Any) -> None:
         super().__init__(markup=False, wrap=False, max_lines=max_lines, min_width=1, **kwargs)
         self.entries: list[Entry] = []
         self._laid_out_at = 0  # the width the lines were cut for (0: not laid out yet)
