@@ -8,6 +8,10 @@ Scenarios (``--scenarios``, comma-separated):
   first node, fleet view on the third).
 - ``daemonsN``: N real ``hostd run`` daemons printing on simulated printers,
   bridged to a mosquitto, each under a CPU sampler (``bench/fleet_daemon.py``).
+- ``failover``: one daemon printing on a three-node nats-server cluster; its node
+  is stopped (SIGTERM, then SIGKILL, ``--repeats`` times each) and the seconds
+  until its status is back in the fleet view through another node are measured
+  (``bench/fleet_failover.py``).
 
 Every scenario is bounded: start-up waits time out, the window is ``--window`` s.
 """
@@ -96,7 +100,7 @@ async def _count(port: int, window: float) -> tuple[float, list[float]]:
         return count / (time.monotonic() - start), lags
 
 
-async def _wait_states(port: int, ids: set[str], state: str, timeout: float) -> None:
+async def wait_states(port: int, ids: set[str], state: str, timeout: float) -> None:
     """Wait until every printer of ``ids`` published ``state``."""
     pending = set(ids)
     async with aiomqtt.Client(HOST, port) as client:
@@ -231,10 +235,10 @@ def daemons_scenario(tmp: Path, count: int, window: float) -> Figures:
             log.close()
         dash = Terminal([sys.executable, "-m", "bench.fleet_dash", "--broker",
                          f"{HOST}:{broker.port}", "--lags", str(lags)], cwd=ROOT, env=PYTHON_ENV)
-        asyncio.run(_wait_states(broker.port, ids, "idle", 240))
+        asyncio.run(wait_states(broker.port, ids, "idle", 240))
         for printer in sorted(ids):
             (tmp / printer / "jobs" / MODEL.name).write_bytes(MODEL.read_bytes())
-        asyncio.run(_wait_states(broker.port, ids, "printing", 300))
+        asyncio.run(wait_states(broker.port, ids, "printing", 300))
         time.sleep(3.0)
         measure_window(figures, broker.port, dash, lags, window, daemons, samples)
     finally:
@@ -254,11 +258,19 @@ def main() -> int:
     parser.add_argument("--scenarios",
                         default="daemons10,daemons25,pub100,pub1000,nats100,nats1000")
     parser.add_argument("--window", type=float, default=20.0, help="measured seconds")
+    parser.add_argument("--repeats", type=int, default=3,
+                        help="failover: stops of the daemon's node per signal (1-5)")
     args = parser.parse_args()
     rows = []
     for scenario in args.scenarios.split(","):
         with tempfile.TemporaryDirectory(prefix="hostd-fleet-") as folder:
             tmp = Path(folder)
+            if scenario == "failover":
+                from bench.fleet_failover import failover_scenario
+
+                print("running failover ...", file=sys.stderr, flush=True)
+                print(failover_scenario(tmp, args.repeats).table())
+                continue
             kind = scenario.rstrip("0123456789")
             count = int(scenario[len(kind):])
             print(f"running {scenario} ...", file=sys.stderr, flush=True)
@@ -268,8 +280,9 @@ def main() -> int:
                 figures = publisher_scenario(tmp, count, args.window, nats=kind == "nats")
         rows.append(figures.row())
         print(figures.row(), file=sys.stderr, flush=True)
-    print(HEADER)
-    print("\n".join(rows))
+    if rows:
+        print(HEADER)
+        print("\n".join(rows))
     return 0
 
 

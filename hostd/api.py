@@ -127,6 +127,16 @@ class PrinterInfo:
     connected: bool = False
 
 
+def layer_in_progress(completed: int, layers: int) -> int:
+    """The 0-based layer being printed once layer ``completed`` (-1: none yet) is wholly
+    acknowledged: the next one, at most the last (its end G-code still counts as it).
+
+    ``JobStatus.layer`` of the daemon and ``hostd print``'s line both say this layer,
+    read as ``layer N of M`` with N counted from 1.
+    """
+    return max(0, min(completed + 1, layers - 1))
+
+
 @dataclass(frozen=True)
 class JobStatus:
     """The job being printed. ``progress`` is 0..1; times in seconds; filament in mm."""

@@ -18,7 +18,7 @@ from importlib import resources
 from pathlib import Path
 
 from hostd.api import ControlClient, ControlError, Snapshot
-from hostd.commands.print_file import fit_bar, terminal_columns
+from hostd.liveline import LiveLine, fit_bar
 
 SAMPLE = "dogbone_100x30x5.stl"
 JOBS = Path("jobs")
@@ -64,8 +64,11 @@ async def resume_interrupted(socket: Path) -> None:
 
 
 async def watch(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
-    """Print a live progress line from the daemon's status until the daemon exits."""
-    last_len = 0
+    """Print a live progress line from the daemon's status until the daemon exits.
+
+    The line is cut to the terminal's width as it is at each redraw (narrowed or not).
+    """
+    line = LiveLine(sys.stdout)
     resumed = False
     while daemon.poll() is None:
         try:
@@ -75,15 +78,13 @@ async def watch(socket: Path, daemon: subprocess.Popen[bytes]) -> None:
             async with ControlClient(str(socket)) as client:
                 async for item in client.subscribe():
                     if "status" in item:
-                        line = progress_line(item["status"], terminal_columns(sys.stdout))
-                        sys.stdout.write("\r" + line.ljust(last_len))
-                        last_len = len(line)
+                        line.draw(progress_line(item["status"], line.width() + 1))
                     else:
                         event = item["event"]
                         if event.get("event") in ("done", "failed", "started", "cancelled"):
-                            sys.stdout.write("\r" + " " * last_len + "\r")
+                            line.clear()
                             sys.stdout.write(f"{event.get('event')}: {event.get('name', '')}\n")
-                    sys.stdout.flush()
+                            sys.stdout.flush()
         except (ControlError, OSError):
             await asyncio.sleep(0.3)
 

@@ -22,6 +22,7 @@ from hostd.api import Snapshot
 from hostd.homeassistant import HA_STATUS_TOPIC, DeviceTopics, discovery_messages
 from hostd.mqtt_calls import publish, subscribe
 from hostd.mqtt_requests import RequestDesk
+from hostd.mqtt_standby import StandbyLink
 from hostd.status import CommandError, Controller, StatusHub
 
 log = logging.getLogger(__name__)
@@ -34,6 +35,10 @@ MQTT_COMMANDS = (
 MAX_COMMAND_BYTES = 64 * 1024
 EVENT_BUFFER = 1000  # events kept while the broker is unreachable (oldest dropped)
 INCOMING_BUFFER = 1000  # messages received and not read yet (a flood's further ones dropped)
+# A broker that has not answered a CONNECT, or acknowledged a message, within this is
+# failed over (the next of mqtt.hosts). Not 10 s: a nats node whose JetStream streams lost
+# their leader (a node killed beside it) answers within its own 4 s or not at all.
+ACK_TIMEOUT_S = 5.0
 
 
 class MqttSettings(Protocol):
@@ -138,7 +143,9 @@ class MqttBridge:
     ``hub.snapshots()`` and ``hub.events()``, which drop old snapshots for a
     slow reader, and keeps reconnecting with jittered exponential backoff
     while the broker is away. On cancellation it publishes ``offline`` itself
-    (a clean disconnect does not fire the last will).
+    (a clean disconnect does not fire the last will). With several brokers, a
+    standby link to another one carries the status while the session fails over
+    (:class:`hostd.mqtt_standby.StandbyLink`).
     """
 
     def __init__(
@@ -168,7 +175,14 @@ class MqttBridge:
         self.requests = RequestDesk(printer_id, controller)  # hostd/<id>/req
         # set while a session is up: connected, announced and subscribed
         self.connected = asyncio.Event()
+        self.session_changed = asyncio.Event()  # set whenever a session starts or ends
         self.broker: tuple[str, int] | None = None  # the broker of the current or last session
+        self.standby: StandbyLink | None = None  # with several brokers: carries the status
+        if len(set(settings.brokers)) > 1:  # while a failover is under way
+            self.standby = StandbyLink(
+                list(settings.brokers), lambda host, port: self._client(host, port, True),
+                self.topics.status, self, lambda: self._status.newest, status_interval_s,
+                self._backoff, self._rng)
 
     async def run(self) -> None:
         """Bridge until cancelled; returns at once when MQTT is not enabled."""
@@ -179,6 +193,8 @@ class MqttBridge:
             group.create_task(self._collect_status(), name="mqtt-collect-status")
             group.create_task(self._collect_events(), name="mqtt-collect-events")
             group.create_task(self._stay_connected(), name="mqtt-connection")
+            if self.standby is not None:
+                group.create_task(self.standby.run(), name="mqtt-standby-link")
 
     async def _collect_status(self) -> None:
         async for snapshot in self._hub.snapshots():
@@ -188,18 +204,20 @@ class MqttBridge:
         async for item in self._hub.events():
             self._events.put(item)
 
-    def _client(self, host: str, port: int) -> aiomqtt.Client:
+    def _client(self, host: str, port: int, standby: bool = False) -> aiomqtt.Client:
+        """The session's client (with the last will), or the standby link's (without)."""
         settings = self._settings
         return aiomqtt.Client(
             host,
             port,
             username=settings.username or None,
             password=settings.password or None,
-            identifier=f"hostd-{self._printer_id}",
-            will=aiomqtt.Will(self.topics.online, "offline", qos=1, retain=True),
+            identifier=f"hostd-{self._printer_id}" + ("-standby" if standby else ""),
+            will=None if standby else aiomqtt.Will(self.topics.online, "offline", qos=1,
+                                                   retain=True),
             keepalive=settings.keepalive,
             tls_context=self._tls,
-            timeout=10,
+            timeout=ACK_TIMEOUT_S,
             max_queued_incoming_messages=INCOMING_BUFFER,
         )
 
@@ -231,7 +249,8 @@ class MqttBridge:
             finally:
                 if self.connected.is_set():  # a full session: start the backoff over
                     attempt = 0
-                self.connected.clear()
+                    self.connected.clear()
+                    self.session_changed.set()
             delay = self._backoff.delay(attempt // len(brokers), self._rng)
             attempt += 1
             index += 1
@@ -244,11 +263,19 @@ class MqttBridge:
                 await publish(client, self.topics.online, "offline", qos=1, retain=True)
 
     async def _session(self, client: aiomqtt.Client) -> None:
-        """One connection: subscribe, announce, then publish and listen until it drops.
+        """One connection: the newest status, subscribe, announce, then publish and listen
+        until it drops.
 
-        Commands and requests are subscribed before ``online`` is published, so a
-        client that sees ``online`` can send one at once.
+        The status goes first: after a failover it is what every fleet view waits for,
+        and a cluster node may hold a client's later packets behind a subscription for
+        seconds (nats, while its JetStream streams elect new leaders). Commands and
+        requests are subscribed before ``online`` is published, so a client that sees
+        ``online`` can send one at once.
         """
+        feed = self._status
+        feed.state_changes.clear()
+        sent_version = feed.version
+        await self._send_status(client, feed.newest)
         await subscribe(client, self.topics.cmd, qos=1)
         await subscribe(client, self.requests.topic, qos=1)
         await publish(client, self.topics.online, "online", qos=1, retain=True)
@@ -256,8 +283,10 @@ class MqttBridge:
             await subscribe(client, HA_STATUS_TOPIC, qos=1)
             await self._announce(client)
         self.connected.set()
+        self.session_changed.set()
         async with asyncio.TaskGroup() as group:
-            group.create_task(self._publish_status(client), name="mqtt-publish-status")
+            group.create_task(self._publish_status(client, sent_version),
+                              name="mqtt-publish-status")
             group.create_task(self._publish_events(client), name="mqtt-publish-events")
             group.create_task(self._listen(client), name="mqtt-commands")
             group.create_task(self.requests.serve(partial(self._reply, client)),
@@ -275,13 +304,11 @@ class MqttBridge:
     async def _send_status(self, client: aiomqtt.Client, snapshot: Snapshot) -> None:
         await publish(client, self.topics.status, snapshot.to_json(), qos=1, retain=True)
 
-    async def _publish_status(self, client: aiomqtt.Client) -> None:
-        """Retained status: every state change at once, other changes at most once an interval."""
+    async def _publish_status(self, client: aiomqtt.Client, sent_version: int) -> None:
+        """Retained status after the session's first (``sent_version``): every state change
+        at once, other changes at most once an interval."""
         feed = self._status
         loop = asyncio.get_running_loop()
-        feed.state_changes.clear()
-        sent_version = feed.version
-        await self._send_status(client, feed.newest)
         last = loop.time()
         while True:
             if feed.state_changes:

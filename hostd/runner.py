@@ -18,7 +18,7 @@ from drivers.protocol import strip_comment
 from drivers.streamer import LinkError, StreamCancelled
 from drivers.tasks import cancel_and_wait
 from drivers.transport import TransportError
-from hostd.api import JobStatus
+from hostd.api import JobStatus, layer_in_progress
 from hostd.checkpoints import Checkpoint, CheckpointWriter
 from hostd.eta import EtaModel
 from hostd.joblife import JobLife
@@ -411,7 +411,7 @@ class JobRunner:
         return JobStatus(
             id=self.job.id,
             name=self.job.name,
-            layer=max(0, min(self.completed + 1, self.layers - 1)),  # the layer in progress
+            layer=layer_in_progress(self.completed, self.layers),
             layers=self.layers,
             progress=round(min(progress, 1.0), 4),
             lines_acked=self.lines_acked,

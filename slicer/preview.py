@@ -8,6 +8,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 from PIL import Image, ImageDraw
+from PIL.PngImagePlugin import PngInfo
 
 from slicer.layer import FILL, SKIN, SUPPORT, WALL_INNER, WALL_OUTER
 
@@ -29,7 +30,8 @@ _MARGIN_MM = 3.0
 def render_layer(
     plan: SlicePlan, i: int, path: str | os.PathLike[str], field: bool = False, size: int = 900
 ) -> None:
-    """Write layer ``i`` of ``plan`` as a PNG at ``path``.
+    """Write layer ``i`` of ``plan`` as a PNG at ``path`` (its title also as the PNG's
+    ``Title`` text, :func:`layer_title`).
 
     The view covers the whole model's footprint (the same frame for every
     layer), ``size`` pixels on its longer side. With ``field=True`` the infill
@@ -75,14 +77,19 @@ def render_layer(
     for p in plan.layer_toolpaths(i):
         draw.line(px(p.coords), fill=COLOURS.get(p.kind, (0, 0, 0)), width=line_px, joint="curve")
     _legend(draw, plan, i)
-    image.save(path, format="PNG")
+    info = PngInfo()
+    info.add_text("Title", layer_title(plan, i))  # the drawn title, readable as text too
+    image.save(path, format="PNG", pnginfo=info)
+
+
+def layer_title(plan: SlicePlan, i: int) -> str:
+    """The picture's title: ``layer N of M`` with N counted from 1, and the layer's height."""
+    return f"layer {i + 1} of {plan.layer_count}  z={plan.layer_z(i):.2f} mm"
 
 
 def _legend(draw: ImageDraw.ImageDraw, plan: SlicePlan, i: int) -> None:
     """Layer number, height and the colour key in the top-left corner."""
-    draw.text(
-        (8, 6), f"layer {i + 1} of {plan.layer_count}  z={plan.layer_z(i):.2f} mm", fill=(0, 0, 0)
-    )
+    draw.text((8, 6), layer_title(plan, i), fill=(0, 0, 0))
     y = 22
     for name, colour in COLOURS.items():
         draw.rectangle((8, y + 3, 20, y + 11), fill=colour)

@@ -311,14 +311,15 @@ def start_nats_cluster(folder: Path, size: int = 3, timeout: float = 60.0) -> Na
     for node in nodes:
         node.start()
     try:
-        _wait_cluster_ready(cluster, timeout)
+        wait_cluster_ready(cluster, timeout)
     except BaseException:
         cluster.stop()
         raise
     return cluster
 
 
-def _wait_cluster_ready(cluster: NatsCluster, timeout: float) -> None:
+def wait_cluster_ready(cluster: NatsCluster, timeout: float) -> None:
+    """Wait until a retained QoS 1 message published on the first node is read on every node."""
     import asyncio
 
     import aiomqtt

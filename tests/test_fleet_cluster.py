@@ -44,8 +44,9 @@ def test_the_bridge_fails_over_to_the_next_broker_of_mqtt_hosts(tmp_path: Path) 
             hub.update(state="printing")
             async with asyncio.timeout(20):
                 async for message in watcher.messages:
-                    if Snapshot.from_dict(json.loads(message.payload)).state == "printing":
-                        break
+                    status = Snapshot.from_dict(json.loads(message.payload))
+                    if status.state == "printing" and message.qos == 1:  # the session's own
+                        break  # (the standby link's copies come at QoS 0, not retained)
         assert bridge.broker == (HOST, second.port)
         task.cancel()
         await asyncio.gather(task, return_exceptions=True)
@@ -56,6 +57,55 @@ def test_the_bridge_fails_over_to_the_next_broker_of_mqtt_hosts(tmp_path: Path) 
         first.stop()
         second.stop()
     assert controller.calls == []  # failing over sends the printer no command
+
+
+def test_the_standby_link_carries_the_status_while_the_session_is_away(tmp_path: Path) -> None:
+    first, second = start_broker(tmp_path / "a"), start_broker(tmp_path / "b")
+    config = MqttConfig(enabled=True, hosts=((HOST, first.port), (HOST, second.port)))
+    hub = StatusHub(Snapshot(state="printing"))
+    # after the drop the session waits 15 to 30 s before it tries the second broker:
+    # meanwhile only the standby link can bring the status there
+    bridge = MqttBridge(config, "sb1", hub, Refuse(), status_interval_s=0.2,
+                        backoff=Backoff(initial_s=30.0, maximum_s=30.0))
+    assert bridge.standby is not None
+    alone = MqttConfig(enabled=True, host=HOST, port=first.port)
+    assert MqttBridge(alone, "sb2", hub, Refuse()).standby is None  # one broker: no link
+
+    async def scenario() -> None:
+        task = asyncio.create_task(bridge.run())
+        async with asyncio.timeout(20):
+            await bridge.connected.wait()
+            while bridge.standby.broker is None:
+                await asyncio.sleep(0.02)
+        assert bridge.broker == (HOST, first.port)
+        assert bridge.standby.broker == (HOST, second.port)
+        assert bridge.standby.published == 0  # quiet while the session is up
+        async with aiomqtt.Client(HOST, second.port) as watcher:
+            await watcher.subscribe("hostd/sb1/status", qos=1)
+            first.stop()
+            async with asyncio.timeout(10):
+                while bridge.connected.is_set():
+                    await asyncio.sleep(0.02)
+            carried = []
+            for n in range(2):  # the newest status, once an interval
+                made = hub.update(state="printing", error=f"status {n}").ts
+                async with asyncio.timeout(10):
+                    async for message in watcher.messages:
+                        status = Snapshot.from_dict(json.loads(message.payload))
+                        if status.ts >= made:
+                            carried.append((message.qos, message.retain, status.error))
+                            break
+        assert carried == [(0, False, "status 0"), (0, False, "status 1")]
+        assert not bridge.connected.is_set()  # the session itself was not back yet
+        assert bridge.standby.published >= 2
+        task.cancel()
+        await asyncio.gather(task, return_exceptions=True)
+
+    try:
+        asyncio.run(scenario())
+    finally:
+        first.stop()
+        second.stop()
 
 
 def test_a_print_goes_on_when_its_nats_node_stops_and_the_fleet_sees_it_through_another(

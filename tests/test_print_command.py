@@ -77,3 +77,47 @@ def test_bad_input_exits_2_with_a_reason(tmp_path, capsys, name, content, port, 
         path.write_text(content)
     assert main(["print", str(path), "--port", port]) == 2
     assert message in capsys.readouterr().err
+
+
+def test_the_progress_line_says_the_layer_printing_from_acknowledged_lines(capsys, monkeypatch):
+    """`layer N of M` is the layer the printer is at (acknowledged lines), as the daemon says."""
+    import bisect
+    import re
+
+    from hostd.api import layer_in_progress
+    from slicer.plan import SlicePlan
+    from slicer.settings import SliceSettings
+
+    monkeypatch.setenv("COLUMNS", "200")  # the whole tail of the line fits
+    model = DATA / "cube20_xyz.stl"
+    plan = SlicePlan.from_file(str(model), SliceSettings(), (220.0, 220.0, 250.0))
+    sent = len([x for x in plan.start_gcode() if strip_comment(x)])
+    ends = []  # commands sent through the end of each layer
+    for i in range(plan.layer_count):
+        sent += len([x for x in plan.layer_gcode(i) if strip_comment(x)])
+        ends.append(sent)
+    with SimulatedPrinter(SimulatorConfig(time_scale=0.002, baud=0, boot_delay_s=0.0)) as sim:
+        assert main(["print", str(model), "--port", sim.path]) == 0
+    drawn = re.findall(r"layer (\d+) of (\d+) (\d+) acked", capsys.readouterr().err)
+    assert len(drawn) >= 3, drawn
+    layers = []
+    for n, m, acked in drawn:
+        assert int(m) == plan.layer_count
+        completed = bisect.bisect_right(ends, int(acked)) - 1  # the last layer wholly acked
+        assert int(n) == layer_in_progress(completed, plan.layer_count) + 1, (n, acked)
+        layers.append(int(n))
+    assert layers == sorted(layers)
+    assert layers[-1] == plan.layer_count
+    assert any(1 < n < plan.layer_count for n in layers)  # drawn mid-print too
+
+
+def test_progress_counts_a_layer_once_its_last_line_is_acknowledged():
+    from hostd.commands.print_file import Progress
+
+    progress = Progress("layers", 3, layer_ends=[10, 25, 40])
+    seen = []
+    for acked in (0, 9, 10, 24, 25, 39, 40, 44):
+        progress.acked = acked
+        seen.append((progress.completed_layers(), progress.layer() + 1))
+    # layer 1 printing until its 10th line is acknowledged; the last stays "layer 3 of 3"
+    assert seen == [(0, 1), (0, 1), (1, 2), (1, 2), (2, 3), (2, 3), (3, 3), (3, 3)]

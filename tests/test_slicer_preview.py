@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from slicer.preview import COLOURS
@@ -58,3 +60,19 @@ def test_preview_refuses_a_layer_out_of_range(tmp_path) -> None:
     )
     assert run.returncode == 2
     assert "layers 1..100" in run.stderr
+
+
+@pytest.mark.parametrize(("asked", "shown"), [("1", 1), ("50", 50), ("-1", 100)])
+def test_preview_and_its_picture_say_the_same_layer_n_of_m(tmp_path, asked, shown) -> None:
+    out = tmp_path / "p.png"
+    run = subprocess.run(
+        [*HOSTD, "preview", str(DATA / "cube20_xyz.stl"), "--layer", asked, "-o", str(out)],
+        capture_output=True, text=True, check=False,
+    )
+    assert run.returncode == 0, run.stderr
+    said = re.search(r"layer (\d+) of (\d+)", run.stdout)
+    assert said is not None, run.stdout
+    assert (int(said[1]), int(said[2])) == (shown, 100)
+    title = Image.open(out).text["Title"]  # the title drawn on the picture, as text
+    assert title.startswith(f"layer {shown} of 100  z=")
+    assert f";LAYER:{shown - 1} " in run.stdout  # the G-code's comment counts from 0

@@ -31,10 +31,11 @@ from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tui.app import Dashboard
 from tui.canvas import Canvas, Frame
-from tui.format import bar, duration, layer_text
+from tui.format import bar, clock, duration, fit_words, layer_text
 from tui.printer_screen import NO_LAYER_VIEW
 from tui.sources import EventItem, SocketSource, StatusItem
-from tui.widgets.dialogs import ConfirmScreen, HelpScreen, RetuneScreen
+from tui.widgets.dialogs import ConfirmScreen, FilterScreen, HelpScreen, RetuneScreen
+from tui.widgets.eventlog import EventLog
 from tui.widgets.layer import LayerView
 
 T0 = 1_700_000_000.0  # a fixed clock for deterministic pictures
@@ -182,6 +183,67 @@ def test_screen_at_80x24_shows_every_panel_without_wrapping() -> None:
     layer_args = [args for cmd, args in source.queries if cmd == "layer"]
     assert layer_args
     assert all(args["layer"] == 12 for args in layer_args)
+
+
+def test_fit_words_cuts_after_a_whole_word() -> None:
+    assert fit_words("hotend heating", 20) == "hotend heating"
+    assert fit_words("refused pause: no job is printing", 20) == "refused pause: no…"
+    assert fit_words("refused pause: no job is printing", 19) == "refused pause: no…"
+    assert fit_words("refused pause: no job is printing", 17) == "refused pause:…"
+    assert fit_words("thermistor", 6) == "therm…"  # one word too long: cut where it must be
+    assert fit_words("a b", 1) == "…"
+    assert fit_words("a b", 0) == ""
+    for width in range(1, 40):
+        assert len(fit_words("refused pause: no job is printing", width)) <= width
+
+
+REFUSAL = "thermal runaway: check the thermistor wiring"
+
+
+def test_a_long_event_takes_one_line_cut_at_a_word_at_80x24() -> None:
+    refused = EventItem("sim", {"event": "error", "cmd": "resume", "reason": REFUSAL, "ts": T0})
+    source = FixedSource([*history(), *EVENTS, refused])
+    whole = f"{clock(T0)} refused resume: {REFUSAL}"
+
+    def shown(log: EventLog) -> list[str]:
+        return [strip.text for strip in log.lines]
+
+    async def scenario() -> None:
+        app = Dashboard(source)
+        async with app.run_test(size=(80, 24)) as pilot:
+            screen = app.printer_screen
+            log = screen.query_one(EventLog)
+            await until(lambda: len(log.lines) == 14)
+            width = log.line_width()
+            assert 30 <= width < len(whole)
+            lines = shown(log)
+            assert len(lines) == len(log.entries) == 14  # one line each: nothing wraps
+            assert all(len(line.rstrip()) <= width for line in lines), lines
+            assert log.virtual_size.width <= width  # nothing to scroll sideways either
+            for line, (ts, _colour, text) in zip(lines, log.entries, strict=True):
+                full, line = f"{clock(ts)} {text}", line.rstrip()
+                if line != full:  # cut: after a whole word, with an ellipsis
+                    assert line.endswith("…"), line
+                    assert full.startswith(line[:-1]), line
+                    assert full[len(line) - 1] == " ", line
+            assert lines[-1].rstrip() != whole
+            # a word cut off is still found by the filter, in the whole text
+            await pilot.press("slash", *"thermistor", "enter")
+            await until(lambda: screen.log_filter == "thermistor")
+            assert len(log.lines) == 1
+            assert shown(log)[0].startswith(f"{clock(T0)} refused")
+            await pilot.press("slash", *["backspace"] * 10, "enter")
+            await until(lambda: screen.log_filter == "" and len(log.lines) == 14)
+            assert not isinstance(app.screen, FilterScreen)
+            # a wider terminal lays the lines out again: the whole refusal shows
+            await pilot.resize_terminal(200, 40)
+            await until(lambda: log.line_width() >= len(whole))
+            await until(lambda: shown(log)[-1].rstrip() == whole)
+            assert len(log.lines) == 14
+            await pilot.resize_terminal(80, 24)
+            await until(lambda: log.line_width() == width and shown(log) == lines)
+
+    asyncio.run(scenario())
 
 
 def test_keys_pause_resume_confirmed_cancel_and_emergency_stop_filter_retune() -> None:

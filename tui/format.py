@@ -2,8 +2,11 @@
 
 from __future__ import annotations
 
+import re
 import time
 from typing import Any
+
+from rich.cells import cell_len
 
 
 def duration(seconds: float | None) -> str:
@@ -70,3 +73,24 @@ def describe_event(event: dict[str, Any]) -> tuple[str, str]:
         return "red", f"error: {reason}".rstrip()
     details = " ".join(f"{k}={v}" for k, v in event.items() if k not in ("event", "ts", "id"))
     return "white", f"{kind} {details}".rstrip()
+
+
+def fit_words(text: str, width: int) -> str:
+    """``text`` on one line of ``width`` cells: whole when it fits, else cut after its
+    last whole word that leaves room for ``…`` (a single word too long is cut where it
+    must be)."""
+    if cell_len(text) <= width:
+        return text
+    if width <= 1:
+        return "…"[:max(width, 0)]
+    room = width - 1
+    cut = 0
+    for word in re.finditer(r"\S+", text):
+        if cell_len(text[:word.end()]) > room:
+            break
+        cut = word.end()
+    if cut == 0:  # not even the first word fits: cut inside it
+        cut = len(text)
+        while cut and cell_len(text[:cut]) > room:
+            cut -= 1
+    return text[:cut].rstrip() + "…"

@@ -13,15 +13,14 @@ import time
 from functools import partial
 from typing import Any, ClassVar
 
-from rich.text import Text
 from textual.app import ComposeResult
 from textual.binding import Binding
 from textual.containers import Horizontal, Vertical
 from textual.screen import Screen
-from textual.widgets import Footer, RichLog
+from textual.widgets import Footer
 
 from hostd.api import ControlError, Snapshot
-from tui.format import clock, describe_event, layer_text
+from tui.format import describe_event, layer_text
 from tui.sources import EventItem, Source, StatusItem
 from tui.widgets.dialogs import (
     ConfirmScreen,
@@ -31,6 +30,7 @@ from tui.widgets.dialogs import (
     RetuneScreen,
     retune_question,
 )
+from tui.widgets.eventlog import EventLog
 from tui.widgets.layer import LayerView
 from tui.widgets.panels import JobPanel, QueuePanel, StateBar, TempPanel
 
@@ -94,7 +94,7 @@ class PrinterScreen(Screen[None]):
                 yield JobPanel(id="job", classes="panel")
                 yield TempPanel(id="temps", classes="panel")
                 yield QueuePanel(id="queue", classes="panel")
-                yield RichLog(id="log", markup=False, wrap=True, max_lines=LOG_LINES, min_width=20)
+                yield EventLog(LOG_LINES, id="log")
             yield LayerView(id="layer")
         yield Footer(compact=True)
 
@@ -150,12 +150,7 @@ class PrinterScreen(Screen[None]):
         self.events.append((ts, colour, text))
         del self.events[:-LOG_LINES]
         if self.log_filter.lower() in text.lower():
-            self._write_log(self.events[-1])
-
-    def _write_log(self, entry: tuple[float, str, str]) -> None:
-        ts, colour, text = entry
-        self.query_one("#log", RichLog).write(Text.assemble((clock(ts) + " ", "dim"),
-                                                            (text, colour)))
+            self.query_one(EventLog).add(self.events[-1])
 
     def note(self, text: str, colour: str = "white") -> None:
         """A line of the dashboard's own in the log (command sent, refused...)."""
@@ -360,12 +355,9 @@ class PrinterScreen(Screen[None]):
             if text is None:
                 return
             self.log_filter = text
-            log = self.query_one("#log", RichLog)
-            log.clear()
+            log = self.query_one(EventLog)
             log.border_title = f"events · filter {text!r}" if text else "events"
-            for entry in self.events:
-                if text.lower() in entry[2].lower():
-                    self._write_log(entry)
+            log.show(entry for entry in self.events if text.lower() in entry[2].lower())
 
         self.app.push_screen(FilterScreen(self.log_filter), chosen)
 

@@ -4,15 +4,14 @@ from __future__ import annotations
 
 import argparse
 import asyncio
+import bisect
 import concurrent.futures
 import contextlib
-import os
-import shutil
 import signal
 import sys
 import time
 from collections.abc import AsyncIterator, Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
@@ -20,8 +19,10 @@ from drivers.protocol import Response, strip_comment
 from drivers.simulator import SimulatedPrinter, SimulatorConfig
 from drivers.streamer import AckChannel, LinkError, StreamCancelled, Streamer, StreamerConfig
 from drivers.transport import TransportError, open_transport
+from hostd.api import layer_in_progress
 from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
 from hostd.endgcode import CANCEL_GCODE
+from hostd.liveline import LiveLine, fit_bar
 from slicer.pipeline import LayerWindow
 
 GCODE_SUFFIXES = (".gcode", ".gco", ".g", ".nc")
@@ -30,40 +31,35 @@ LAYERS_AHEAD = 3
 
 @dataclass
 class Progress:
-    """How far the job is: ``done`` of ``total`` units (lines or layers), ``acked`` lines."""
+    """How far the job is: ``done`` of ``total`` units (lines or layers) handed to the
+    streamer, ``acked`` lines the printer acknowledged; for layers, ``layer_ends`` is the
+    count of commands sent through the end of each layer handed over."""
 
     unit: str
     total: int
     done: int = 0
     acked: int = 0
     hotend: tuple[float, float | None] | None = None
+    layer_ends: list[int] = field(default_factory=list)
 
+    def completed_layers(self) -> int:
+        """Layers whose every command the printer acknowledged."""
+        return bisect.bisect_right(self.layer_ends, self.acked)
 
-def terminal_columns(stream: TextIO) -> int:
-    """The width of the terminal ``stream`` writes to; else ``$COLUMNS``, else 80."""
-    with contextlib.suppress(AttributeError, OSError, ValueError):
-        return max(20, os.get_terminal_size(stream.fileno()).columns)
-    return max(20, shutil.get_terminal_size((80, 24)).columns)
-
-
-def fit_bar(fraction: float, tail: str, columns: int, widest: int = 30) -> str:
-    """``[###---] tail`` in fewer than ``columns`` characters: the bar shrinks, then goes."""
-    room = min(widest, columns - 1 - len(tail) - 3)
-    if room < 5:
-        return tail.strip()[: columns - 1]
-    filled = round(max(0.0, min(1.0, fraction)) * room)
-    return f"[{'#' * filled}{'-' * (room - filled)}] {tail}"[: columns - 1]
+    def layer(self) -> int:
+        """The 0-based layer being printed, from the acknowledged lines (as the daemon says)."""
+        return layer_in_progress(self.completed_layers() - 1, self.total)
 
 
 class ProgressBar:
     """One text line on ``stream``, redrawn at most ten times a second, never wider than
-    the terminal (``columns``, found from the stream when not given)."""
+    the terminal (``columns``, else the stream's terminal's width read at each redraw)."""
 
     def __init__(self, stream: TextIO, width: int = 30, enabled: bool = True,
                  columns: int | None = None) -> None:
         self.stream = stream
         self.width = width
-        self.columns = columns
+        self.line = LiveLine(stream, columns)
         self.enabled = enabled
         self.started = time.monotonic()
         self._last = 0.0
@@ -74,21 +70,21 @@ class ProgressBar:
         if not self.enabled or (not final and now - self._last < 0.1):
             return
         self._last = now
-        frac = min(1.0, progress.done / progress.total) if progress.total else 1.0
+        if progress.unit == "layers":
+            done = progress.completed_layers()
+            count = f"layer {progress.layer() + 1} of {progress.total}"
+        else:
+            done = progress.done
+            count = f"{progress.done}/{progress.total} {progress.unit}"
+        frac = min(1.0, done / progress.total) if progress.total else 1.0
         temp = ""
         if progress.hotend is not None:
             actual, target = progress.hotend
             temp = f" T {actual:.0f}/{target:.0f}" if target is not None else f" T {actual:.0f}"
-        if progress.unit == "layers":
-            count = f"layer {max(progress.done, 1)} of {progress.total}"
-        else:
-            count = f"{progress.done}/{progress.total} {progress.unit}"
         tail = f"{100 * frac:5.1f}% {count} {progress.acked} acked{temp} {now - self.started:.1f}s"
-        columns = self.columns or terminal_columns(self.stream)
-        self.stream.write("\r" + fit_bar(frac, tail, columns, self.width).ljust(columns - 1))
+        self.line.draw(fit_bar(frac, tail, self.line.width() + 1, self.width))
         if final:
-            self.stream.write("\n")
-        self.stream.flush()
+            self.line.end()
 
 
 def gcode_commands(path: Path) -> tuple[int, Callable[[Progress], AsyncIterator[str]]]:
@@ -114,9 +110,10 @@ def stl_commands(plan) -> Callable[[Progress], AsyncIterator[str]]:
     """
 
     async def commands(progress: Progress) -> AsyncIterator[str]:
-        for line in plan.start_gcode():
-            if strip_comment(line):
-                yield strip_comment(line)
+        start = [c for c in map(strip_comment, plan.start_gcode()) if c]
+        sent = len(start)
+        for command in start:
+            yield command
         with concurrent.futures.ThreadPoolExecutor(thread_name_prefix="print-slice") as pool:
             window: LayerWindow[list[str]] = LayerWindow(
                 lambda index: pool.submit(plan.layer_gcode, index), plan.layer_count,
@@ -124,10 +121,11 @@ def stl_commands(plan) -> Callable[[Progress], AsyncIterator[str]]:
             )
             try:
                 for i in range(plan.layer_count):
-                    for line in await window.take_async(i):
-                        command = strip_comment(line)
-                        if command:
-                            yield command
+                    layer = [c for c in map(strip_comment, await window.take_async(i)) if c]
+                    sent += len(layer)
+                    progress.layer_ends.append(sent)  # known before its first line is acked
+                    for command in layer:
+                        yield command
                     progress.done = i + 1
             finally:
                 window.close()

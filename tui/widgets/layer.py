@@ -13,19 +13,22 @@ from textual.widget import Widget
 from tui.canvas import Canvas, Frame
 from tui.format import layer_text
 
-# (printed, still to come) colour of each ;TYPE: kind
+# (printed, still to come) colour of each ;TYPE: kind. Chosen so that every colour stays
+# its own in 256 and in 16 colours too (rich's downgrade, as Textual's output does it):
+# printed near the bright ANSI colours (9-15), to come near the normal ones (1-8).
 KINDS = {
-    "WALL-OUTER": ("#ff5f5f", "#6e3030"),
-    "WALL-INNER": ("#ffaf3f", "#6e5025"),
-    "SKIN": ("#f0e050", "#6a6430"),
-    "FILL": ("#5fd75f", "#2d5e2d"),
-    "SUPPORT": ("#6f9fff", "#2f4470"),
+    "WALL-OUTER": ("#ff5f5f", "#9a2828"),  # red: 9 / 1 in 16 colours
+    "WALL-INNER": ("#5fd7d7", "#208080"),  # cyan: 14 / 6
+    "SKIN": ("#f0e050", "#8a6a1a"),  # yellow: 11 / 3
+    "FILL": ("#5fd75f", "#2a802a"),  # green: 10 / 2
+    "SUPPORT": ("#7090ff", "#2838a0"),  # blue: 12 / 4
 }
-OTHER = ("#d0d0d0", "#555555")
+OTHER = ("#d0d0d0", "#555555")  # grey: 7 / 8
 LEGEND = (("WALL-OUTER", "outer"), ("WALL-INNER", "inner"), ("SKIN", "skin"),
           ("FILL", "infill"), ("SUPPORT", "support"))
-HIGHLIGHT = "#ffffff"
-CANCELLED = "#ff00ff"
+PRINTED_NOTE = "bright printed · dim to come"  # the picture's bottom border
+HIGHLIGHT = "#ffffff"  # 15
+CANCELLED = "#ff00ff"  # magenta: 13
 FIELD_LEVELS = 16
 
 
@@ -64,6 +67,7 @@ class LayerView(Widget):
     def show(self, data: dict[str, Any] | None, message: str = "") -> None:
         """A new layer (or none, with a message saying why)."""
         self.data, self.message = data, message
+        self.border_subtitle = PRINTED_NOTE if data is not None else ""
         self.refresh()
 
     def progress(self, printed: int | None) -> None:
@@ -137,10 +141,13 @@ class LayerView(Widget):
                 text.append("█", style)
             text.append(f" {field['low']:g}..{field['high']:g}", "dim")
             return text
-        for kind, name in LEGEND:
+        for kind, name in LEGEND:  # whole entries only, as many as fit
+            gap = " " if text.plain else ""
+            if text.cell_len + len(gap) + 1 + len(name) > width:
+                break
+            text.append(gap)
             text.append("■", KINDS[kind][0])
-            text.append(f"{name} ")
-        text.append("dim=to come", "dim")
+            text.append(name)
         return text
 
     @staticmethod
