@@ -65,27 +65,27 @@ def test_the_standby_link_carries_the_status_while_the_session_is_away(tmp_path:
     hub = StatusHub(Snapshot(state="printing"))
     # after the drop the session waits 15 to 30 s before it tries the second broker:
     # meanwhile only the standby link can bring the status there
-    bridge = MqttBridge(config, "sb1", hub, Refuse(), status_interval_s=0.2,
+    bridge = MqttBridge(config, "sb1", hub, RecordingController(refuse_all="not in this test"),
+                        status_interval_s=0.2,
                         backoff=Backoff(initial_s=30.0, maximum_s=30.0))
     assert bridge.standby is not None
     alone = MqttConfig(enabled=True, host=HOST, port=first.port)
-    assert MqttBridge(alone, "sb2", hub, Refuse()).standby is None  # one broker: no link
+    assert MqttBridge(alone, "sb2", hub, RecordingController()).standby is None  # one broker
 
     async def scenario() -> None:
         task = asyncio.create_task(bridge.run())
         async with asyncio.timeout(20):
             await bridge.connected.wait()
-            while bridge.standby.broker is None:
-                await asyncio.sleep(0.02)
+        await until(lambda: bridge.standby.broker is not None, timeout=20,
+                    what="the standby link connected")
         assert bridge.broker == (HOST, first.port)
         assert bridge.standby.broker == (HOST, second.port)
         assert bridge.standby.published == 0  # quiet while the session is up
         async with aiomqtt.Client(HOST, second.port) as watcher:
             await watcher.subscribe("hostd/sb1/status", qos=1)
             first.stop()
-            async with asyncio.timeout(10):
-                while bridge.connected.is_set():
-                    await asyncio.sleep(0.02)
+            await until(lambda: not bridge.connected.is_set(), timeout=10,
+                        what="the session to notice its broker gone")
             carried = []
             for n in range(2):  # the newest status, once an interval
                 made = hub.update(state="printing", error=f"status {n}").ts

@@ -11,6 +11,7 @@ import struct
 import termios
 
 import pytest
+from waiting import until
 
 from hostd.api import JobStatus, Snapshot, Temperature, Temps
 from hostd.commands.print_file import Progress, ProgressBar
@@ -143,8 +144,7 @@ def test_the_demo_line_follows_a_terminal_narrowed_while_it_prints(terminal, tmp
         path = tmp_path / "hostd.sock"
         server = asyncio.create_task(serve_control(path, hub, RecordingController({})))
         loop = asyncio.get_running_loop()
-        while not path.exists():
-            await asyncio.sleep(0.02)
+        await until(path.exists, timeout=10, what="the control socket")
         set_columns(master, 160)
         watcher = asyncio.create_task(demo.watch(path, Running()))
         try:
