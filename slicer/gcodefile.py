@@ -23,9 +23,11 @@ _PROBE = 8
 # below this much work left (seconds in one process) forking workers costs more
 # than it saves: the outlines are cut whole first, and the workers redo some
 # work per process (copied pages, skin blocks shared by two tasks), about a
-# fifth more CPU time in all (a 100-layer cube: 0.09 s of layers here, 0.14 s
-# in two workers, later in wall time; the bracket: 1.2-1.6 s against 1.5-1.9 s)
-_FORK_WORTH = 0.15
+# fifth more CPU time in all. On a free second core it pays from about 0.05 s:
+# the bracket's first layers (a plate) predicted 0.10-0.14 s for the rest, its
+# walls took 0.30 s, and forked it finished in 0.34 s instead of 0.45 s; models
+# with less left were as fast either way (medians of 7, bench/.cache/corpus)
+_FORK_WORTH = 0.05
 # seconds the outline cut runs alone before the first layers are sliced beside it
 _CUT_ALONE = 0.05
 # tasks (of _CHUNK layers) a forked worker may have made or in hand beyond the one
