@@ -7,7 +7,9 @@ window after a warm-up, for each view, size and colour system:
 - ``printer``: the single-printer dashboard (``hostd tui --socket``) on a real
   ``hostd run`` daemon printing the dogbone on the simulated printer at the
   demo's speed (``make run``: 50 times real time, heating included), so a
-  layer starts every second or two, temperatures move and events come;
+  layer starts about every second, with its event; ``--time-scale 0.2`` runs
+  it at 5x instead (a layer every ten seconds or so: nearer a real printer,
+  whose layers take a minute);
 - ``fleetN``: the fleet view (``hostd tui --mqtt``) on a mosquitto where the
   light publisher (``bench/fleetpub.py``) emulates N printers at one status a
   second each.
@@ -25,6 +27,7 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import re
 import sys
 import tempfile
 import time
@@ -45,15 +48,19 @@ SIZES = {"80x24": (80, 24), "200x60": (200, 60)}
 COLOURS = {"256": COLOUR_256, "truecolor": TRUECOLOUR}
 LINKS = (("64 kbit/s", 8_000), ("256 kbit/s", 32_000))
 MODEL = "dogbone_100x30x5.stl"  # the demo's part (hostd/data)
-COPIES = 3  # dropped at once, so a job is printing for the whole scenario
+COPIES = 4  # dropped at once, so a job is printing for the whole scenario
+DEMO_TIME_SCALE = 0.02  # hostd/data/demo.toml: 50 times real time
 
 
 @dataclass(frozen=True)
 class DemoSetup(DaemonSetup):
-    """The demo's daemon (``hostd/data/demo.toml``: the embedded default at 50x) in a folder."""
+    """The demo's daemon (``hostd/data/demo.toml``: the embedded default at 50x) in a folder;
+    ``time_scale`` > 0 replaces the demo's."""
 
     def toml(self, jobs: Path, state: Path) -> str:
         demo = (resources.files("hostd.data") / "demo.toml").read_text()
+        if self.time_scale > 0:
+            demo = re.sub(r"(?m)^time_scale = .*$", f"time_scale = {self.time_scale}", demo)
         return (f'[jobs]\nfolder = "{jobs}"\nsettle_s = {self.settle_s}\n\n'
                 f'[state]\nfolder = "{state}"\n\n{demo}')
 
@@ -164,7 +171,8 @@ async def _printing(socket: Path, timeout: float) -> None:
 def printer_runs(args: argparse.Namespace, tmp: Path) -> list[Run]:
     """The single-printer dashboard on the demo daemon, every size and colour system."""
     runs = []
-    with Daemon(DemoSetup()) as daemon:
+    view = f"printer, {1 / args.time_scale:g}x"
+    with Daemon(DemoSetup(time_scale=args.time_scale)) as daemon:
         daemon.wait_ready()
         socket = next(p for p in daemon.state.rglob("*") if p.is_socket())
         with resources.as_file(resources.files("hostd.data") / MODEL) as model:
@@ -173,10 +181,10 @@ def printer_runs(args: argparse.Namespace, tmp: Path) -> list[Run]:
                 copy.write_bytes(model.read_bytes())
                 daemon.drop(copy)
         for size, colours in plan(args):
-            asyncio.run(_printing(socket, 120.0))
+            asyncio.run(_printing(socket, 180.0))
             print(f"printer {size} {colours} ...", file=sys.stderr, flush=True)
             runs.append(measure(command(args, ["--socket", str(socket)], tmp / "profile.json"),
-                                "printer", size, colours, args.warmup, args.window,
+                                view, size, colours, args.warmup, args.window,
                                 tmp / "profile.json" if args.profile else None))
             print(runs[-1].row(), file=sys.stderr, flush=True)
     return runs
@@ -228,6 +236,8 @@ def main() -> int:
     parser.add_argument("--colours", default=",".join(COLOURS))
     parser.add_argument("--warmup", type=float, default=4.0, help="seconds after the first paint")
     parser.add_argument("--window", type=float, default=20.0, help="measured seconds")
+    parser.add_argument("--time-scale", type=float, default=DEMO_TIME_SCALE,
+                        help="printer: simulated printer's time scale (0.02: the demo's 50x)")
     parser.add_argument("--profile", action="store_true",
                         help="count refreshes and bytes per widget (bench/tui_profile.py)")
     args = parser.parse_args()

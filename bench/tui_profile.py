@@ -1,8 +1,8 @@
 """The dashboard under a profiler: which widgets refresh, and the terminal bytes each one costs.
 
-``python -m bench.tui_profile --out FILE -- TUI-ARGS`` runs what ``hostd tui
-TUI-ARGS`` runs (the single-printer dashboard on ``--socket PATH``, or the fleet
-view on ``--mqtt HOST:PORT``), meant for a pseudo-terminal, with two counters:
+``python -m bench.tui_profile --out FILE --socket PATH`` (or ``--mqtt HOST:PORT``)
+runs what ``hostd tui`` runs with the same option (the single-printer dashboard,
+or the fleet view), meant for a pseudo-terminal, with two counters:
 ``Widget.refresh`` calls by widget, and the bytes of every screen update
 written to the terminal, cut at the widgets' edges and given to the widget
 drawn there (its nearest ancestor with an id). Every second FILE is rewritten
