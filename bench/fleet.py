@@ -156,14 +156,16 @@ def measure_window(figures: Figures, count_port: int, dash: Terminal, lags: Path
         figures.lag_p95 = found[min(len(found) - 1, int(len(found) * 0.95))]
 
 
-def _publisher(broker: str, count: int, duration: float) -> subprocess.Popen[bytes]:
+def start_publisher(broker: str, count: int, duration: float) -> subprocess.Popen[bytes]:
+    """The light publisher (`bench.fleetpub`): ``count`` printers at 1 Hz for ``duration`` s."""
     return subprocess.Popen(
         [sys.executable, "-m", "bench.fleetpub", "--broker", broker, "--count", str(count),
          "--rate", "1", "--duration", str(duration)],
         cwd=ROOT, env=PYTHON_ENV, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 
 
-def _stop(proc: subprocess.Popen[bytes]) -> None:
+def stop_process(proc: subprocess.Popen[bytes]) -> None:
+    """SIGTERM, then SIGKILL after 15 s."""
     if proc.poll() is None:
         proc.terminate()
         try:
@@ -185,7 +187,7 @@ def publisher_scenario(tmp: Path, count: int, window: float, nats: bool) -> Figu
         stop, name = broker.stop, "mosquitto"
     figures = Figures(f"{'nats' if nats else 'pub'}{count}", name, count)
     lags = tmp / "lags.txt"
-    publisher = _publisher(f"{HOST}:{pub_port}", count, window + 30)
+    publisher = start_publisher(f"{HOST}:{pub_port}", count, window + 30)
     dash = Terminal([sys.executable, "-m", "bench.fleet_dash", "--broker",
                      f"{HOST}:{view_port}", "--lags", str(lags)], cwd=ROOT, env=PYTHON_ENV)
     try:
@@ -193,7 +195,7 @@ def publisher_scenario(tmp: Path, count: int, window: float, nats: bool) -> Figu
         measure_window(figures, view_port, dash, lags, window)
     finally:
         dash.close()
-        _stop(publisher)
+        stop_process(publisher)
         stop()
     return figures
 
@@ -247,7 +249,7 @@ def daemons_scenario(tmp: Path, count: int, window: float) -> Figures:
         for proc in daemons:
             proc.send_signal(signal.SIGTERM)
         for proc in daemons:
-            _stop(proc)
+            stop_process(proc)
         broker.stop()
     return figures
 

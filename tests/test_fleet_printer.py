@@ -73,7 +73,7 @@ def texts(screen: PrinterScreen) -> list[str]:
 
 
 def picture(screen: PrinterScreen) -> str:
-    return screen.query_one(LayerView).render().renderables[0].plain
+    return screen.query_one(LayerView).picture()
 
 
 def panel_line(screen: PrinterScreen, row: int) -> str:

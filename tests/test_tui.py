@@ -172,7 +172,7 @@ def test_screen_at_80x24_shows_every_panel_without_wrapping() -> None:
             assert screen.query_one("#layer").border_title == "layer 13 of 25 · z 2.60 mm"
             view = screen.query_one(LayerView)
             assert 0 < view.printed_paths() < len(screen.layer_data["paths"])
-            lines = view.render().renderables[0].plain.split("\n")
+            lines = view.picture().split("\n")
             assert len(lines) == view.content_size.height - 1
             assert {len(line) for line in lines} == {view.content_size.width}
             for widget in screen.query("#job, #temps, #queue, #layer, #log"):

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from textual.app import App
 
+from tui import partial_output
 from tui.printer_screen import PrinterScreen
 from tui.sources import Source
 
@@ -16,6 +17,7 @@ class Dashboard(App[None]):
 
     def __init__(self, source: Source, printer: str = "") -> None:
         super().__init__()
+        partial_output.install()
         self.source = source
         self.printer = printer
 

@@ -88,20 +88,47 @@ class Canvas:
 
     def text(self, palette: Sequence[Style]) -> Text:
         """The canvas as Rich text, one line per row, runs of one style joined."""
+        return Text("\n", no_wrap=True, overflow="crop").join(self.lines(palette))
+
+    def lines(self, palette: Sequence[Style]) -> list[Text]:
+        """Each row of the canvas as one Rich text, runs of one style joined.
+
+        A cell without dots or background is a space (1 byte on the wire, where a
+        blank braille character takes 3) in the colour of the run before it, so
+        that runs of one colour broken by blanks need no new colour codes.
+        """
         codes = self.codes()
-        out = Text(no_wrap=True, overflow="crop")
+        blank = (codes == 0x2800) & (self.bg < 0)
+        fg = self.fg.copy()
+        fg[blank] = -2  # takes the colour of the cell before it (or after, at a row's start)
+        out = []
         for r in range(self.rows):
-            line = "".join(map(chr, codes[r]))
-            keys = self.fg[r] * 10_000 + self.bg[r]
+            row_fg = _fill_blanks(fg[r])
+            line = "".join(" " if b else chr(c) for c, b in zip(codes[r], blank[r], strict=True))
+            row = Text(no_wrap=True, overflow="crop")
+            keys = row_fg * 10_000 + self.bg[r]
             breaks = np.flatnonzero(np.diff(keys)) + 1
             edges = [0, *breaks.tolist(), self.cols]
             for start, stop in itertools.pairwise(edges):
-                fg, bg = int(self.fg[r, start]), int(self.bg[r, start])
+                fg_at, bg_at = int(row_fg[start]), int(self.bg[r, start])
                 style = Style.combine([
-                    palette[fg] if fg >= 0 else Style(),
-                    Style(bgcolor=palette[bg].color) if bg >= 0 else Style(),
+                    palette[fg_at] if fg_at >= 0 else Style(),
+                    Style(bgcolor=palette[bg_at].color) if bg_at >= 0 else Style(),
                 ])
-                out.append(line[start:stop], style)
-            if r < self.rows - 1:
-                out.append("\n")
+                row.append(line[start:stop], style)
+            out.append(row)
         return out
+
+
+def _fill_blanks(colours: np.ndarray) -> np.ndarray:
+    """``colours`` with each -2 replaced by the nearest colour before it (after it for the
+    leading ones; -1, no colour, for a row of blanks only)."""
+    known = colours != -2
+    if not known.any():
+        return np.full_like(colours, -1)
+    index = np.where(known, np.arange(len(colours)), 0)
+    np.maximum.accumulate(index, out=index)
+    filled = colours[index]
+    first = int(np.argmax(known))
+    filled[:first] = colours[first]
+    return filled

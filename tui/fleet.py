@@ -12,6 +12,7 @@ from textual.screen import Screen
 from textual.widgets import Footer, Input, Static
 
 from hostd.api import Snapshot
+from tui import partial_output
 from tui.fleet_model import COUNTED, FleetModel, PrinterEntry, matches, row_cells
 from tui.fleet_table import FleetTable, header_text
 from tui.printer_screen import PrinterScreen
@@ -255,6 +256,7 @@ class FleetApp(App[None]):
 
     def __init__(self, source: FleetSource, *, refresh_s: float = 0.25) -> None:
         super().__init__()
+        partial_output.install()
         self.source = source
         self.refresh_s = refresh_s
 

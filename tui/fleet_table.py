@@ -47,6 +47,18 @@ def header_text(total: int) -> str:
         COLUMNS, widths, strict=True))
 
 
+def changed_columns(old: tuple[str, ...], new: tuple[str, ...],
+                    total: int) -> list[tuple[int, int]]:
+    """(first cell, cells) of each column whose text differs, in a row ``total`` wide."""
+    out = []
+    x = len(GAP)
+    for size, before, after in zip(column_widths(total), old, new, strict=True):
+        if before != after:
+            out.append((x, size))
+        x += size + len(GAP)
+    return out
+
+
 class FleetTable(ScrollView, can_focus=True):
     """Rows of printers (ids and cell texts) in a given order, with a row cursor."""
 
@@ -99,7 +111,7 @@ class FleetTable(ScrollView, can_focus=True):
         or at the top when it was there."""
         current = self.cursor_printer() if self.cursor > 0 else None
         self.order = order
-        self.cells = cells
+        self.cells = dict(cells)  # its own: update_row compares with what it shows
         self._index = {printer: n for n, printer in enumerate(order)}
         self._strips = {p: s for p, s in self._strips.items() if p in self._index}
         self.cursor = self._index.get(current, 0) if current is not None else 0
@@ -108,14 +120,22 @@ class FleetTable(ScrollView, can_focus=True):
         self.refresh()
 
     def update_row(self, printer: str, cells: tuple[str, ...]) -> None:
-        """New cells for one shown printer; redraws its line only if it is on screen."""
+        """New cells for one shown printer; if its line is on screen, redraws the
+        columns that changed (only those cross to the terminal)."""
+        old = self.cells.get(printer)
         self.cells[printer] = cells
         self._strips.pop(printer, None)
         row = self._index.get(printer)
-        if row is not None:
-            y = row - int(self.scroll_offset.y)
-            if 0 <= y < self.scrollable_content_region.height:
-                self.refresh(Region(0, y, self.row_width, 1))
+        if row is None:
+            return
+        y = row - int(self.scroll_offset.y)
+        if not 0 <= y < self.scrollable_content_region.height:
+            return
+        if old is None or len(old) != len(cells):
+            self.refresh(Region(0, y, self.row_width, 1))
+            return
+        for x, width in changed_columns(old, cells, self.row_width):
+            self.refresh(Region(x, y, width, 1))
 
     def _strip(self, printer: str, width: int) -> Strip:
         strip = self._strips.get(printer)

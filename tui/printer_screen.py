@@ -164,7 +164,7 @@ class PrinterScreen(Screen[None]):
         if job is None or not job.layers:
             self.layer_data, self._layer_key = None, None
             view.show(None, "no job printing" if job is None else "slicing...")
-            view.border_title = "layer"
+            view.set_border_title("layer")
             return
         key = (job.id, job.layer, view.show_field)
         retry = self._layer_failed and time.monotonic() > self._retry_at
@@ -204,7 +204,7 @@ class PrinterScreen(Screen[None]):
         self._layer_failed = False
         self.layer_data = data
         view.show(data)
-        view.border_title = LayerView.title(data)
+        view.set_border_title(LayerView.title(data))
         self._show_progress()
 
     async def _query(self, cmd: str, **args: Any) -> dict[str, Any]:
@@ -303,7 +303,7 @@ class PrinterScreen(Screen[None]):
 
         def highlight(body: int | None) -> None:
             view.highlight = body
-            view.refresh()
+            view.redraw_now()
 
         async def chosen(choice: tuple[str, int] | None) -> None:
             highlight(None)
@@ -345,7 +345,7 @@ class PrinterScreen(Screen[None]):
     def action_field(self) -> None:
         view = self.query_one(LayerView)
         view.show_field = not view.show_field
-        view.refresh()
+        view.redraw_now()
         if self.layer_data is not None and self.layer_data.get("field") is None and view.show_field:
             self._layer_key = None
         self._follow_layer()

@@ -34,7 +34,10 @@ class EventLog(RichLog):
         if self.max_lines is not None:
             del self.entries[:-self.max_lines]
         if self._laid_out_at:
-            self.write(self._line(entry), width=self._laid_out_at)
+            # scrolled at once, not after the next refresh: one repaint per entry, not two
+            self.write(self._line(entry), width=self._laid_out_at, scroll_end=False)
+            if self.auto_scroll:
+                self.scroll_end(animate=False, immediate=True, x_axis=False)
 
     def show(self, entries: Iterable[Entry]) -> None:
         """Replace every line with ``entries``."""

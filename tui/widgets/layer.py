@@ -2,16 +2,19 @@
 
 from __future__ import annotations
 
+import math
+import time
+from collections.abc import Callable
 from typing import Any
 
 import numpy as np
-from rich.console import Group
 from rich.style import Style
 from rich.text import Text
-from textual.widget import Widget
+from textual.timer import Timer
 
 from tui.canvas import Canvas, Frame
 from tui.format import layer_text
+from tui.widgets.lines import LinesWidget
 
 # (printed, still to come) colour of each ;TYPE: kind. Chosen so that every colour stays
 # its own in 256 and in 16 colours too (rich's downgrade, as Textual's output does it):
@@ -30,6 +33,7 @@ PRINTED_NOTE = "bright printed · dim to come"  # the picture's bottom border
 HIGHLIGHT = "#ffffff"  # 15
 CANCELLED = "#ff00ff"  # magenta: 13
 FIELD_LEVELS = 16
+PROGRESS_S = 1.0  # the progress within a layer is drawn at most once a second
 
 
 def _field_palette() -> list[Style]:
@@ -45,36 +49,68 @@ def _field_palette() -> list[Style]:
     return out
 
 
-class LayerView(Widget):
+class LayerView(LinesWidget):
     """Draws the ``layer`` reply of the control API, sized to the widget.
 
     ``printed`` is the number of the layer's commands acknowledged (None: the
-    whole layer is still to come; ``done=True``: all of it is printed).
+    whole layer is still to come). A new layer, the field or a highlighted body
+    is drawn at once; the acknowledged progress within a layer at most once
+    every ``progress_s`` seconds of ``clock`` (the last value always shown, a
+    timer draws it when its turn comes), and only when a path turns bright.
+    Either way only the picture's rows that changed are sent to the terminal.
     """
 
-    def __init__(self, **kwargs) -> None:
+    def __init__(self, *, progress_s: float = PROGRESS_S,
+                 clock: Callable[[], float] = time.monotonic, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.data: dict[str, Any] | None = None
         self.printed: int | None = None
         self.message = "waiting for a job"
         self.show_field = False
         self.highlight: int | None = None
-        self._cache: tuple[tuple, Group] | None = None
+        self.progress_s = progress_s
+        self.clock = clock
+        self.drawn_paths = 0  # printed paths in the picture as last drawn
+        self._drawn_at = -math.inf  # clock() of the last progress drawn
+        self._timer: Timer | None = None  # draws progress held back by progress_s
+        self._cache: tuple[tuple, list[Text]] | None = None
         pairs = (*KINDS.values(), OTHER)
         self._palette = [Style(color=colour) for pair in pairs for colour in pair]
         self._palette += [Style(color=HIGHLIGHT), Style(color=CANCELLED), *_field_palette()]
 
     def show(self, data: dict[str, Any] | None, message: str = "") -> None:
-        """A new layer (or none, with a message saying why)."""
-        self.data, self.message = data, message
+        """A new layer (or none, with a message saying why), drawn at once, all of it to
+        come: the :meth:`progress` that follows is drawn at once too."""
+        self.data, self.message, self.printed = data, message, None
         self.border_subtitle = PRINTED_NOTE if data is not None else ""
-        self.refresh()
+        self._drawn_at, self.drawn_paths = -math.inf, 0
+        self._draw()
 
     def progress(self, printed: int | None) -> None:
-        """How many of the layer's commands are acknowledged; redraws when that changes."""
-        if printed != self.printed:
-            self.printed = printed
-            self.refresh()
+        """How many of the layer's commands are acknowledged; drawn when a path turns
+        bright, at most once every ``progress_s`` seconds."""
+        self.printed = printed
+        if self.printed_paths() == self.drawn_paths or self._timer is not None:
+            return  # nothing visible changed, or a redraw is already due
+        wait = self._drawn_at + self.progress_s - self.clock()
+        if wait <= 0:
+            self._draw()
+        else:
+            self._timer = self.set_timer(wait, self._draw)
+
+    def redraw_now(self) -> None:
+        """Draw what is set now (after the field or the highlight changed)."""
+        self._draw()
+
+    def _draw(self) -> None:
+        if self._timer is not None:
+            self._timer.stop()
+            self._timer = None
+        paths = self.printed_paths()
+        if paths != self.drawn_paths:
+            self._drawn_at = self.clock()
+        self.drawn_paths = paths
+        self.redraw()
 
     def printed_paths(self) -> int:
         """How many of the layer's paths are wholly printed."""
@@ -83,12 +119,17 @@ class LayerView(Widget):
         ends = [path["end"] for path in self.data["paths"]]
         return int(np.searchsorted(ends, self.printed, side="right"))
 
-    def render(self) -> Group | Text:
-        width, height = self.content_size.width, self.content_size.height
+    def picture(self) -> str:
+        """The picture as drawn now, without its legend: braille dots, one line per row."""
+        size = self.content_size
+        return "\n".join(line.plain for line in self.content_lines(size.width, size.height)[:-1])
+
+    def content_lines(self, width: int, height: int) -> list[Text]:
         if self.data is None or height < 2:
-            return Text(self.message, style="dim", no_wrap=True, overflow="ellipsis")
+            return [Text(self.message, style="dim", no_wrap=True, overflow="ellipsis")]
         data = self.data
-        key = (width, height, id(data), self.printed_paths(), self.show_field, self.highlight)
+        done = self.drawn_paths
+        key = (width, height, id(data), done, self.show_field, self.highlight)
         if self._cache is not None and self._cache[0] == key:
             return self._cache[1]
         rows = height - 1
@@ -97,7 +138,6 @@ class LayerView(Widget):
         if self.show_field and data.get("field"):
             canvas.fill_background(self._field_cells(data["field"], frame, canvas),
                                    base=len(self._palette) - FIELD_LEVELS)
-        done = self.printed_paths()
         kinds = list(KINDS)
         for stage, paths in ((1, data["paths"][done:]), (0, data["paths"][:done])):
             by_kind: dict[int, list[np.ndarray]] = {}
@@ -111,7 +151,7 @@ class LayerView(Widget):
             if body["index"] == self.highlight or body["cancelled"]:
                 rings = [frame.dots(ring) for ring in body["rings"]]
                 canvas.polylines(rings, highlight + (1 if body["cancelled"] else 0))
-        drawn = Group(canvas.text(self._palette), self._legend(width))
+        drawn = [*canvas.lines(self._palette), self._legend(width)]
         self._cache = (key, drawn)
         return drawn
 

@@ -5,14 +5,13 @@ from __future__ import annotations
 from collections import deque
 
 import numpy as np
-from rich.console import Group
 from rich.style import Style
 from rich.text import Text
-from textual.widget import Widget
 
 from hostd.api import Snapshot
 from tui.canvas import Canvas
 from tui.format import bar, duration, layer_text, metres
+from tui.widgets.lines import LinesWidget
 
 STATE_COLOURS = {
     "printing": "green", "heating": "yellow", "paused": "yellow", "idle": "cyan",
@@ -27,7 +26,7 @@ def line(*parts: str | tuple[str, str]) -> Text:
     return Text.assemble(*parts, no_wrap=True, overflow="ellipsis")
 
 
-class StateBar(Widget):
+class StateBar(LinesWidget):
     """The top line: printer, state, connection, and the error if any."""
 
     def __init__(self, **kwargs) -> None:
@@ -37,9 +36,13 @@ class StateBar(Widget):
 
     def show(self, snapshot: Snapshot, label: str) -> None:
         self.snapshot, self.label = snapshot, label
-        self.refresh()
+        self.redraw()
 
-    def render(self) -> Text:
+    def content_lines(self, width: int, height: int) -> list[Text]:
+        return [self.line()]
+
+    def line(self) -> Text:
+        """The state line."""
         snap = self.snapshot
         colour = STATE_COLOURS.get(snap.state, "white")
         link = ("connected", "green") if snap.printer.connected else ("not connected", "red")
@@ -54,7 +57,7 @@ class StateBar(Widget):
         return line(*parts)
 
 
-class JobPanel(Widget):
+class JobPanel(LinesWidget):
     """Name, layer N of M with a bar, elapsed and ETA, filament used of total, layers ahead."""
 
     def __init__(self, **kwargs) -> None:
@@ -65,22 +68,20 @@ class JobPanel(Widget):
 
     def show(self, snapshot: Snapshot) -> None:
         self.snapshot = snapshot
-        self.refresh()
+        self.redraw()
 
-    def render(self) -> Group:
+    def content_lines(self, width: int, height: int) -> list[Text]:
         job = self.snapshot.job
         if job is None:
             waiting = f"{len(self.snapshot.queue)} queued" if self.snapshot.queue else "no job"
-            return Group(line((waiting, "bold")),
-                         line(("drop an STL into the job folder", "dim")))
-        width = self.content_size.width
+            return [line((waiting, "bold")), line(("drop an STL into the job folder", "dim"))]
         layer = layer_text(job.layer, job.layers) if job.layers else "starting"
         pct = f" {job.progress * 100:3.0f}%"
         bar_width = max(4, width - len(layer) - len(pct) - 2)
         used, total = self.filament if self.filament else (None, None)
         if job.filament_total_mm is not None:  # the daemon's own figures, in every status
             used, total = job.filament_used_mm, job.filament_total_mm
-        return Group(
+        return [
             line((job.name, "bold"), (f"  job {job.id}", "dim")),
             line(layer, "  ", (bar(job.progress, bar_width), "green"), pct),
             line("elapsed ", (duration(job.elapsed_s), "bold"), "  ETA ",
@@ -88,10 +89,10 @@ class JobPanel(Widget):
                  (f"  waiting for the {job.waiting_for}" if job.waiting_for else "", "yellow")),
             line("filament ", ("≈" if total else "", "dim"),
                  (metres(used).removesuffix(" m"), "bold"), " of ", (metres(total), "bold")),
-        )
+        ]
 
 
-class TempPanel(Widget):
+class TempPanel(LinesWidget):
     """Hotend and bed, actual / target, and a braille chart of the last 10 minutes."""
 
     def __init__(self, **kwargs) -> None:
@@ -106,33 +107,40 @@ class TempPanel(Widget):
             self.history.append((snapshot.ts, temps.hotend.actual, temps.bed.actual))
         while self.history and self.history[0][0] < snapshot.ts - HISTORY_S:
             self.history.popleft()
-        self.refresh()
+        self.redraw()
 
-    def render(self) -> Group:
+    def content_lines(self, width: int, height: int) -> list[Text]:
         hot, bed = self.snapshot.temps.hotend, self.snapshot.temps.bed
         head = line(("hotend ", HOTEND), (f"{hot.actual:.1f}", "bold"), f"/{hot.target:.0f}°C  ",
                     ("bed ", BED), (f"{bed.actual:.1f}", "bold"), f"/{bed.target:.0f}°C")
-        rows = max(0, self.content_size.height - 1)
+        rows = max(0, height - 1)
         if rows == 0:
-            return Group(head)
-        return Group(head, self.chart(self.content_size.width, rows))
+            return [head]
+        return [head, *self.chart_lines(width, rows)]
 
-    def chart(self, cols: int, rows: int) -> Text:
-        """Both heaters over the last 10 minutes (right edge = newest), 0 at the bottom."""
+    def chart_lines(self, cols: int, rows: int) -> list[Text]:
+        """Both heaters over the last 10 minutes (right edge = newest), 0 at the bottom.
+
+        Time goes in steps of one dot column, counted from the epoch, so the curves
+        move left a whole dot at a time: between two steps only the newest column
+        can change (and only the rows it crosses are sent to the terminal).
+        """
         canvas = Canvas(cols, rows)
         if self.history:
             data = np.asarray(self.history, dtype=float)
             temps = self.snapshot.temps
             top = max(50.0, float(data[:, 1:].max()), temps.hotend.target, temps.bed.target) * 1.05
             width, height = cols * 2, rows * 4
-            x = width - 1 - (data[-1, 0] - data[:, 0]) / HISTORY_S * (width - 1)
+            step = HISTORY_S / max(1, width - 1)  # seconds per dot column
+            slot = np.floor(data[:, 0] / step)
+            x = width - 1 - (slot[-1] - slot)
             for column, colour in ((2, 1), (1, 0)):
                 y = (height - 1) - data[:, column] / top * (height - 1)
                 canvas.polylines([np.column_stack((x, y))], colour)
-        return canvas.text([HOTEND, BED])
+        return canvas.lines([HOTEND, BED])
 
 
-class QueuePanel(Widget):
+class QueuePanel(LinesWidget):
     """Jobs waiting (never the one printing) and interrupted jobs."""
 
     def __init__(self, **kwargs) -> None:
@@ -140,8 +148,11 @@ class QueuePanel(Widget):
         self.snapshot = Snapshot()
 
     def show(self, snapshot: Snapshot) -> None:
+        rows = len(self.lines())
         self.snapshot = snapshot
-        self.refresh(layout=True)
+        if len(self.lines()) != rows:  # the panel's height follows its lines
+            self.refresh(layout=True)
+        self.redraw()
 
     def get_content_height(self, container, viewport, width: int) -> int:
         return max(1, len(self.lines()))
@@ -156,5 +167,5 @@ class QueuePanel(Widget):
             out.append(line(job.name, ("  stopped ", "yellow"), (after, "dim")))
         return out
 
-    def render(self) -> Group:
-        return Group(*self.lines())
+    def content_lines(self, width: int, height: int) -> list[Text]:
+        return self.lines()
