@@ -148,6 +148,8 @@ def _rates(before: dict, after: dict) -> dict[str, dict[str, float]]:
 
 def command(args: argparse.Namespace, target: list[str], out: Path) -> list[str]:
     """``hostd tui TARGET``, or the profiled dashboard writing its totals to ``out``."""
+    if args.redraw_s:
+        target = [*target, "--redraw-s", f"{args.redraw_s:g}"]
     if args.profile:
         return [sys.executable, "-m", "bench.tui_profile", "--out", str(out), *target]
     return [*hostd_executable(), "tui", *target]
@@ -238,6 +240,8 @@ def main() -> int:
     parser.add_argument("--window", type=float, default=20.0, help="measured seconds")
     parser.add_argument("--time-scale", type=float, default=DEMO_TIME_SCALE,
                         help="printer: simulated printer's time scale (0.02: the demo's 50x)")
+    parser.add_argument("--redraw-s", type=float, default=0.0,
+                        help="run hostd tui --redraw-s S (the slow-link setting)")
     parser.add_argument("--profile", action="store_true",
                         help="count refreshes and bytes per widget (bench/tui_profile.py)")
     args = parser.parse_args()
@@ -250,6 +254,8 @@ def main() -> int:
                 runs += fleet_runs(args, Path(folder), int(view.removeprefix("fleet")))
             else:
                 parser.error(f"unknown view {view!r}")
+    if args.redraw_s:
+        print(f"hostd tui --redraw-s {args.redraw_s:g}\n")
     print(HEADER)
     print("\n".join(run.row() for run in runs))
     if args.profile:

@@ -92,6 +92,7 @@ def main() -> int:
     parser.add_argument("--out", type=Path, required=True)
     parser.add_argument("--socket", help="the single-printer dashboard on this control socket")
     parser.add_argument("--mqtt", help="the fleet view on this broker, HOST:PORT")
+    parser.add_argument("--redraw-s", type=float, default=0.0, help="as hostd tui's")
     args = parser.parse_args()
     install()
     app: App[Any]
@@ -99,12 +100,12 @@ def main() -> int:
         from tui.fleet import FleetApp
         from tui.sources import MqttSource, parse_brokers
 
-        app = FleetApp(MqttSource(parse_brokers(args.mqtt)))
+        app = FleetApp(MqttSource(parse_brokers(args.mqtt)), redraw_s=args.redraw_s)
     else:
         from tui.app import Dashboard
         from tui.sources import SocketSource
 
-        app = Dashboard(SocketSource(args.socket))
+        app = Dashboard(SocketSource(args.socket), redraw_s=args.redraw_s)
 
     def every_second() -> None:
         while True:

@@ -94,6 +94,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--certfile", metavar="FILE",
                    help="with --tls: this client's certificate (PEM), with --keyfile")
     p.add_argument("--keyfile", metavar="FILE", help="with --tls: the key of --certfile (PEM)")
+    p.add_argument("--redraw-s", metavar="S", default=None,
+                   help="for a slow link: draw the layer picture and the event log (and the "
+                        "fleet table) at most once every S seconds (default: "
+                        "$HOSTD_TUI_REDRAW_S, else as the status comes)")
 
     p = sub.add_parser("status", help="one status snapshot from the running daemon")
     p.add_argument("--json", action="store_true", help="print the raw JSON snapshot")

@@ -13,15 +13,18 @@ import dataclasses
 from typing import Any
 
 import numpy as np
+import pytest
 from rich.style import Style
 from rich.text import Text
 from test_tui import T0, FixedSource, printing, until
 from textual.widget import Widget
 
-from tui.app import Dashboard
+from hostd.cli import main
+from tui.app import Dashboard, redraw_seconds
 from tui.fleet_model import COLUMNS
 from tui.fleet_table import changed_columns, column_widths
 from tui.sources import StatusItem
+from tui.widgets.eventlog import EventLog
 from tui.widgets.layer import LayerView
 from tui.widgets.lines import MERGE_GAP, changed_cells, changed_runs
 from tui.widgets.panels import JobPanel, TempPanel
@@ -210,3 +213,52 @@ def test_a_new_layer_title_repaints_only_the_border_row(monkeypatch: Any) -> Non
             assert view.border_title == "layer 14 of 25 · z 2.80 mm"
 
     asyncio.run(scenario())
+
+
+def test_the_slow_link_setting_holds_new_layers_and_log_lines_back() -> None:
+    now = [0.0]
+
+    async def scenario() -> None:
+        app = Dashboard(FixedSource(), redraw_s=0.5)
+        async with app.run_test(size=(80, 24)) as pilot:
+            screen, view = await _ready(app)
+            log = screen.query_one(EventLog)
+            assert (view.layer_s, view.progress_s, log.batch_s) == (0.5, 1.0, 0.5)
+            now[0] = view.clock()  # the first layer was just drawn
+            view.clock = lambda: now[0]
+            first, title = view.drawn, view.border_title
+            other = {**screen.layer_data, "layer": 13, "z": 2.8}
+            view.show(other)  # a new layer within 0.5 s of the last drawing: held
+            await pilot.pause()
+            assert view.drawn is first
+            assert view.border_title == title  # the title goes with the picture
+            await until(lambda: view.drawn is other)
+            assert view.border_title == "layer 14 of 25 · z 2.80 mm"
+            # two events within the batch: shown together, none lost
+            lines = len(log.lines)
+            screen.add_event({"event": "layer", "id": "7", "layer": 12, "layers": 25, "ts": T0})
+            screen.add_event({"event": "layer", "id": "7", "layer": 13, "layers": 25, "ts": T0})
+            await pilot.pause()
+            assert len(log.lines) == lines
+            await until(lambda: len(log.lines) == lines + 2)
+            assert len(log.entries) == lines + 2
+
+    asyncio.run(scenario())
+
+
+def test_the_slow_link_setting_is_read_and_checked(monkeypatch: Any,
+                                                    capsys: Any) -> None:
+    monkeypatch.delenv("HOSTD_TUI_REDRAW_S", raising=False)
+    assert redraw_seconds() == 0.0
+    assert redraw_seconds("5") == 5.0
+    monkeypatch.setenv("HOSTD_TUI_REDRAW_S", "2.5")
+    assert redraw_seconds() == 2.5
+    assert redraw_seconds("0") == 0.0  # the option wins over the environment
+    for bad in ("-1", "soon", "nan", "inf"):
+        with pytest.raises(ValueError, match=r"seconds|float"):
+            redraw_seconds(bad)
+    assert main(["tui", "--redraw-s", "-1", "--socket", "/nonexistent"]) == 2
+    assert "--redraw-s (or $HOSTD_TUI_REDRAW_S)" in capsys.readouterr().err
+    monkeypatch.setenv("HOSTD_TUI_REDRAW_S", "soon")
+    assert main(["tui", "--mqtt", "farm"]) == 2
+    assert "could not convert" in capsys.readouterr().err

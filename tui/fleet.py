@@ -13,6 +13,7 @@ from textual.widgets import Footer, Input, Static
 
 from hostd.api import Snapshot
 from tui import partial_output
+from tui.app import redraw_seconds
 from tui.fleet_model import COUNTED, FleetModel, PrinterEntry, matches, row_cells
 from tui.fleet_table import FleetTable, header_text
 from tui.printer_screen import PrinterScreen
@@ -64,12 +65,14 @@ class FleetScreen(Screen[None]):
         Binding("q", "app.quit", "Quit"),
     ]
 
-    def __init__(self, source: FleetSource, *, refresh_s: float = 0.25) -> None:
+    def __init__(self, source: FleetSource, *, refresh_s: float = 0.25,
+                 redraw_s: float = 0.0) -> None:
         super().__init__()
         self.source = source
         self.model = FleetModel()
         self.query_text = ""
-        self.refresh_s = refresh_s
+        self.refresh_s = max(refresh_s, redraw_s)
+        self.redraw_s = redraw_s  # > 0 (a slow link): also the opened printer's screen
         self.note = ""
         self.collect_stamps = False  # True: rows_shown() gets each shown status' timestamp
         self._shown: dict[str, tuple[str, ...]] = {}
@@ -127,7 +130,8 @@ class FleetScreen(Screen[None]):
 
     async def open_printer(self, printer: str) -> None:
         """Push the printer's own screen, showing at once the last status heard from it."""
-        screen = PrinterScreen(self.source, printer, own_stream=False, back=True)
+        screen = PrinterScreen(self.source, printer, own_stream=False, back=True,
+                               redraw_s=self.redraw_s)
         self.opened = screen
         self._replies(printer, True)  # its requests' replies, while the screen is open
         await self.app.push_screen(screen)
@@ -254,15 +258,17 @@ class FleetApp(App[None]):
     TITLE = "hostd fleet"
     ENABLE_COMMAND_PALETTE = False  # its ctrl+p key would crowd the footer out
 
-    def __init__(self, source: FleetSource, *, refresh_s: float = 0.25) -> None:
+    def __init__(self, source: FleetSource, *, refresh_s: float = 0.25,
+                 redraw_s: float | None = None) -> None:
         super().__init__()
         partial_output.install()
         self.source = source
         self.refresh_s = refresh_s
+        self.redraw_s = redraw_seconds() if redraw_s is None else redraw_s
 
     def fleet_screen(self) -> FleetScreen:
         """The fleet screen this app opens on."""
-        return FleetScreen(self.source, refresh_s=self.refresh_s)
+        return FleetScreen(self.source, refresh_s=self.refresh_s, redraw_s=self.redraw_s)
 
     def on_mount(self) -> None:
         self.push_screen(self.fleet_screen())

@@ -31,7 +31,7 @@ from tui.widgets.dialogs import (
     retune_question,
 )
 from tui.widgets.eventlog import EventLog
-from tui.widgets.layer import LayerView
+from tui.widgets.layer import PROGRESS_S, LayerView
 from tui.widgets.panels import JobPanel, QueuePanel, StateBar, TempPanel
 
 NO_LAYER_VIEW = "the layer picture needs the daemon's control socket (hostd tui --socket)"
@@ -70,8 +70,9 @@ class PrinterScreen(Screen[None]):
     ]
 
     def __init__(self, source: Source, printer: str = "", own_stream: bool = True,
-                 back: bool = False) -> None:
+                 back: bool = False, redraw_s: float = 0.0) -> None:
         super().__init__()
+        self.redraw_s = redraw_s  # > 0 (a slow link): picture and log at most this often
         self.source = source
         self.printer = printer
         self.own_stream = own_stream
@@ -94,8 +95,9 @@ class PrinterScreen(Screen[None]):
                 yield JobPanel(id="job", classes="panel")
                 yield TempPanel(id="temps", classes="panel")
                 yield QueuePanel(id="queue", classes="panel")
-                yield EventLog(LOG_LINES, id="log")
-            yield LayerView(id="layer")
+                yield EventLog(LOG_LINES, id="log", batch_s=self.redraw_s)
+            yield LayerView(id="layer", progress_s=max(PROGRESS_S, self.redraw_s),
+                            layer_s=self.redraw_s)
         yield Footer(compact=True)
 
     def on_mount(self) -> None:
@@ -164,7 +166,6 @@ class PrinterScreen(Screen[None]):
         if job is None or not job.layers:
             self.layer_data, self._layer_key = None, None
             view.show(None, "no job printing" if job is None else "slicing...")
-            view.set_border_title("layer")
             return
         key = (job.id, job.layer, view.show_field)
         retry = self._layer_failed and time.monotonic() > self._retry_at
@@ -204,7 +205,6 @@ class PrinterScreen(Screen[None]):
         self._layer_failed = False
         self.layer_data = data
         view.show(data)
-        view.set_border_title(LayerView.title(data))
         self._show_progress()
 
     async def _query(self, cmd: str, **args: Any) -> dict[str, Any]:

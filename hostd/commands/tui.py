@@ -11,8 +11,13 @@ from hostd.commands.target import socket_path
 
 def run(args: argparse.Namespace) -> int:
     """Open the dashboard on one printer's socket, or the fleet view on an MQTT broker."""
+    from tui.app import redraw_seconds
     from tui.sources import MqttSource, SocketSource, parse_brokers, tls_context
 
+    try:
+        redraw_s = redraw_seconds(args.redraw_s)
+    except ValueError as exc:
+        raise UsageError(f"--redraw-s (or $HOSTD_TUI_REDRAW_S): {exc}") from exc
     files = args.cafile or args.certfile or args.keyfile
     mqtt_only = args.username or args.password is not None or args.tls or files
     if args.mqtt:
@@ -32,11 +37,12 @@ def run(args: argparse.Namespace) -> int:
                 if args.tls else False
         except ValueError as exc:
             raise UsageError(f"--tls: {exc}") from exc
-        FleetApp(MqttSource(brokers, username=args.username, password=password, tls=tls)).run()
+        FleetApp(MqttSource(brokers, username=args.username, password=password, tls=tls),
+                 redraw_s=redraw_s).run()
         return 0
     if mqtt_only:
         raise UsageError("--username, --password, --tls and its files go with --mqtt HOST[:PORT]")
     from tui.app import Dashboard
 
-    Dashboard(SocketSource(str(socket_path(args)))).run()
+    Dashboard(SocketSource(str(socket_path(args))), redraw_s=redraw_s).run()
     return 0

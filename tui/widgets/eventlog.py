@@ -7,6 +7,7 @@ from typing import Any
 
 from rich.text import Text
 from textual.events import Resize
+from textual.timer import Timer
 from textual.widgets import RichLog
 
 from tui.format import clock, fit_words
@@ -23,21 +24,39 @@ class EventLog(RichLog):
     them: every resize lays the lines out again.
     """
 
-    def __init__(self, max_lines: int, **kwargs: Any) -> None:
+    def __init__(self, max_lines: int, *, batch_s: float = 0.0, **kwargs: Any) -> None:
         super().__init__(markup=False, wrap=False, max_lines=max_lines, min_width=1, **kwargs)
         self.entries: list[Entry] = []
+        self.batch_s = batch_s  # > 0 (a slow link): new lines shown at most this often
         self._laid_out_at = 0  # the width the lines were cut for (0: not laid out yet)
+        self._pending: list[Entry] = []
+        self._timer: Timer | None = None
 
     def add(self, entry: Entry) -> None:
-        """Append one entry (the oldest goes beyond ``max_lines``)."""
+        """Append one entry (the oldest goes beyond ``max_lines``); with ``batch_s``,
+        the entries of ``batch_s`` seconds are shown together (every shown line
+        moves up, so each showing repaints the whole log)."""
         self.entries.append(entry)
         if self.max_lines is not None:
             del self.entries[:-self.max_lines]
-        if self._laid_out_at:
-            # scrolled at once, not after the next refresh: one repaint per entry, not two
+        if not self._laid_out_at:
+            return
+        self._pending.append(entry)
+        if self.batch_s <= 0:
+            self.flush()
+        elif self._timer is None:
+            self._timer = self.set_timer(self.batch_s, self.flush)
+
+    def flush(self) -> None:
+        """Show the entries added since the last showing, scrolled in the same update."""
+        if self._timer is not None:
+            self._timer.stop()
+            self._timer = None
+        pending, self._pending = self._pending, []
+        for entry in pending:
             self.write(self._line(entry), width=self._laid_out_at, scroll_end=False)
-            if self.auto_scroll:
-                self.scroll_end(animate=False, immediate=True, x_axis=False)
+        if pending and self.auto_scroll:  # at once, not after the next refresh: one repaint
+            self.scroll_end(animate=False, immediate=True, x_axis=False)
 
     def show(self, entries: Iterable[Entry]) -> None:
         """Replace every line with ``entries``."""
@@ -54,6 +73,7 @@ class EventLog(RichLog):
             self._lay_out()
 
     def _lay_out(self) -> None:
+        self._pending.clear()  # every entry is laid out here
         self.clear()
         self._laid_out_at = self.line_width()
         if self._laid_out_at <= 0:

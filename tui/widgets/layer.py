@@ -54,13 +54,14 @@ class LayerView(LinesWidget):
 
     ``printed`` is the number of the layer's commands acknowledged (None: the
     whole layer is still to come). A new layer, the field or a highlighted body
-    is drawn at once; the acknowledged progress within a layer at most once
-    every ``progress_s`` seconds of ``clock`` (the last value always shown, a
-    timer draws it when its turn comes), and only when a path turns bright.
+    is drawn at once (with ``layer_s``, for a slow link, a new layer at most once
+    every ``layer_s`` seconds); the acknowledged progress within a layer at most
+    once every ``progress_s`` seconds of ``clock`` (the last value always shown,
+    a timer draws it when its turn comes), and only when a path turns bright.
     Either way only the picture's rows that changed are sent to the terminal.
     """
 
-    def __init__(self, *, progress_s: float = PROGRESS_S,
+    def __init__(self, *, progress_s: float = PROGRESS_S, layer_s: float = 0.0,
                  clock: Callable[[], float] = time.monotonic, **kwargs: Any) -> None:
         super().__init__(**kwargs)
         self.data: dict[str, Any] | None = None
@@ -69,8 +70,11 @@ class LayerView(LinesWidget):
         self.show_field = False
         self.highlight: int | None = None
         self.progress_s = progress_s
+        self.layer_s = layer_s  # > 0: a new layer too at most once every layer_s seconds
         self.clock = clock
+        self.drawn: dict[str, Any] | None = None  # the layer in the picture as last drawn
         self.drawn_paths = 0  # printed paths in the picture as last drawn
+        self._drawn_message = self.message
         self._drawn_at = -math.inf  # clock() of the last progress drawn
         self._timer: Timer | None = None  # draws progress held back by progress_s
         self._cache: tuple[tuple, list[Text]] | None = None
@@ -79,37 +83,52 @@ class LayerView(LinesWidget):
         self._palette += [Style(color=HIGHLIGHT), Style(color=CANCELLED), *_field_palette()]
 
     def show(self, data: dict[str, Any] | None, message: str = "") -> None:
-        """A new layer (or none, with a message saying why), drawn at once, all of it to
-        come: the :meth:`progress` that follows is drawn at once too."""
+        """A new layer (or none, with a message saying why), all of it to come: drawn at
+        once, and so is the :meth:`progress` that follows; with ``layer_s`` (a slow
+        link) at most once every ``layer_s`` seconds."""
         self.data, self.message, self.printed = data, message, None
-        self.border_subtitle = PRINTED_NOTE if data is not None else ""
-        self._drawn_at, self.drawn_paths = -math.inf, 0
-        self._draw()
+        if self.layer_s <= 0:
+            self._draw()
+            self._drawn_at = -math.inf
+        elif self.data is not self.drawn or self.message != self._drawn_message:
+            self._due(self.layer_s)
 
     def progress(self, printed: int | None) -> None:
         """How many of the layer's commands are acknowledged; drawn when a path turns
         bright, at most once every ``progress_s`` seconds."""
         self.printed = printed
-        if self.printed_paths() == self.drawn_paths or self._timer is not None:
-            return  # nothing visible changed, or a redraw is already due
-        wait = self._drawn_at + self.progress_s - self.clock()
-        if wait <= 0:
-            self._draw()
-        else:
-            self._timer = self.set_timer(wait, self._draw)
+        if self.printed_paths() == self.drawn_paths:
+            return  # nothing visible changed
+        self._due(self.progress_s)
 
     def redraw_now(self) -> None:
         """Draw what is set now (after the field or the highlight changed)."""
         self._draw()
+
+    def _due(self, interval: float) -> None:
+        """Draw now if the last drawing is ``interval`` s old, else when it will be."""
+        if self._timer is not None:
+            return  # a drawing is already due; it draws what is set then
+        wait = self._drawn_at + interval - self.clock()
+        if wait <= 0:
+            self._draw()
+        else:
+            self._timer = self.set_timer(wait, self._draw)
 
     def _draw(self) -> None:
         if self._timer is not None:
             self._timer.stop()
             self._timer = None
         paths = self.printed_paths()
-        if paths != self.drawn_paths:
+        changed = (paths != self.drawn_paths or self.data is not self.drawn
+                   or self.message != self._drawn_message)
+        if changed:
             self._drawn_at = self.clock()
-        self.drawn_paths = paths
+        self.drawn_paths, self.drawn, self._drawn_message = paths, self.data, self.message
+        self.set_border_title(self.title(self.data))
+        subtitle = PRINTED_NOTE if self.data is not None else ""
+        if self.border_subtitle != subtitle:
+            self.border_subtitle = subtitle
         self.redraw()
 
     def printed_paths(self) -> int:
@@ -125,9 +144,9 @@ class LayerView(LinesWidget):
         return "\n".join(line.plain for line in self.content_lines(size.width, size.height)[:-1])
 
     def content_lines(self, width: int, height: int) -> list[Text]:
-        if self.data is None or height < 2:
-            return [Text(self.message, style="dim", no_wrap=True, overflow="ellipsis")]
-        data = self.data
+        if self.drawn is None or height < 2:
+            return [Text(self._drawn_message, style="dim", no_wrap=True, overflow="ellipsis")]
+        data = self.drawn
         done = self.drawn_paths
         key = (width, height, id(data), done, self.show_field, self.highlight)
         if self._cache is not None and self._cache[0] == key:
@@ -158,7 +177,7 @@ class LayerView(LinesWidget):
     def _field_cells(self, field: dict[str, Any], frame: Frame, canvas: Canvas) -> np.ndarray:
         """Field levels (0..FIELD_LEVELS-1, -1 outside) at the centre of every cell."""
         values = np.asarray(field["values"], dtype=np.int64)
-        xmin, ymin, xmax, ymax = self.data["bounds"]
+        xmin, ymin, xmax, ymax = (self.drawn or {})["bounds"]
         cx = frame.x0 + (np.arange(canvas.cols) * 2 + 1) / frame.scale
         cy = frame.y1 - (np.arange(canvas.rows) * 4 + 2) / frame.scale
         col = np.floor((cx - xmin) / max(xmax - xmin, 1e-6) * field["columns"]).astype(int)
@@ -172,7 +191,7 @@ class LayerView(LinesWidget):
         return out
 
     def _legend(self, width: int) -> Text:
-        data = self.data or {}
+        data = self.drawn or {}
         text = Text(no_wrap=True, overflow="ellipsis", end="")
         if self.show_field and data.get("field"):
             field = data["field"]
