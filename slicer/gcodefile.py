@@ -155,12 +155,11 @@ def write_gcode(
     labels = object_labels(plan, plan.settings)
     lengths: list[int] = []
     times: list[float] = []
-    extras: list[str] = []
-    made: list[bool] = []
+    extras: list[str] | None = None
 
     def make_extras() -> None:  # thumbnails and objects' definitions: the outlines only
-        extras.extend(header_extras(plan, plan.settings, labels))
-        made.append(True)
+        nonlocal extras
+        extras = header_extras(plan, plan.settings, labels)
 
     with tempfile.TemporaryFile("w+", encoding="ascii", newline="\n") as body:
         layers = iter_layer_texts(plan, workers, labels, meanwhile=make_extras)
@@ -179,8 +178,8 @@ def write_gcode(
         try:
             with os.fdopen(fd, "w", encoding="ascii", newline="\n") as fh:
                 fh.write("\n".join(header_lines(summary, plan.settings)) + "\n")
-                if not made:
-                    make_extras()
+                if extras is None:  # no workers were forked
+                    extras = header_extras(plan, plan.settings, labels)
                 fh.write("".join(line + "\n" for line in extras))
                 fh.write("\n".join(plan.start_gcode()) + "\n")
                 copy_layers(fh, body, lengths, times)
