@@ -16,7 +16,7 @@ from hostd.schedule import LayerSchedule
 from slicer.entry import last_xy
 from slicer.errors import ModelError
 from slicer.pipeline import LayerWindow
-from slicer.plan import SlicePlan
+from slicer.plan import SlicePlan, load_on_demand_modules
 from slicer.settings import SliceSettings
 
 KEPT_TAKEN = 3  # layers taken (streamed) whose lines are kept for views
@@ -32,7 +32,8 @@ _CUBE_FACES = np.array([
 
 
 def warm_up(settings: SliceSettings, bed: tuple[float, float, float]) -> None:
-    """Slice the first layer of a small cube, once, at start-up.
+    """Slice the first layer of a small cube, once, at start-up, then load the modules
+    that other models' layers load on first use.
 
     The libraries' first use costs (modules loaded on demand, caches filled)
     are paid here, not by the first dropped job while the printer waits.
@@ -40,6 +41,7 @@ def warm_up(settings: SliceSettings, bed: tuple[float, float, float]) -> None:
     plan = SlicePlan.from_mesh(_CUBE_VERTICES, _CUBE_FACES, settings, bed)
     plan.start_gcode()
     plan.layer_gcode(0)
+    load_on_demand_modules()
 
 
 class LayerSource(Protocol):

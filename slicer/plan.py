@@ -10,6 +10,7 @@ with identical bytes.
 
 from __future__ import annotations
 
+import importlib
 import os
 import threading
 from collections import OrderedDict
@@ -36,6 +37,19 @@ _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
 # distinct layers whose G-code is kept for the identical layers that follow
 _REPEATS = 4
+
+
+# modules that some layers load on first use (a narrow skin's lines, curved paths'
+# ordering, supports): scipy.spatial alone takes 0.5 s or more to load on a small board
+ON_DEMAND_MODULES = ("scipy.spatial", "slicer.fields.paths", "slicer.order", "slicer.support")
+
+
+def load_on_demand_modules() -> None:
+    """Load the modules that some layers load on first use, so that a long-running
+    process (the daemon) pays for them once at start-up instead of in the first job
+    whose layer needs one, while the printer waits."""
+    for name in ON_DEMAND_MODULES:
+        importlib.import_module(name)
 
 
 def layer_tops(height: float, settings: SliceSettings) -> np.ndarray:
