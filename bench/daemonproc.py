@@ -98,6 +98,15 @@ class Daemon:
             os.killpg(self.proc.pid, signal.SIGKILL)
             self.proc.wait()
 
+    def wait_warm(self, timeout: float = 30.0) -> None:
+        """Wait until the daemon's log says its slicer warmed up (the start-up's last
+        step, some 0.2-1 s after the control socket); return at the timeout regardless."""
+        deadline = time.monotonic() + timeout
+        while time.monotonic() < deadline and self.alive():
+            if "slicer warmed up" in self.log.read_text(errors="replace"):
+                return
+            time.sleep(0.02)
+
     def drop(self, model: Path) -> float:
         """Copy ``model`` into the job folder (hidden copy, then rename); time it is whole."""
         hidden = self.jobs / f".{model.name}.part"

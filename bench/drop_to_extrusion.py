@@ -1,7 +1,8 @@
 """Daemon latency and footprint: drop-to-first-extrusion, idle CPU, peak RSS while printing.
 
 For each model a fresh `hostd run` (simulated printer, instant motion, heating skipped,
-the slicing settings of the peer comparison) gets the model dropped into its job
+the slicing settings of the peer comparison), once its log says its slicer warmed up
+(the last step of its start-up), gets the model dropped into its job
 folder; the latency runs from the moment the file is settled (fully written, then
 ``settle_s`` of stability) to the first extruding move (a G0/G1 with X or Y and E > 0)
 in the simulated printer's executed-line log. Next to it, CuraEngine's whole-model
@@ -124,6 +125,7 @@ def measure_latency(model: Path, setup: DaemonSetup, timeout: float) -> Drop:
     """One drop of ``model`` into a fresh daemon."""
     with Daemon(setup) as daemon:
         daemon.wait_ready()
+        daemon.wait_warm()  # a drop lands on a daemon that has finished starting up
         written = daemon.drop(model)
         seen, note = first_extrusion(daemon, model.name, timeout)
         found = _PLAN_LOG.search(daemon.log.read_text(errors="replace"))

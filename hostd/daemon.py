@@ -9,6 +9,7 @@ import importlib.util
 import logging
 import random
 import signal
+import time
 from pathlib import Path
 
 from drivers.backoff import Backoff, reconnect
@@ -111,10 +112,13 @@ class Daemon:
 
     def _warm_up(self) -> None:
         """Slice a small cube's first layer so that the first job does not pay first uses."""
+        started = time.monotonic()
         try:
             warm_up(self.config.slicing, self.config.printer.bed)
         except Exception:  # settings a cube cannot take are the jobs' to report
             log.debug("slicer warm-up skipped", exc_info=True)
+            return
+        log.info("slicer warmed up in %.2f s", time.monotonic() - started)
 
     async def _until_stopped(self) -> None:
         await self._stop.wait()
