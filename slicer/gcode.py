@@ -19,7 +19,6 @@ from slicer.arcs import arcs_wanted
 from slicer.budget import Moves, budget_moves
 from slicer.detour import detours
 from slicer.geom import private_copy
-from slicer.labels import moves_from
 from slicer.layer import FILL, SUPPORT, WALL_OUTER, Path
 from slicer.layertime import layer_time
 from slicer.motion import run_time, segment_times
@@ -51,17 +50,17 @@ class LayerCode:
     ``z_line`` is the index in ``lines`` of the travel that moves to the
     layer's height (0 when the layer prints nothing): with ``lines[0]``
     (``;LAYER:i``) the only lines that name the layer's number or height.
-    ``extrusions``, when asked for, is what :func:`slicer.labels.extruding_moves`
-    reads from the lines, taken from the numbers they were written from: the
-    indices of the moves that extrude while moving, (k,) int64, and each one's
-    midpoint, (k, 2) float64 mm (None: read the lines).
+    ``spans``, when asked for, says which lines each path's moves are and whose:
+    (m, 3) int64 rows (first line, last line, owner), one per path with moves,
+    in print order, the owner as given per path (a body; see
+    :meth:`slicer.labels.ObjectLabels.label_layer`). None when not asked for.
     """
 
     lines: list[str]
     filament_mm: float
     time_s: float
     z_line: int = 0
-    extrusions: tuple[np.ndarray, np.ndarray] | None = None
+    spans: np.ndarray | None = None
 
     def moved_to(self, index: int, z: float) -> LayerCode:
         """These lines as layer ``index`` at top height ``z`` mm (same paths and speeds)."""
@@ -70,7 +69,7 @@ class LayerCode:
         if self.z_line:
             head, _, _ = lines[self.z_line].rpartition(" Z")
             lines[self.z_line] = f"{head} Z{z:.3f}"
-        return LayerCode(lines, self.filament_mm, self.time_s, self.z_line, self.extrusions)
+        return LayerCode(lines, self.filament_mm, self.time_s, self.z_line, self.spans)
 
 
 def _island_scale(
@@ -108,7 +107,7 @@ def layer_code(
     outline: shapely.Geometry,
     settings: SliceSettings,
     avoid: shapely.Geometry | None = None,
-    extrusions: bool = False,
+    owners: Sequence[int] | None = None,
 ) -> LayerCode:
     """G-code of one layer: ``;LAYER:index``, then every path with travels between.
 
@@ -117,7 +116,8 @@ def layer_code(
     that would cross ``avoid`` (a cancelled body's region) goes around it, retracted.
     All extrusion moves of the layer are measured and formatted in one
     vectorised pass; only the few lines between paths are built per path.
-    With ``extrusions`` the result carries its extruding moves (see :class:`LayerCode`).
+    With ``owners`` (one number per path: its body) the result carries each path's
+    lines and owner (:attr:`LayerCode.spans`).
     """
     lines = [f";LAYER:{index}"]
     if not paths:
@@ -175,8 +175,7 @@ def layer_code(
     feed_of = {v: _fpm(v) for v in (wall_f, fill_f)}
     feeds = [feed_of[v] for v in speeds.tolist()]
     firsts, lasts = first_move.tolist(), last_move.tolist()
-    # where the travels and each path's first move went in ``lines``
-    travel_at = [0] * n
+    # where each path's first move went in ``lines``
     moves_at = [0] * n
     for k in range(n):
         if k > 0:
@@ -185,7 +184,6 @@ def layer_code(
                 lines.append(retract)
             if via and k - 1 in via:
                 lines.extend(via[k - 1][0])
-            travel_at[k] = len(lines)
             lines.append(travels[k - 1])
             if hop:
                 lines.append(prime)
@@ -198,51 +196,14 @@ def layer_code(
         if b > a:
             lines.append(f"{g1[a][:3]}F{feeds[k]} {g1[a][3:]}")
             lines.extend(g1[a + 1 : b])
-    found = None
-    if extrusions and not via:
-        found = _extrusions(len(lines), z_line, pts[0], travel_at, travel_b, moves_at,
-                            first_move, last_move, mv.pts[move], e[move])
-    return LayerCode(lines, filament, time_s, z_line, found)
-
-
-def _extrusions(
-    count: int, z_line: int, start: np.ndarray, travel_at: list[int], travel_b: np.ndarray,
-    moves_at: list[int], first_move: np.ndarray, last_move: np.ndarray, xy: np.ndarray,
-    e: np.ndarray,
-) -> tuple[np.ndarray, np.ndarray] | None:
-    """The extruding moves of a layer's ``count`` lines as :func:`slicer.labels.extruding_moves`
-    reads them, from the values they were written from: the lines with X and Y are
-    ``z_line`` (at ``start``), ``travel_at[1:]`` (at ``travel_b``) and each path's moves
-    from ``moves_at[k]`` (at ``xy[first_move[k]:last_move[k]]``, extruding ``e``), each
-    number rounded as written. None when a number was not written by :func:`format_moves`'
-    tables (then the lines are read)."""
-    sizes = last_move - first_move
-    rows = np.concatenate([
-        [z_line], np.asarray(travel_at[1:], dtype=np.int64),
-        np.repeat(np.asarray(moves_at, dtype=np.int64) - first_move, sizes)
-        + np.arange(len(xy)),
-    ]).astype(np.int64)
-    written = _written(np.concatenate([start[None], travel_b, xy]), 3)
-    e_units = _rounded(e, 5)
-    if written is None or e_units is None:
-        return None
-    x = np.full(count, np.nan)
-    y = np.full(count, np.nan)
-    x[rows], y[rows] = written[:, 0], written[:, 1]
-    extruding = np.zeros(count, dtype=bool)
-    extruding[rows[len(rows) - len(xy):]] = (e_units[0] == 0) & (e_units[1] > 0)
-    return moves_from(x, y, extruding)
-
-
-def _written(v: np.ndarray, decimals: int) -> np.ndarray | None:
-    """The values of ``v`` as ``"%.{decimals}f"`` writes them and ``float`` reads them back
-    (None where :func:`_rounded` gives up)."""
-    rounded = _rounded(v, decimals)
-    if rounded is None:
-        return None
-    sign, units = rounded
-    value = units / 10.0**decimals
-    return np.where(sign == 1, -value, value)
+    spans = None
+    if owners is not None:
+        count = last_move - first_move
+        has = count > 0
+        first_line = np.asarray(moves_at, dtype=np.int64)[has]
+        spans = np.column_stack([first_line, first_line + count[has] - 1,
+                                 np.asarray(owners, dtype=np.int64)[has]])
+    return LayerCode(lines, filament, time_s, z_line, spans)
 
 
 def _detours(

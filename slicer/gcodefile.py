@@ -41,7 +41,7 @@ def _layer_text(
     """Layer ``i`` as (G-code text, filament mm, time s), its bodies' moves bracketed
     when ``labels`` are given."""
     code = plan.layer_code(i)
-    lines = code.lines if labels is None else labels.label_layer(i, code.lines, code.extrusions)
+    lines = code.lines if labels is None else labels.label_layer(i, code.lines, code.spans)
     return "\n".join(lines) + "\n", code.filament_mm, code.time_s
 
 

@@ -65,31 +65,37 @@ class ObjectLabels:
         return lines
 
     def label_layer(
-        self, i: int, lines: list[str], extrusions: tuple[np.ndarray, np.ndarray] | None = None
+        self, i: int, lines: list[str], spans: np.ndarray | None = None
     ) -> list[str]:
         """Layer ``i``'s lines with each body's extruding moves between its start and end.
 
-        Every extruding move is given to the body whose outline is nearest its
-        midpoint; a run of moves of one body is opened by ``M486 S<b>`` and
-        ``EXCLUDE_OBJECT_START NAME=...`` and closed after its last extrusion by
+        ``spans``: :attr:`slicer.gcode.LayerCode.spans` of these lines (each path's
+        first and last move line and its body), when known: every path's moves
+        then go to its body. Without them the lines are read, and every
+        extruding move is given to the body whose outline is nearest its
+        midpoint. A run of moves of one body is opened by ``M486 S<b>`` and
+        ``EXCLUDE_OBJECT_START NAME=...`` and closed after its last move by
         ``EXCLUDE_OBJECT_END`` and ``M486 S-1``. Travels and retractions
-        between bodies stay outside the brackets. ``extrusions``: what
-        :func:`extruding_moves` gives for ``lines``, when known already.
+        between bodies stay outside the brackets.
         """
-        polys, bodies = self.plan.layer_bodies(i)
-        if not len(polys):
+        if spans is None:
+            polys, bodies = self.plan.layer_bodies(i)
+            if not len(polys):
+                return lines
+            ext, points = extruding_moves(lines)
+            owner = nearest_body(polys, bodies, points, self.plan.outline(i))
+            spans = np.column_stack([ext, ext, owner])
+        if not len(spans):
             return lines
-        ext, points = extrusions if extrusions is not None else extruding_moves(lines)
-        if not len(ext):
-            return lines
-        owner = _nearest_body(polys, bodies, points, self.plan.outline(i))
+        owner = spans[:, 2]
         change = np.flatnonzero(np.diff(owner)) + 1
-        starts = np.concatenate([[0], change])
-        ends = np.concatenate([change, [len(ext)]]) - 1
+        starts = np.concatenate([[0], change]).tolist()
+        ends = (np.concatenate([change, [len(spans)]]) - 1).tolist()
+        firsts, lasts, owners = spans[:, 0].tolist(), spans[:, 1].tolist(), owner.tolist()
         out: list[str] = []
         position = 0
-        for start, end in zip(starts.tolist(), ends.tolist(), strict=True):
-            first, last, body = int(ext[start]), int(ext[end]), int(owner[start])
+        for start, end in zip(starts, ends, strict=True):
+            first, last, body = firsts[start], lasts[end], owners[start]
             out += lines[position:first]
             out += [f"M486 S{body}", f"EXCLUDE_OBJECT_START NAME={self.names[body]}"]
             out += lines[first:last + 1]
@@ -99,7 +105,7 @@ class ObjectLabels:
         return out
 
 
-def _nearest_body(
+def nearest_body(
     polys: np.ndarray, bodies: np.ndarray, points: np.ndarray, outline: shapely.Geometry
 ) -> np.ndarray:
     """The body of the polygon nearest each point, (k,) int64: ``polys`` (p,) shapely

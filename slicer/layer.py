@@ -57,11 +57,14 @@ class Path:
 
     Closed loops repeat their first point at the end. ``width`` is the line
     width in mm when it is not the settings' ``line_width`` (None: that).
+    ``island`` is the index of the layer's island (``LayerRegions.islands``) the
+    path lies in, -1 for none (support).
     """
 
     kind: str
     coords: np.ndarray
     width: float | None = None
+    island: int = -1
 
 
 @dataclass(frozen=True)
@@ -169,7 +172,7 @@ def layer_paths(
     for k in _island_order(box, pos):
         width = None if np.isnan(outer_width[k]) else float(outer_width[k])
         for kind, ring in loops.order_loops(rings[k], pos):
-            items.append(Path(kind, ring, width if kind == WALL_OUTER else None))
+            items.append(Path(kind, ring, width if kind == WALL_OUTER else None, k))
             pos = ring[-1]
         if skin_lines[k]:  # narrow skin, along its length
             ordered, pos = order.order_open_paths(skin_lines[k], pos)
@@ -201,7 +204,8 @@ def layer_paths(
             out.append(item)
         else:
             width = widths.get(item[1])
-            out.extend(Path(item[0], coords, width) for coords in joined[item[1]])
+            island = runs[item[1]][2]
+            out.extend(Path(item[0], coords, width, island) for coords in joined[item[1]])
     if support_paths is not None and has_support:
         out.extend(_support(regions, ctx, support_paths, pos))
     return out

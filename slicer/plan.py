@@ -14,6 +14,7 @@ import importlib
 import os
 import threading
 from collections import OrderedDict
+from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
@@ -25,6 +26,7 @@ from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.fields.linear import LinearField
 from slicer.geom import private_copy
+from slicer.labels import nearest_body
 from slicer.layer import LayerRegions, Path, fill_distance, layer_paths
 from slicer.lazycut import LazyOutlines
 from slicer.mesh import PlacedMesh, prepare, read_stl
@@ -317,16 +319,16 @@ class SlicePlan:
         outline = self.outline(i, excluded_bodies)
         if self._support is not None and self._support[i] is not None:
             outline = geom.union(outline, self._support[i])
+        labelled = self.settings.gcode_labels and self.body_count >= 2
         code = gcode.layer_code(
             i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings,
             self._avoid(i, excluded_bodies),
-            extrusions=self.settings.gcode_labels and self.body_count >= 2,
+            owners=self._path_bodies(i, paths, excluded_bodies) if labelled else None,
         )
         if key is not None:
             with self._repeats_lock:
                 self._repeats[key] = gcode.LayerCode(
-                    list(code.lines), code.filament_mm, code.time_s, code.z_line,
-                    code.extrusions,
+                    list(code.lines), code.filament_mm, code.time_s, code.z_line, code.spans,
                 )
                 while len(self._repeats) > _REPEATS:
                     self._repeats.popitem(last=False)
@@ -401,6 +403,25 @@ class SlicePlan:
         if not 0 <= i < self.layer_count:
             raise IndexError(f"layer {i} out of range 0..{self.layer_count - 1}")
         return i
+
+    def _path_bodies(
+        self, i: int, paths: Sequence[Path], excluded: frozenset[int]
+    ) -> np.ndarray:
+        """The body of each of layer ``i``'s ``paths``, (n,) int64: its island's, or for a
+        path in no island (support) the body nearest its first point."""
+        bodies = self._geo.bodies(i)
+        if excluded and len(bodies):
+            bodies = bodies[~np.isin(bodies, list(excluded))]
+        island = np.array([p.island for p in paths], dtype=np.int64)
+        owner = np.full(len(paths), -1, dtype=np.int64)
+        inside = island >= 0
+        owner[inside] = bodies[island[inside]]
+        loose = np.flatnonzero(~inside)
+        if len(loose) and len(bodies):
+            polys = self._islands(i, excluded)
+            firsts = np.array([paths[k].coords[0] for k in loose.tolist()])
+            owner[loose] = nearest_body(polys, bodies, firsts, self.outline(i, excluded))
+        return owner
 
     def _islands(self, i: int, excluded: frozenset[int]) -> np.ndarray:
         if not 0 <= i < self.layer_count:

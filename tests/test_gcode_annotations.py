@@ -204,9 +204,9 @@ def test_moves_go_to_the_body_whose_polygon_holds_them(monkeypatch) -> None:
     once = inside.sum(axis=0) == 1
     expected = bodies[inside.argmax(axis=0)]
     assert 50 < once.sum() < len(points)
-    whole = labels._nearest_body(shapely.get_parts(outline), bodies, points, outline)
+    whole = labels.nearest_body(shapely.get_parts(outline), bodies, points, outline)
     monkeypatch.setattr(labels, "_PAIRS", 2000)  # one polygon at a time
-    blocks = labels._nearest_body(shapely.get_parts(outline), bodies, points, outline)
+    blocks = labels.nearest_body(shapely.get_parts(outline), bodies, points, outline)
     assert (whole[once] == expected[once]).all()
     assert (whole == blocks).all()
     # the others: a polygon of the body given is among the nearest

@@ -6,11 +6,12 @@ from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 import pytest
+import shapely
 import trimesh
 
 from slicer.gcode import summarize
 from slicer.gcodefile import write_gcode
-from slicer.labels import extruding_moves
+from slicer.labels import ObjectLabels, extruding_moves
 from slicer.layer import WALL_INNER, WALL_OUTER
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
@@ -135,19 +136,35 @@ def test_retract_only_when_leaving_the_part(two_boxes) -> None:
     assert sum(line.startswith(r) for line in single) == 1
 
 
-def test_recorded_extrusions_are_what_the_lines_say(two_boxes) -> None:
-    """The extruding moves a layer records for its labels (from the numbers written) are
-    those read back from its lines, arcs or not, reused layers included."""
+def test_path_spans_label_as_the_lines_read(two_boxes) -> None:
+    """Each layer records its paths' lines and bodies (arcs or not, reused layers
+    included): every extruding move read back from the lines lies in a span of the
+    body its midpoint is in, and labelling from the spans brackets the same lines as
+    labelling from reading the lines."""
     for arcs in ("off", "on"):
         plan = SlicePlan.from_file(two_boxes, SliceSettings.from_mapping({"gcode.arcs": arcs}))
+        labels = ObjectLabels(plan)
         for i in range(plan.layer_count):
             code = plan.layer_code(i)
-            assert code.extrusions is not None, i
-            index, points = code.extrusions
-            read_index, read_points = extruding_moves(code.lines)
-            assert len(index) > 0, i
-            assert np.array_equal(index, read_index), i
-            assert np.array_equal(points, read_points), i
+            assert code.spans is not None, i
+            spans = code.spans
+            assert len(spans) > 0, i
+            assert set(spans[:, 2].tolist()) <= {0, 1}, i
+            assert (spans[:, 0] <= spans[:, 1]).all(), i
+            assert (spans[1:, 0] > spans[:-1, 1]).all(), i
+            for first, last, _body in spans.tolist():
+                assert all(code.lines[k][:2] == "G1" or code.lines[k][:2] in ("G2", "G3")
+                           for k in range(first, last + 1)), (i, first)
+            moves, points = extruding_moves(code.lines)
+            span_of = np.searchsorted(spans[:, 0], moves, side="right") - 1
+            assert (span_of >= 0).all(), i
+            assert (moves <= spans[span_of, 1]).all(), i
+            polys, bodies = plan.layer_bodies(i)
+            inside = shapely.contains_xy(polys[:, None], points[None, :, 0], points[None, :, 1])
+            assert (inside.sum(axis=0) == 1).all(), i
+            assert np.array_equal(spans[span_of, 2], bodies[inside.argmax(axis=0)]), i
+            assert labels.label_layer(i, code.lines, spans) == labels.label_layer(
+                i, code.lines), i
 
 
 def test_excluded_bodies_drop_one_object(two_boxes) -> None:
