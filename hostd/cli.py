@@ -5,9 +5,18 @@ from __future__ import annotations
 import argparse
 import gc
 import importlib
+import os
 import sys
 from collections.abc import Sequence
 from types import ModuleType
+
+# numpy's BLAS on one thread, unless the environment says otherwise; set before
+# numpy is first imported (every subcommand imports it after this module). The
+# slicer's arrays are small and gain nothing from a BLAS thread pool, whose
+# start spins a second core for some 60 ms while numpy loads: CPU that the
+# loading itself, forked slicing workers or the daemon's other work need.
+for _variable in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_variable, "1")
 
 EXIT_OK = 0
 EXIT_FAILURE = 1
