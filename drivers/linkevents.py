@@ -4,9 +4,10 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from enum import StrEnum
-from typing import NamedTuple
+from typing import TYPE_CHECKING, NamedTuple
 
-from drivers.responses import Response
+if TYPE_CHECKING:  # an annotation only: reading a configuration needs no response parser
+    from drivers.responses import Response
 
 
 class LinkState(StrEnum):
