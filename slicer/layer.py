@@ -51,6 +51,9 @@ SupportPaths = Callable[
 _MIN_PATH = 0.5
 
 
+_POLYGON_ID = 3  # shapely.get_type_id of a Polygon
+
+
 @dataclass(frozen=True)
 class Path:
     """One extruded path: ``kind`` (a ``;TYPE:`` name) and ``coords`` (k, 2) float64 mm.
@@ -133,10 +136,7 @@ def layer_paths(
         islands, w, settings.perimeters, fill_distance(settings), settings.wall_order
     )
     if regions.skin is not None and not regions.skin.is_empty:
-        if len(islands) == 1:  # the skin already lies in this island's infill domain
-            skin = np.array([regions.skin], dtype=object)
-        else:
-            skin = geom.intersection(fill, regions.skin)
+        skin = _skin_by_island(fill, regions.skin)
         sparse = geom.difference(fill, regions.skin)
     else:
         skin = np.full(len(islands), None, dtype=object)
@@ -208,6 +208,35 @@ def layer_paths(
             out.extend(Path(item[0], coords, width, island) for coords in joined[item[1]])
     if support_paths is not None and has_support:
         out.extend(_support(regions, ctx, support_paths, pos))
+    return out
+
+
+def _skin_by_island(fill: np.ndarray, skin: shapely.Geometry) -> np.ndarray:
+    """The layer's ``skin`` (not empty) shared out to its islands' infill domains ``fill``
+    (p,): (p,) the skin parts in each, as one MultiPolygon, or None.
+
+    The skin lies in the layer's infill domain already (it is that domain, as the
+    skins are found on it, less the cover), and the islands' domains lie apart, so
+    each part of it lies in one of them: the one holding a point of the part.
+    Sharing the parts out so takes no overlay of the domains with the skin.
+    A part in none of them (a sliver of the skins' coarser domain outside the
+    islands' own) is dropped, as an overlay would all but drop it.
+    """
+    if len(fill) == 1:
+        return np.array([skin], dtype=object)
+    parts = shapely.get_parts(skin)
+    parts = parts[shapely.get_type_id(parts) == _POLYGON_ID]
+    out = np.full(len(fill), None, dtype=object)
+    if len(parts) == 0:
+        return out
+    inside = shapely.point_on_surface(parts)
+    part, island = shapely.STRtree(fill).query(inside, predicate="intersects")
+    if len(part) == 0:
+        return out
+    order = np.lexsort((part, island))
+    part, island = part[order], island[order]
+    present = geom.sorted_unique(island)
+    out[present] = shapely.multipolygons(parts[part], indices=np.searchsorted(present, island))
     return out
 
 

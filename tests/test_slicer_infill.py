@@ -144,3 +144,27 @@ def test_sloped_shell_is_solid_and_small_regions_are_solid(tmp_path) -> None:
     for p in fill:
         assert shapely.LineString(p).distance(shapely.Point(px, cone_centre.y)) > 4
     assert any(shapely.LineString(p).distance(shapely.Point(px, cone_centre.y)) < 3 for p in skin)
+
+
+def test_skin_shared_out_to_the_islands_it_lies_in() -> None:
+    """A layer's skin goes to the islands whose infill domains hold its parts, whole;
+    a sliver outside every domain goes nowhere, and the result is what overlaying each
+    domain with the skin gives where the parts lie inside."""
+    from slicer.layer import _skin_by_island
+
+    fill = np.array([shapely.box(0, 0, 10, 10), shapely.box(20, 0, 30, 10),
+                     shapely.box(40, 0, 50, 10)], dtype=object)
+    inside_first = [shapely.box(1, 1, 4, 4), shapely.box(6, 6, 9, 9)]
+    inside_third = [shapely.box(41, 2, 49, 8)]
+    sliver = shapely.box(12, 0, 12.05, 10)  # between the first two domains
+    skin = shapely.MultiPolygon([*inside_first, sliver, *inside_third])
+    shared = _skin_by_island(fill, skin)
+    assert shared[1] is None
+    assert shapely.equals(shared[0], shapely.MultiPolygon(inside_first))
+    assert shapely.equals(shared[2], shapely.MultiPolygon(inside_third))
+    overlaid = shapely.intersection(fill, skin)
+    assert np.allclose(shapely.area(overlaid), [18.0, 0.0, 48.0])
+    assert all(shapely.equals(a, b) for a, b in zip(shared[[0, 2]], overlaid[[0, 2]], strict=True))
+    # one island: the skin is its own, unchanged
+    alone = _skin_by_island(fill[:1], skin)
+    assert alone[0] is skin
