@@ -107,7 +107,7 @@ def layer_code(
     outline: shapely.Geometry,
     settings: SliceSettings,
     avoid: shapely.Geometry | None = None,
-    owners: Sequence[int] | None = None,
+    owners: np.ndarray | Sequence[int] | None = None,
 ) -> LayerCode:
     """G-code of one layer: ``;LAYER:index``, then every path with travels between.
 
