@@ -51,3 +51,31 @@ def test_blocks_of_any_size_give_the_same_outlines() -> None:
         assert shapely.to_wkb(small[i]) == shapely.to_wkb(whole[i])
         assert np.array_equal(small.polygons(i)[1], whole.polygons(i)[1])
     assert len(small[2:9]) == 7
+
+
+def test_shells_cut_whole_on_threads_give_the_objects_of_one_thread(monkeypatch) -> None:
+    """A mesh of shells whose boxes meet (a hollow box with a cube in its cavity, and a
+    box overlapping it) is cut whole to number its objects: on several threads the
+    objects, outlines and G-code are those of one thread."""
+    import trimesh
+
+    import slicer.plan
+
+    outer = trimesh.creation.box(extents=(30, 30, 12))
+    cavity = trimesh.creation.box(extents=(20, 20, 8))
+    cavity.invert()
+    inside = trimesh.creation.box(extents=(6, 6, 4))
+    overlapping = trimesh.creation.box(extents=(10, 10, 12))
+    overlapping.apply_translation((18, 0, 0))
+    mesh = trimesh.util.concatenate([outer, cavity, inside, overlapping])
+    plans = []
+    for cores in (1, 4):
+        monkeypatch.setattr(slicer.plan.os, "cpu_count", lambda cores=cores: cores)
+        plans.append(SlicePlan.from_mesh(mesh.vertices, mesh.faces, SETTINGS))
+    one, many = plans
+    assert one.body_count == many.body_count == 2  # the cube in the cavity, the rest
+    assert one.layer_count == many.layer_count
+    for i in range(one.layer_count):
+        assert shapely.to_wkb(one.outline(i)) == shapely.to_wkb(many.outline(i)), i
+        assert np.array_equal(one.layer_bodies(i)[1], many.layer_bodies(i)[1]), i
+        assert one.layer_gcode(i) == many.layer_gcode(i), i
