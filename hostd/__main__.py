@@ -1,7 +1,5 @@
 """`python -m hostd`: the same as the `hostd` console script."""
 
-import sys
+from hostd.cli import entry
 
-from hostd.cli import main
-
-sys.exit(main())
+entry()

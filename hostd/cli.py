@@ -3,10 +3,13 @@
 from __future__ import annotations
 
 import argparse
+import atexit
+import contextlib
 import gc
 import importlib
 import os
 import sys
+import threading
 from collections.abc import Sequence
 from types import ModuleType
 
@@ -193,7 +196,7 @@ def _import_command(name: str) -> ModuleType:
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """Entry point of the console script; returns the process exit code."""
+    """The command line: runs one subcommand and returns the process exit code."""
     args = build_parser().parse_args(argv)
     module = _import_command(_COMMANDS[args.command])
     try:
@@ -205,8 +208,29 @@ def main(argv: Sequence[str] | None = None) -> int:
         return 130
 
 
+def entry() -> None:
+    """The console script (and ``python -m hostd``): :func:`main`, then the process ends.
+
+    When the command has left no other thread running (``hostd slice``, ``preview``,
+    ``status``...), the exit handlers run (``atexit``: logging, temporary files),
+    stdout and stderr are flushed, and the process ends without tearing the
+    interpreter down: freeing every module, array and geometry one by one took
+    25 ms of a 0.3 s ``hostd slice``. Otherwise (threads still running) it exits
+    as Python does, which waits for them.
+    """
+    code = main()
+    if threading.active_count() > 1:
+        sys.exit(code)
+    atexit._run_exitfuncs()
+    for stream in (sys.stdout, sys.stderr):
+        # a closed stream or a reader gone: nothing more can be said
+        with contextlib.suppress(OSError, ValueError):
+            stream.flush()
+    os._exit(code)
+
+
 if __name__ == "__main__":
     # run through the package module so that `UsageError` is the class commands raise
-    from hostd.cli import main as package_main
+    from hostd.cli import entry as package_entry
 
-    sys.exit(package_main())
+    package_entry()
