@@ -36,15 +36,17 @@ if __package__ in (None, ""):
 
 from bench.layer_cpu import model_path
 from bench.measure import run_measured
-from bench.slice_vs_peers import BED_TOML, OUR_SETTINGS, hostd_executable
+from bench.slice_vs_peers import BED_TOML, OUR_SETTINGS
 
 ROOT = Path(__file__).resolve().parents[1]
 
 
 def command(model: Path, out: Path, config: Path, settings: list[str], extra: list[str]
             ) -> list[str]:
-    """The `hostd slice` command line of one run."""
-    cmd = [*hostd_executable(), "slice", str(model), "-o", str(out), "--quiet",
+    """The `hostd slice` command line of one run: ``python -m hostd``, so each version
+    starts and ends as its own ``hostd/__main__.py`` does (the console script in the
+    environment is one version's only)."""
+    cmd = [sys.executable, "-m", "hostd", "slice", str(model), "-o", str(out), "--quiet",
            "--config", str(config)]
     for setting in [*settings, *extra]:
         cmd += ["--set", setting]
