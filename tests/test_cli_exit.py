@@ -58,3 +58,23 @@ def test_a_thread_still_running_is_waited_for(tmp_path: Path) -> None:
     done = _run(_THREAD, "slice", str(tmp_path / "missing.stl"), "-o", str(tmp_path / "x.gcode"))
     assert done.returncode == 2
     assert done.stdout.splitlines() == ["thread finished"]
+
+
+def test_a_reader_gone_ends_the_command_quietly(tmp_path: Path) -> None:
+    """Output into a pipe nobody reads (``hostd slice ... | head -1`` once head has left)
+    ends the command with exit code 1 and no traceback."""
+    import os
+
+    model = box_stl(tmp_path / "box.stl", (10, 10, 2))
+    read_end, write_end = os.pipe()
+    os.close(read_end)
+    try:
+        done = subprocess.run(
+            [sys.executable, "-m", "hostd", "slice", str(model), "-o", str(tmp_path / "b.gcode"),
+             "--quiet"], stdout=write_end, stderr=subprocess.PIPE, text=True, timeout=120)
+    finally:
+        os.close(write_end)
+    assert done.returncode == 1
+    assert "Traceback" not in done.stderr
+    assert "BrokenPipe" not in done.stderr
+    assert (tmp_path / "b.gcode").stat().st_size > 0  # the file was written all the same
