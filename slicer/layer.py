@@ -289,18 +289,32 @@ def _solid_small_regions(
         return skin, sparse
     skin = skin.copy()
     sparse = sparse.copy()
-    for i in geom.sorted_unique(owner[small]):
-        mine = owner == i
-        solid = parts[mine & small]
-        rest = parts[mine & ~small]
-        base = skin[i]
-        if base is not None and not base.is_empty:
-            solid = np.concatenate([shapely.get_parts(base), solid])
-        # disjoint pieces (the small ones come from fill - skin): no overlay needed
-        solid = solid[shapely.get_type_id(solid) == 3]
-        skin[i] = shapely.multipolygons(solid)
-        sparse[i] = shapely.multipolygons(rest) if len(rest) else None
+    touched = geom.sorted_unique(owner[small])
+    # each touched island's skin: its own parts, then its small sparse parts, in order
+    # (disjoint pieces: the small ones come from fill - skin, so no overlay is needed)
+    base_parts, base_owner = shapely.get_parts(skin[touched], return_index=True)
+    moved = np.isin(owner, touched) & small
+    pieces = np.concatenate([base_parts, parts[moved]])
+    piece_owner = np.concatenate([touched[base_owner], owner[moved]])
+    polygons = shapely.get_type_id(pieces) == _POLYGON_ID
+    pieces, piece_owner = pieces[polygons], piece_owner[polygons]
+    by_island = np.argsort(piece_owner, kind="stable")
+    skin[touched] = _grouped(pieces[by_island], piece_owner[by_island], touched)
+    # and its sparse parts left (None when all were small)
+    kept = np.isin(owner, touched) & ~small
+    sparse[touched] = _grouped(parts[kept], owner[kept], touched)
     return skin, sparse
+
+
+def _grouped(pieces: np.ndarray, owner: np.ndarray, islands: np.ndarray) -> np.ndarray:
+    """One MultiPolygon per island of ``islands`` (sorted) of the ``pieces`` it owns
+    (``owner`` sorted, each in ``islands``), None for an island owning none."""
+    out = np.full(len(islands), None, dtype=object)
+    if len(pieces):
+        present = geom.sorted_unique(owner)
+        at = np.searchsorted(islands, present)
+        out[at] = shapely.multipolygons(pieces, indices=np.searchsorted(present, owner))
+    return out
 
 
 def _start_position(box: np.ndarray) -> np.ndarray:
