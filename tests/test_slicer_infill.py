@@ -168,3 +168,32 @@ def test_skin_shared_out_to_the_islands_it_lies_in() -> None:
     # one island: the skin is its own, unchanged
     alone = _skin_by_island(fill[:1], skin)
     assert alone[0] is skin
+
+
+def test_small_sparse_regions_become_skin_island_by_island() -> None:
+    """Sparse regions under ``below`` mm^2 join their own island's skin (after its own
+    parts, in order); an island left with no sparse region gets None; islands without a
+    small region keep theirs as they were."""
+    from slicer.layer import _solid_small_regions
+
+    box = shapely.box
+    skin = np.array([shapely.MultiPolygon([box(0, 0, 4, 4)]), None, None,
+                     shapely.MultiPolygon([box(60, 0, 62, 2)])], dtype=object)
+    sparse = np.array([
+        shapely.MultiPolygon([box(5, 0, 6, 1), box(10, 0, 30, 20)]),  # small and big
+        shapely.MultiPolygon([box(40, 0, 41, 1), box(42, 0, 43, 2)]),  # small only
+        shapely.MultiPolygon([box(50, 0, 58, 9)]),  # big only
+        shapely.MultiPolygon([box(63, 0, 63.5, 0.5)]),  # small, beside its own skin
+    ], dtype=object)
+    new_skin, new_sparse = _solid_small_regions(skin, sparse, below=5.0)
+    parts = [[tuple(np.round(shapely.bounds(p), 3)) for p in shapely.get_parts(g)]
+             if g is not None else None for g in new_skin]
+    assert parts[0] == [(0, 0, 4, 4), (5, 0, 6, 1)]
+    assert parts[1] == [(40, 0, 41, 1), (42, 0, 43, 2)]
+    assert parts[2] is None
+    assert parts[3] == [(60, 0, 62, 2), (63, 0, 63.5, 0.5)]
+    assert shapely.equals(new_sparse[0], box(10, 0, 30, 20))
+    assert new_sparse[1] is None
+    assert new_sparse[2] is sparse[2]
+    assert new_sparse[3] is None
+    assert skin[1] is None  # the inputs are not changed
