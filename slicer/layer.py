@@ -226,18 +226,12 @@ def _skin_by_island(fill: np.ndarray, skin: shapely.Geometry) -> np.ndarray:
         return np.array([skin], dtype=object)
     parts = shapely.get_parts(skin)
     parts = parts[shapely.get_type_id(parts) == _POLYGON_ID]
-    out = np.full(len(fill), None, dtype=object)
     if len(parts) == 0:
-        return out
+        return np.full(len(fill), None, dtype=object)
     inside = shapely.point_on_surface(parts)
     part, island = shapely.STRtree(fill).query(inside, predicate="intersects")
-    if len(part) == 0:
-        return out
     order = np.lexsort((part, island))
-    part, island = part[order], island[order]
-    present = geom.sorted_unique(island)
-    out[present] = shapely.multipolygons(parts[part], indices=np.searchsorted(present, island))
-    return out
+    return _grouped(parts[part[order]], island[order], np.arange(len(fill)))
 
 
 def _capped_widths(
@@ -280,7 +274,7 @@ def _solid_small_regions(
     if below <= 0:
         return skin, sparse
     parts, owner = shapely.get_parts(sparse, return_index=True)
-    polygon = shapely.get_type_id(parts) == 3
+    polygon = shapely.get_type_id(parts) == _POLYGON_ID
     parts, owner = parts[polygon], owner[polygon]
     if len(parts) == 0:
         return skin, sparse
@@ -293,7 +287,8 @@ def _solid_small_regions(
     # each touched island's skin: its own parts, then its small sparse parts, in order
     # (disjoint pieces: the small ones come from fill - skin, so no overlay is needed)
     base_parts, base_owner = shapely.get_parts(skin[touched], return_index=True)
-    moved = np.isin(owner, touched) & small
+    of_touched = np.isin(owner, touched)
+    moved = of_touched & small
     pieces = np.concatenate([base_parts, parts[moved]])
     piece_owner = np.concatenate([touched[base_owner], owner[moved]])
     polygons = shapely.get_type_id(pieces) == _POLYGON_ID
@@ -301,7 +296,7 @@ def _solid_small_regions(
     by_island = np.argsort(piece_owner, kind="stable")
     skin[touched] = _grouped(pieces[by_island], piece_owner[by_island], touched)
     # and its sparse parts left (None when all were small)
-    kept = np.isin(owner, touched) & ~small
+    kept = of_touched & ~small
     sparse[touched] = _grouped(parts[kept], owner[kept], touched)
     return skin, sparse
 
