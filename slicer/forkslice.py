@@ -3,7 +3,8 @@ processes, their G-code text streamed back.
 
 Each worker is a ``fork`` of the process that holds the plan (nothing is copied
 or pickled to start it) and slices every ``workers``-th task (a task is a range
-of layers). It sends each layer back on a pipe as a fixed header (text length,
+of layers, made by one call: layers made together cost less each). It sends
+each layer back on a pipe as a fixed header (text length,
 filament mm, time s) and the ASCII text; a thread here drains each pipe into
 the layers' futures, so a worker never waits on the writer. A worker starts a
 task only with a credit, and a credit is given when the
@@ -29,24 +30,32 @@ from typing import BinaryIO
 from slicer.pipeline import Pending
 
 LayerText = tuple[str, float, float]  # (G-code text, filament mm, time s)
+# the layers lo..hi-1 of a task, made together
+MakeTask = Callable[[int, int], Sequence[LayerText]]
+
+
+def per_layer(layer: Callable[[int], LayerText]) -> MakeTask:
+    """A task maker that makes its layers one by one with ``layer(i)``."""
+    return lambda lo, hi: [layer(i) for i in range(lo, hi)]
 
 _HEADER = struct.Struct("<qdd")  # text length (negative: a pickled error follows), mm, s
 
 
 class ForkedLayers:
-    """``layer(i)`` for every layer of ``tasks`` (ranges ``[lo, hi)``, increasing),
-    made by ``workers`` forked processes (task ``k`` by worker ``k % workers``).
+    """The layers of ``tasks`` (ranges ``[lo, hi)``, increasing), each task made by one
+    call ``make(lo, hi)`` in one of ``workers`` forked processes (task ``k`` by worker
+    ``k % workers``).
 
     :meth:`submit` is a :class:`~slicer.pipeline.LayerWindow` engine: layers must
     be submitted in order, and submitting a task's first layer lets its worker
-    start it. An exception raised by ``layer`` in a worker is raised by the
+    start it. An exception raised by ``make`` in a worker is raised by the
     layer's future (the same type when it can be pickled). :meth:`close` (or
     leaving the ``with`` block) ends the workers, killing them if layers are
     still unmade. Needs ``os.fork`` (POSIX).
     """
 
     def __init__(
-        self, layer: Callable[[int], LayerText], tasks: Sequence[tuple[int, int]], workers: int
+        self, make: MakeTask, tasks: Sequence[tuple[int, int]], workers: int
     ) -> None:
         tasks = list(tasks)
         self._workers: list[_Worker] = []
@@ -63,7 +72,7 @@ class ForkedLayers:
         gc.freeze()  # objects made so far stay out of the workers' collections: fewer pages
         try:
             for w in range(workers):
-                self._workers.append(_Worker.fork(layer, tasks[w::workers], self._workers))
+                self._workers.append(_Worker.fork(make, tasks[w::workers], self._workers))
         finally:
             gc.unfreeze()
         for worker in self._workers:  # threads only once every fork is done
@@ -148,7 +157,7 @@ class _Worker:
     @classmethod
     def fork(
         cls,
-        layer: Callable[[int], LayerText],
+        make: MakeTask,
         tasks: Sequence[tuple[int, int]],
         siblings: Sequence[_Worker],
     ) -> _Worker:
@@ -162,7 +171,7 @@ class _Worker:
             os.close(credit_w)
             for sibling in siblings:
                 sibling._close_in_child()
-            _work(layer, tasks, credit_r, result_w)
+            _work(make, tasks, credit_r, result_w)
         os.close(result_w)
         os.close(credit_r)
         return cls(pid, credit_w, os.fdopen(result_r, "rb"), tasks)
@@ -190,8 +199,7 @@ class _Worker:
 
 
 def _work(
-    layer: Callable[[int], LayerText], tasks: Sequence[tuple[int, int]], credit_r: int,
-    result_w: int,
+    make: MakeTask, tasks: Sequence[tuple[int, int]], credit_r: int, result_w: int,
 ) -> None:
     """In the worker: slice each task after taking a credit, send it, exit (no cleanup
     handlers of the parent's run here)."""
@@ -201,8 +209,10 @@ def _work(
             if os.read(credit_r, 1) == b"":  # the parent closed: nothing more is wanted
                 break
             out = bytearray()
-            for i in range(lo, hi):
-                text, filament, seconds = layer(i)
+            made = make(lo, hi)
+            if len(made) != hi - lo:
+                raise RuntimeError(f"layers {lo}-{hi - 1}: {len(made)} made")
+            for text, filament, seconds in made:
                 data = text.encode("ascii")
                 out += _HEADER.pack(len(data), filament, seconds)
                 out += data

@@ -16,7 +16,7 @@ import shapely
 from numpy.typing import NDArray
 
 from slicer.arcs import arcs_wanted
-from slicer.budget import Moves, budget_moves
+from slicer.budget import Moves, budget_moves, line_rate
 from slicer.detour import detours
 from slicer.geom import private_copy
 from slicer.layer import FILL, SUPPORT, WALL_OUTER, Path
@@ -26,6 +26,9 @@ from slicer.settings import SliceSettings
 
 # points of a path closer than this to the previous one are dropped, mm
 _MIN_STEP = 0.005
+# layers are made together up to about this many path points (beyond, a pass's
+# arrays outgrow the caches and a bigger pass gains nothing)
+BATCH_POINTS = 20_000
 # lift used when a print ends or resumes, mm
 END_LIFT = 10.0
 RESUME_LIFT = 0.6
@@ -99,6 +102,19 @@ def fan_command(settings: SliceSettings, index: int) -> str:
     return "M107"
 
 
+@dataclass(frozen=True)
+class LayerJob:
+    """What one layer's G-code is made from (the arguments of :func:`layer_code`)."""
+
+    index: int
+    z: float
+    height: float
+    paths: Sequence[Path]
+    outline: shapely.Geometry
+    avoid: shapely.Geometry | None = None
+    owners: np.ndarray | Sequence[int] | None = None
+
+
 def layer_code(
     index: int,
     z: float,
@@ -119,91 +135,195 @@ def layer_code(
     With ``owners`` (one number per path: its body) the result carries each path's
     lines and owner (:attr:`LayerCode.spans`).
     """
-    lines = [f";LAYER:{index}"]
-    if not paths:
-        return LayerCode(lines, 0.0, 0.0)
-    e_per_mm = height / settings.filament_area  # times each path's line width
-    first_layer = index == 0
-    wall_f = settings.first_layer_speed if first_layer else settings.wall_speed
-    fill_f = settings.first_layer_speed if first_layer else settings.print_speed
-    travel_f = settings.travel_speed
-    r = settings.retract_length
-    retract = f"G1 E{-r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
-    prime = f"G1 E{r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
+    job = LayerJob(index, z, height, paths, outline, avoid, owners)
+    return layer_codes([job], settings)[0]
 
-    pts, starts, ends = _pack([p.coords for p in paths])
-    n = len(paths)
-    speeds = np.array([wall_f if p.kind.startswith("WALL") else fill_f for p in paths])
+
+def layer_codes(jobs: Sequence[LayerJob], settings: SliceSettings) -> list[LayerCode]:
+    """:func:`layer_code` of every job, the same bytes as one by one, in fewer passes.
+
+    The moves of all the layers are packed, simplified, measured, formatted and
+    tested against their outlines together (every step is done path by path or
+    move by move, so a layer's results do not depend on the others); what runs
+    along a layer's whole chain of moves (its time, the wire's budget, arcs'
+    island scale) is done layer by layer.
+    """
+    codes = [LayerCode([f";LAYER:{job.index}"], 0.0, 0.0) for job in jobs]
+    group: list[int] = []
+    points = 0
+    for k, job in enumerate(jobs):
+        if not job.paths:
+            continue
+        size = sum(len(p.coords) for p in job.paths)
+        if group and points + size > BATCH_POINTS:
+            _made_together([jobs[j] for j in group], settings, group, codes)
+            group, points = [], 0
+        group.append(k)
+        points += size
+    if group:
+        _made_together([jobs[j] for j in group], settings, group, codes)
+    return codes
+
+
+def _made_together(
+    layers: Sequence[LayerJob], settings: SliceSettings, slots: Sequence[int],
+    codes: list[LayerCode],
+) -> None:
+    """:func:`layer_codes` of ``layers`` (each with paths), put in ``codes[slots[k]]``."""
+    paths = [p for job in layers for p in job.paths]
+    counts = np.array([len(job.paths) for job in layers])
+    path_layer = np.repeat(np.arange(len(layers)), counts)
+    first_path = np.cumsum(counts) - counts
+    first_layer = np.array([job.index == 0 for job in layers])
+    wall_f = np.where(first_layer, settings.first_layer_speed, settings.wall_speed)
+    fill_f = np.where(first_layer, settings.first_layer_speed, settings.print_speed)
+    is_wall = np.array([p.kind.startswith("WALL") for p in paths])
+    speeds = np.where(is_wall, wall_f[path_layer], fill_f[path_layer])
     widths = np.array([settings.line_width if p.width is None else p.width for p in paths])
     # the emitted moves: simplified within the resolution, arcs where they fit
     loose = np.array([p.kind in (FILL, SUPPORT) for p in paths])
     exact = np.array([p.kind == WALL_OUTER for p in paths])
-    # the islands' scale bounds outer walls' arcs only: no arcs, no need to find it
-    scale = _island_scale(outline, pts[starts], exact) if arcs_wanted(settings) else None
-    mv = budget_moves(pts, starts, ends, speeds, settings, loose, exact, scale)
+    pts, starts, ends = _pack([p.coords for p in paths])
+    mv = _budgeted(layers, pts, starts, ends, first_path, counts, speeds, loose, exact,
+                   settings)
     # extrusion moves: every point but each path's first
+    sizes = mv.ends - mv.starts
     move = np.ones(len(mv.pts), dtype=bool)
     move[mv.starts] = False
-    e = mv.length * e_per_mm * np.repeat(widths, mv.ends - mv.starts)
-    filament = float(e[move].sum())
+    e_per_mm = np.array([job.height for job in layers]) / settings.filament_area
+    e = mv.length * np.repeat(e_per_mm[path_layer], sizes) * np.repeat(widths, sizes)
+    e_moves = e[move]
     g1 = _format_layer_moves(mv, move, e)
-    # each path's moves in g1: [first_move, last_move)
-    last_move = np.cumsum(mv.ends - mv.starts - 1)
-    first_move = last_move - (mv.ends - mv.starts - 1)
+    # each path's moves in g1: [first_move, last_move); each layer's: [move_lo, move_hi)
+    last_move = np.cumsum(sizes - 1)
+    first_move = last_move - (sizes - 1)
+    move_hi = last_move[first_path + counts - 1]
+    move_lo = first_move[first_path]
 
-    travel_a = pts[ends[:-1] - 1]
-    travel_b = pts[starts[1:]]
-    leaves = _travels_leave(travel_a, travel_b, outline, settings.line_width)
-    via = _detours(travel_a, travel_b, avoid, travel_f, settings.acceleration)
-    leaves[list(via)] = True
-    time_s = layer_time(mv, speeds, travel_f, leaves, r, settings.retract_speed, height,
-                        settings.acceleration) + sum(extra for _, extra in via.values())
-
-    if index == settings.fan_first_layer or (index == 0 and settings.fan_first_layer > 0):
-        lines.append(fan_command(settings, index))
-    if retract:
-        lines.append(retract)
-    x0, y0 = pts[0]
-    z_line = len(lines)
-    lines.append(f"G0 F{_fpm(travel_f)} X{x0:.3f} Y{y0:.3f} Z{z:.3f}")
-    if prime:
-        lines.append(prime)
-    kind = None
+    # the travel before each path but a layer's first
+    inner = path_layer[1:] == path_layer[:-1]
+    travel_a = pts[ends[:-1] - 1][inner]
+    travel_b = pts[starts[1:]][inner]
+    travel_layer = path_layer[1:][inner]
+    leaves = _travels_leave_many(travel_a, travel_b, travel_layer,
+                                 [job.outline for job in layers], settings.line_width)
+    first_travel = first_path - np.arange(len(layers))  # of each layer, in the travels
+    travel_f = settings.travel_speed
+    r = settings.retract_length
+    retract = f"G1 E{-r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
+    prime = f"G1 E{r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
     travels = format_moves(f"G0 F{_fpm(travel_f)} ", travel_b)
     # plain Python values for the per-path loop (numpy scalars are slow to index)
-    hops = leaves.tolist()
-    feed_of = {v: _fpm(v) for v in (wall_f, fill_f)}
+    feed_of = {float(v): _fpm(float(v)) for v in np.unique(speeds).tolist()}
     feeds = [feed_of[v] for v in speeds.tolist()]
     firsts, lasts = first_move.tolist(), last_move.tolist()
-    # where each path's first move went in ``lines``
-    moves_at = [0] * n
-    for k in range(n):
-        if k > 0:
-            hop = hops[k - 1] and retract
-            if hop:
-                lines.append(retract)
-            if via and k - 1 in via:
-                lines.extend(via[k - 1][0])
-            lines.append(travels[k - 1])
-            if hop:
-                lines.append(prime)
-        path_kind = paths[k].kind
-        if path_kind != kind:
-            kind = path_kind
-            lines.append(f";TYPE:{kind}")
-        a, b = firsts[k], lasts[k]
-        moves_at[k] = len(lines)
-        if b > a:
-            lines.append(f"{g1[a][:3]}F{feeds[k]} {g1[a][3:]}")
-            lines.extend(g1[a + 1 : b])
-    spans = None
-    if owners is not None:
-        count = last_move - first_move
-        has = count > 0
-        first_line = np.asarray(moves_at, dtype=np.int64)[has]
-        spans = np.column_stack([first_line, first_line + count[has] - 1,
-                                 np.asarray(owners, dtype=np.int64)[has]])
-    return LayerCode(lines, filament, time_s, z_line, spans)
+    kinds = [p.kind for p in paths]
+    for slot, (job, p0, n) in enumerate(zip(layers, first_path.tolist(), counts.tolist(),
+                                            strict=True)):
+        t0 = int(first_travel[slot])
+        a, b = travel_a[t0 : t0 + n - 1], travel_b[t0 : t0 + n - 1]
+        hops_l = leaves[t0 : t0 + n - 1]
+        via = _detours(a, b, job.avoid, travel_f, settings.acceleration)
+        if via:
+            hops_l = hops_l.copy()
+            hops_l[list(via)] = True
+        moves_l = _layer_moves(mv, p0, n)
+        time_s = layer_time(moves_l, speeds[p0 : p0 + n], travel_f, hops_l, r,
+                            settings.retract_speed, job.height, settings.acceleration)
+        time_s += sum(extra for _, extra in via.values())
+        filament = float(e_moves[move_lo[slot] : move_hi[slot]].sum())
+        lines = [f";LAYER:{job.index}"]
+        if job.index == settings.fan_first_layer or (
+                job.index == 0 and settings.fan_first_layer > 0):
+            lines.append(fan_command(settings, job.index))
+        if retract:
+            lines.append(retract)
+        x0, y0 = pts[starts[p0]]
+        z_line = len(lines)
+        lines.append(f"G0 F{_fpm(travel_f)} X{x0:.3f} Y{y0:.3f} Z{job.z:.3f}")
+        if prime:
+            lines.append(prime)
+        kind = None
+        hops = hops_l.tolist()
+        moves_at = [0] * n  # where each path's first move went in ``lines``
+        for j in range(n):
+            k = p0 + j
+            if j > 0:
+                hop = hops[j - 1] and retract
+                if hop:
+                    lines.append(retract)
+                if via and j - 1 in via:
+                    lines.extend(via[j - 1][0])
+                lines.append(travels[t0 + j - 1])
+                if hop:
+                    lines.append(prime)
+            if kinds[k] != kind:
+                kind = kinds[k]
+                lines.append(f";TYPE:{kind}")
+            lo, hi = firsts[k], lasts[k]
+            moves_at[j] = len(lines)
+            if hi > lo:
+                lines.append(f"{g1[lo][:3]}F{feeds[k]} {g1[lo][3:]}")
+                lines.extend(g1[lo + 1 : hi])
+        spans = None
+        if job.owners is not None:
+            count = (last_move - first_move)[p0 : p0 + n]
+            has = count > 0
+            first_line = np.asarray(moves_at, dtype=np.int64)[has]
+            spans = np.column_stack([first_line, first_line + count[has] - 1,
+                                     np.asarray(job.owners, dtype=np.int64)[has]])
+        codes[slots[slot]] = LayerCode(lines, filament, time_s, z_line, spans)
+
+
+def _budgeted(
+    layers: Sequence[LayerJob], pts: np.ndarray, starts: np.ndarray, ends: np.ndarray,
+    first_path: np.ndarray, counts: np.ndarray, speeds: np.ndarray, loose: np.ndarray,
+    exact: np.ndarray, settings: SliceSettings,
+) -> Moves:
+    """The moves of every layer's packed paths (:func:`slicer.budget.budget_moves`):
+    in one pass, or layer by layer where the budget looks along a layer's chain of
+    moves (arcs bounded by the islands' scale, the wire's rate)."""
+    if len(layers) == 1 or not (arcs_wanted(settings) or line_rate(settings) > 0):
+        scale = None
+        if len(layers) == 1 and arcs_wanted(settings):
+            # the islands' scale bounds outer walls' arcs only: no arcs, no need to find it
+            scale = _island_scale(layers[0].outline, pts[starts], exact)
+        return budget_moves(pts, starts, ends, speeds, settings, loose, exact, scale)
+    parts = []
+    for job, p0, n in zip(layers, first_path.tolist(), counts.tolist(), strict=True):
+        lo, hi = int(starts[p0]), int(ends[p0 + n - 1])
+        s, e = starts[p0 : p0 + n] - lo, ends[p0 : p0 + n] - lo
+        own = slice(p0, p0 + n)
+        scale = _island_scale(job.outline, pts[lo:hi][s], exact[own]) if arcs_wanted(
+            settings) else None
+        parts.append(budget_moves(pts[lo:hi], s, e, speeds[own], settings, loose[own],
+                                  exact[own], scale))
+    return _joined_moves(parts)
+
+
+def _joined_moves(parts: Sequence[Moves]) -> Moves:
+    """Layers' moves one after the other, as one :class:`~slicer.budget.Moves`."""
+    base = np.cumsum([0] + [len(m.pts) for m in parts[:-1]])
+    return Moves(
+        np.concatenate([m.pts for m in parts]),
+        np.concatenate([m.starts + b for m, b in zip(parts, base, strict=True)]),
+        np.concatenate([m.ends + b for m, b in zip(parts, base, strict=True)]),
+        np.concatenate([m.arc for m in parts]),
+        np.concatenate([m.centre for m in parts]),
+        np.concatenate([m.ccw for m in parts]),
+        np.concatenate([m.length for m in parts]),
+    )
+
+
+def _layer_moves(mv: Moves, p0: int, n: int) -> Moves:
+    """The moves of paths ``p0 .. p0 + n - 1`` of ``mv`` (one layer's) on their own."""
+    lo, hi = int(mv.starts[p0]), int(mv.ends[p0 + n - 1])
+    if lo == 0 and hi == len(mv.pts):
+        return mv
+    length = mv.length[lo:hi].copy()
+    length[0] = 0.0  # as measured alone: nothing before the first point
+    return Moves(mv.pts[lo:hi], mv.starts[p0 : p0 + n] - lo, mv.ends[p0 : p0 + n] - lo,
+                 mv.arc[lo:hi], mv.centre[lo:hi], mv.ccw[lo:hi], length)
 
 
 def _detours(
@@ -395,7 +515,16 @@ def _pack(paths: list[np.ndarray]) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 def _travels_leave(
     a: np.ndarray, b: np.ndarray, outline: shapely.Geometry, w: float
 ) -> NDArray[np.bool_]:
-    """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave the part (retraction needed).
+    """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave the part (retraction needed)."""
+    return _travels_leave_many(a, b, np.zeros(len(a), dtype=np.int64), [outline], w)
+
+
+def _travels_leave_many(
+    a: np.ndarray, b: np.ndarray, layer: np.ndarray, outlines: Sequence[shapely.Geometry],
+    w: float,
+) -> NDArray[np.bool_]:
+    """Which travels ``a[i] -> b[i]`` (each (n, 2) mm) leave their layer's part
+    ``outlines[layer[i]]`` (retraction needed).
 
     A travel that starts inside the part and meets none of its edges stays
     inside: two cheap indexed tests settle most travels, and only those that
@@ -405,16 +534,22 @@ def _travels_leave(
         return np.zeros(0, dtype=bool)
     lines = shapely.linestrings(np.stack([a, b], axis=1))
     zero = np.all(a == b, axis=1)
-    # a private, prepared copy: the outline may be shared with other threads
-    area = private_copy(outline)
-    shapely.prepare(area)
+    # private, prepared copies: the outlines may be shared with other threads
+    areas = np.empty(len(outlines), dtype=object)
+    areas[:] = [private_copy(o) for o in outlines]
+    shapely.prepare(areas)
     covered = np.zeros(len(a), dtype=bool)
-    if shapely.get_type_id(area) in (_POLYGON, _MULTIPOLYGON):
-        edges = shapely.boundary(area)
-        shapely.prepare(edges)
-        covered = shapely.contains_xy(area, a[:, 0], a[:, 1]) & ~shapely.intersects(edges, lines)
+    polygonal = np.isin(shapely.get_type_id(areas), (_POLYGON, _MULTIPOLYGON))
+    tested = np.flatnonzero(polygonal[layer])
+    if len(tested):
+        edges = np.empty(len(outlines), dtype=object)
+        edges[polygonal] = shapely.boundary(areas[polygonal])
+        shapely.prepare(edges[polygonal])
+        at = layer[tested]
+        covered[tested] = (shapely.contains_xy(areas[at], a[tested, 0], a[tested, 1])
+                           & ~shapely.intersects(edges[at], lines[tested]))
     rest = np.flatnonzero(~covered)
-    covered[rest] = shapely.covered_by(lines[rest], area)
+    covered[rest] = shapely.covered_by(lines[rest], areas[layer[rest]])
     leave: NDArray[np.bool_] = ~(covered | zero)
     return leave
 

@@ -12,7 +12,7 @@ from pathlib import Path
 from slicer.annotate import copy_layers, header_extras, object_labels
 from slicer.gcode import GcodeSummary, filament_grams, header_lines
 from slicer.labels import ObjectLabels
-from slicer.pipeline import LayerWindow, in_thread
+from slicer.pipeline import LayerWindow, in_blocks
 from slicer.plan import SlicePlan
 
 # layers per task: the skin cache's block, so each block is computed by one worker
@@ -35,14 +35,25 @@ _CUT_ALONE = 0.05
 _AHEAD = 2
 
 
+def _layer_texts(
+    plan: SlicePlan, lo: int, hi: int, labels: ObjectLabels | None = None
+) -> list[tuple[str, float, float]]:
+    """Layers ``lo .. hi - 1`` as (G-code text, filament mm, time s), made together
+    (:meth:`~slicer.plan.SlicePlan.layer_codes`), their bodies' moves bracketed when
+    ``labels`` are given."""
+    out = []
+    for i, code in enumerate(plan.layer_codes(lo, hi), start=lo):
+        lines = code.lines if labels is None else labels.label_layer(i, code.lines, code.spans)
+        out.append(("\n".join(lines) + "\n", code.filament_mm, code.time_s))
+    return out
+
+
 def _layer_text(
     plan: SlicePlan, i: int, labels: ObjectLabels | None = None
 ) -> tuple[str, float, float]:
     """Layer ``i`` as (G-code text, filament mm, time s), its bodies' moves bracketed
     when ``labels`` are given."""
-    code = plan.layer_code(i)
-    lines = code.lines if labels is None else labels.label_layer(i, code.lines, code.spans)
-    return "\n".join(lines) + "\n", code.filament_mm, code.time_s
+    return _layer_texts(plan, i, i + 1, labels)[0]
 
 
 def _chunks(lo: int, n: int) -> Iterator[tuple[int, int]]:
@@ -70,10 +81,11 @@ def iter_layer_texts(
 
     The layers come out of :class:`~slicer.pipeline.LayerWindow`, the bounded
     window the daemon and ``hostd print`` take layers from, with one engine or
-    another. Most of a layer's work is Python and numpy holding the
-    interpreter lock, so threads barely overlap: forked worker processes
-    (:class:`~slicer.forkslice.ForkedLayers`, which inherit the plan, no copy)
-    slice blocks of layers in parallel instead, at most
+    another, a task of layers (:func:`_chunks`) at a time: a task's G-code is made
+    in one pass, cheaper per layer than layer by layer. Most of a layer's work is
+    Python and numpy holding the interpreter lock, so threads barely overlap:
+    forked worker processes (:class:`~slicer.forkslice.ForkedLayers`, which
+    inherit the plan, no copy) slice tasks in parallel instead, at most
     ``_AHEAD * workers * _CHUNK`` layers ahead of the writer. Without ``fork``
     or with one core the layers are sliced in this thread, and so are small
     models: the first layers are sliced here and timed, and workers are forked
@@ -86,16 +98,22 @@ def iter_layer_texts(
     workers = workers or max(1, os.cpu_count() or 1)
     n = plan.layer_count
 
-    def layer(i: int) -> tuple[str, float, float]:
-        return _layer_text(plan, i, labels)
+    def make(lo: int, hi: int) -> list[tuple[str, float, float]]:
+        return _layer_texts(plan, lo, hi, labels)
 
     fork = workers >= 2 and hasattr(os, "fork")
-    here: LayerWindow[tuple[str, float, float]] = LayerWindow(in_thread(layer), n, depth=1)
+    probe = min(_PROBE, n) if fork else 0
+    tasks = [(0, min(probe, _PROBE // 2)), (_PROBE // 2, probe)] if probe else []
+    tasks = [(lo, hi) for lo, hi in tasks if lo < hi]
+    if not fork:
+        tasks = list(_chunks(0, n))
+    here: LayerWindow[tuple[str, float, float]] = LayerWindow(
+        in_blocks(make, tasks), n, depth=1)
     try:
         if fork:
             # the bottom layers are solid skin, slower than most: time the later half
             started = time.perf_counter()
-            while here.taken < min(_PROBE, n):
+            while here.taken < probe:
                 if here.taken == _PROBE // 2:
                     started = time.perf_counter()
                 yield here.take()
@@ -103,6 +121,10 @@ def iter_layer_texts(
             per_layer = (time.perf_counter() - started) / max(timed, 1)
             fork = per_layer * (n - here.taken) >= _FORK_WORTH
         if not fork:
+            if probe and here.taken < n:  # the rest, task by task
+                here.close()
+                here = LayerWindow(in_blocks(make, list(_chunks(here.taken, n))), n,
+                                   depth=1, first=here.taken)
             yield from here
             return
         # outlines are cut lazily; cut them all once here so the workers inherit
@@ -123,7 +145,7 @@ def iter_layer_texts(
     done = here.taken
     from slicer.forkslice import ForkedLayers
 
-    with ForkedLayers(layer, list(_chunks(done, n)), workers) as engine:
+    with ForkedLayers(make, list(_chunks(done, n)), workers) as engine:
         window: LayerWindow[tuple[str, float, float]] = LayerWindow(
             engine.submit, n, depth=_AHEAD * workers * _CHUNK, first=done
         )
@@ -145,9 +167,12 @@ def write_gcode(
 
     Layers are streamed to a temporary file beside ``out``; the header, which
     needs the totals, is written first into the final file, then the body is
-    copied after it and the result renamed into place.
+    copied after it and the result renamed into place. An ``out`` that is not a
+    regular file (``/dev/null``, ``/dev/stdout``, a named pipe) is written in
+    place: renaming a file onto it would replace the device or pipe.
     """
     out = Path(out)
+    in_place = out.exists() and not out.is_file()
     directory = out.parent if str(out.parent) else Path(".")
     filament = 0.0
     seconds = 0.0
@@ -174,14 +199,20 @@ def write_gcode(
         body.write("\n".join(plan.end_gcode()) + "\n")
         summary = GcodeSummary(n, filament, filament_grams(filament, plan.settings), seconds)
         body.seek(0)
+        if extras is None:  # no workers were forked
+            extras = header_extras(plan, plan.settings, labels)
+        head = "\n".join(header_lines(summary, plan.settings)) + "\n"
+        head += "".join(line + "\n" for line in extras)
+        head += "\n".join(plan.start_gcode()) + "\n"
+        if in_place:
+            with open(out, "w", encoding="ascii", newline="\n") as fh:
+                fh.write(head)
+                copy_layers(fh, body, lengths, times)
+            return summary
         fd, tmp = tempfile.mkstemp(prefix=".hostd-", suffix=".gcode", dir=directory)
         try:
             with os.fdopen(fd, "w", encoding="ascii", newline="\n") as fh:
-                fh.write("\n".join(header_lines(summary, plan.settings)) + "\n")
-                if extras is None:  # no workers were forked
-                    extras = header_extras(plan, plan.settings, labels)
-                fh.write("".join(line + "\n" for line in extras))
-                fh.write("\n".join(plan.start_gcode()) + "\n")
+                fh.write(head)
                 copy_layers(fh, body, lengths, times)
             os.replace(tmp, out)
         except BaseException:

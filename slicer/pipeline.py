@@ -11,7 +11,7 @@ from __future__ import annotations
 
 import collections
 import threading
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Sequence
 from typing import Generic, Protocol, TypeVar
 
 T = TypeVar("T")
@@ -154,6 +154,28 @@ def in_thread(make: Callable[[int], T]) -> Callable[[int], Pending[T]]:
     """The in-thread engine: layer ``i`` is ``make(i)``, made when it is taken, by the
     thread taking it (nothing runs beside the consumer)."""
     return lambda index: Pending(lambda: make(index))
+
+
+def in_blocks(
+    make: Callable[[int, int], Sequence[T]], tasks: Sequence[tuple[int, int]]
+) -> Callable[[int], Pending[T]]:
+    """The in-thread engine by blocks: taking a layer of task ``[lo, hi)`` (``tasks``
+    cover the layers, in order) makes the whole task at once, ``make(lo, hi)``, by the
+    thread taking it; the task's other layers wait made until they are taken. A layer
+    in no task is made alone (``make(i, i + 1)``)."""
+    task_of = {i: (lo, hi) for lo, hi in tasks for i in range(lo, hi)}
+    made: dict[int, T] = {}
+
+    def submit(index: int) -> Pending[T]:
+        def layer() -> T:
+            if index not in made:
+                lo, hi = task_of.get(index, (index, index + 1))
+                made.update(zip(range(lo, hi), make(lo, hi), strict=True))
+            return made.pop(index)
+
+        return Pending(layer)
+
+    return submit
 
 
 class LayerWindow(Generic[T]):

@@ -16,6 +16,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import cast
 
 import numpy as np
 import shapely
@@ -309,30 +310,76 @@ class SlicePlan:
         A layer identical to one of the last few sliced (same outline, skin and
         hatch direction) reuses that layer's lines with its own number and height.
         """
-        key = self._repeat_key(self._check(i), excluded_bodies)
-        if key is not None:
-            with self._repeats_lock:
-                seen = self._repeats.get(key)
-            if seen is not None:
-                return seen.moved_to(i, self.layer_z(i))
-        paths = self.layer_toolpaths(i, excluded_bodies)
-        outline = self.outline(i, excluded_bodies)
+        return self.layer_codes(i, i + 1, excluded_bodies)[0]
+
+    def layer_codes(
+        self, lo: int, hi: int, excluded_bodies: frozenset[int] = frozenset()
+    ) -> list[gcode.LayerCode]:
+        """:meth:`layer_code` of layers ``lo .. hi - 1``, the same bytes as one by one:
+        their G-code is made a few layers at a time (:func:`slicer.gcode.layer_codes`,
+        up to :data:`slicer.gcode.BATCH_POINTS` path points), which spends less per
+        layer on small layers."""
+        made: list[gcode.LayerCode | None] = []
+        first_of: dict[bytes, int] = {}  # a key's first layer to be made here
+        later: list[tuple[int, int]] = []  # (slot, slot of the layer it repeats)
+        pending: list[tuple[int, bytes | None, gcode.LayerJob]] = []  # (slot, key, job)
+        points = 0
+        for i in (self._check(k) for k in range(self._check(lo), hi)):
+            key = self._repeat_key(i, excluded_bodies)
+            if key is not None:
+                with self._repeats_lock:
+                    seen = self._repeats.get(key)
+                if seen is not None:
+                    made.append(seen.moved_to(i, self.layer_z(i)))
+                    continue
+                if key in first_of:
+                    later.append((len(made), first_of[key]))
+                    made.append(None)
+                    continue
+                first_of[key] = len(made)
+            job = self._layer_job(i, excluded_bodies)
+            size = sum(len(p.coords) for p in job.paths)
+            if pending and points + size > gcode.BATCH_POINTS:
+                self._make_codes(pending, made)
+                pending, points = [], 0
+            pending.append((len(made), key, job))
+            points += size
+            made.append(None)
+        self._make_codes(pending, made)
+        for k, source in later:
+            code = made[source]
+            assert code is not None
+            made[k] = code.moved_to(lo + k, self.layer_z(lo + k))
+        return cast(list[gcode.LayerCode], made)
+
+    def _layer_job(self, i: int, excluded: frozenset[int]) -> gcode.LayerJob:
+        """What layer ``i``'s G-code is made from: its toolpaths, outline and owners."""
+        paths = self.layer_toolpaths(i, excluded)
+        outline = self.outline(i, excluded)
         if self._support is not None and self._support[i] is not None:
             outline = geom.union(outline, self._support[i])
         labelled = self.settings.gcode_labels and self.body_count >= 2
-        code = gcode.layer_code(
-            i, self.layer_z(i), self.layer_height(i), paths, outline, self.settings,
-            self._avoid(i, excluded_bodies),
-            owners=self._path_bodies(i, paths, excluded_bodies) if labelled else None,
-        )
-        if key is not None:
-            with self._repeats_lock:
-                self._repeats[key] = gcode.LayerCode(
-                    list(code.lines), code.filament_mm, code.time_s, code.z_line, code.spans,
-                )
-                while len(self._repeats) > _REPEATS:
-                    self._repeats.popitem(last=False)
-        return code
+        owners = self._path_bodies(i, paths, excluded) if labelled else None
+        return gcode.LayerJob(i, self.layer_z(i), self.layer_height(i), paths, outline,
+                              self._avoid(i, excluded), owners)
+
+    def _make_codes(
+        self, pending: list[tuple[int, bytes | None, gcode.LayerJob]],
+        made: list[gcode.LayerCode | None],
+    ) -> None:
+        """The G-code of the ``pending`` jobs into their slots of ``made``, kept for the
+        layers that repeat them."""
+        codes = gcode.layer_codes([job for _, _, job in pending], self.settings)
+        for (slot, key, _), code in zip(pending, codes, strict=True):
+            made[slot] = code
+            if key is not None:
+                with self._repeats_lock:
+                    self._repeats[key] = gcode.LayerCode(
+                        list(code.lines), code.filament_mm, code.time_s, code.z_line,
+                        code.spans,
+                    )
+                    while len(self._repeats) > _REPEATS:
+                        self._repeats.popitem(last=False)
 
     def layer_gcode(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> list[str]:
         """G-code lines of layer ``i`` (starting with ``;LAYER:i``); the same bytes every time."""

@@ -10,7 +10,7 @@ import pytest
 
 from slicer import gcodefile
 from slicer.errors import ModelError
-from slicer.forkslice import ForkedLayers, LayerText
+from slicer.forkslice import ForkedLayers, LayerText, per_layer
 from slicer.gcodefile import _chunks, _layer_text, write_gcode
 from slicer.pipeline import LayerWindow
 from slicer.plan import SlicePlan
@@ -23,7 +23,7 @@ pytestmark = pytest.mark.skipif(not hasattr(os, "fork"), reason="needs os.fork")
 def forked_layers(layer, tasks: list[tuple[int, int]], workers: int, depth: int = 8
                   ) -> Iterator[LayerText]:
     """The layers of ``tasks`` through the window with forked workers as its engine."""
-    with ForkedLayers(layer, tasks, workers) as engine:
+    with ForkedLayers(per_layer(layer), tasks, workers) as engine:
         window = LayerWindow(engine.submit, tasks[-1][1], depth, first=tasks[0][0])
         try:
             yield from window
