@@ -182,6 +182,8 @@ def test_slice_profile_prints_every_stage(tmp_path):
     for stage in ("read", "check and repair", "outlines", "skins", "walls", "infill",
                   "ordering", "G-code", "total"):
         assert stage in stages, out
+    for stage in ("read", "outlines", "walls", "infill", "ordering", "G-code"):
+        assert int(stages[stage][2]) > 0, out  # its timer saw the stage run
     total = float(stages["total"][0])
     parts = sum(float(v[0]) for k, v in stages.items() if k not in ("total", "stage"))
     assert abs(parts - total) < 0.01 * total + 0.002

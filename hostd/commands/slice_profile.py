@@ -33,7 +33,7 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("ordering", "slicer.order", "walk_stacks"),
     ("ordering", "slicer.order", "order_open_paths"),
     ("ordering", "slicer.order", "join_runs"),
-    ("G-code", "slicer.gcode", "layer_code"),
+    ("G-code", "slicer.gcode", "layer_codes"),
 )
 
 
