@@ -178,9 +178,10 @@ def layer_paths(
             ordered, pos = order.order_open_paths(skin_lines[k], pos)
             items.append((SKIN, len(runs)))
             runs.append((np.concatenate(ordered), np.cumsum([len(c) for c in ordered]), k))
-        for kind, stacks in ((SKIN, skin_stacks), (FILL, sparse_stacks)):
-            if stacks is not None:
-                block, pos = order.walk_stacks(stacks, k, pos)
+        for kind, stacked in ((SKIN, skin_stacks), (FILL, sparse_stacks)):
+            if stacked is not None:
+                stacks, first_group = stacked
+                block, pos = order.walk_stacks(stacks, first_group + k, pos)
                 if len(block) == 0:
                     continue
                 pts = block.reshape(-1, 2)
@@ -191,7 +192,7 @@ def layer_paths(
                 ends = np.cumsum([len(c) for c in ordered])
             else:
                 continue
-            if stacks is skin_stacks:
+            if kind == SKIN and stacked is not None:
                 hatched_skin.append(len(runs))
             items.append((kind, len(runs)))
             runs.append((pts, ends, k))
@@ -356,15 +357,17 @@ def _island_order(box: np.ndarray, pos: np.ndarray) -> list[int]:
 
 def _stacks(
     groups: list[tuple[np.ndarray, float]], angle: float, index: int, min_length: float
-) -> list[order.ChordStacks | None]:
+) -> list[tuple[order.ChordStacks, int] | None]:
     """Level sets of the linear field (Eq. 13, mirrored on odd layers) in every region, stacked.
 
     ``groups`` of ``(regions, spacing)``: ``regions`` (p,) one (Multi)Polygon or
-    None per island, lines ``spacing`` mm apart; all are hatched in one pass.
-    Chords shorter than ``min_length`` mm are dropped. One stack per group,
-    None where it has no chords at all.
+    None per island, lines ``spacing`` mm apart; all are hatched and stacked in
+    one pass. Chords shorter than ``min_length`` mm are dropped. Per group, the
+    stacks and the stacks' group of its first island (island ``k``'s chords are
+    group ``first + k``, :func:`slicer.order.walk_stacks`); None where it has no
+    chords at all.
     """
-    out: list[order.ChordStacks | None] = [None] * len(groups)
+    out: list[tuple[order.ChordStacks, int] | None] = [None] * len(groups)
     todo = [j for j, (regions, spacing) in enumerate(groups) if spacing > 0 and len(regions)]
     if not todo:
         return out
@@ -373,21 +376,18 @@ def _stacks(
     regions = np.concatenate([groups[j][0] for j in todo])
     spacings = np.repeat([float(groups[j][1]) for j in todo], sizes)
     chords, owner = hatch_many(regions, angle, mirror, spacings)
+    keep = np.linalg.norm(chords[:, 1] - chords[:, 0], axis=1) >= min_length
+    if not keep.any():
+        return out
+    chords, owner = chords[keep], owner[keep]
     g, d = line_frame(angle, mirror)
-    # chords come ordered by region: each group's are one stretch
+    # every region its own group of stacks: one pass for all the groups' islands
+    stacks = order.chord_stacks(chords, owner, len(regions), g, d, spacings[owner])
     offsets = np.cumsum([0, *sizes])
-    cuts = np.searchsorted(owner, offsets)
-    for j, lo, a, b in zip(todo, offsets, cuts[:-1], cuts[1:], strict=False):
-        if b == a:
-            continue
-        mine = chords[a:b]
-        length = np.linalg.norm(mine[:, 1] - mine[:, 0], axis=1)
-        keep = length >= min_length
-        if keep.any():
-            spacing = groups[j][1]
-            out[j] = order.chord_stacks(
-                mine[keep], owner[a:b][keep] - lo, len(groups[j][0]), g, d, spacing
-            )
+    has = np.bincount(owner, minlength=len(regions))
+    for j, lo, hi in zip(todo, offsets[:-1].tolist(), offsets[1:].tolist(), strict=True):
+        if has[lo:hi].any():
+            out[j] = (stacks, lo)
     return out
 
 

@@ -171,11 +171,12 @@ def join_runs(
 
 
 def chord_levels(
-    chords: np.ndarray, g: np.ndarray, d: np.ndarray, spacing: float
+    chords: np.ndarray, g: np.ndarray, d: np.ndarray, spacing: float | np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Level index and along-line interval of straight chords: (k (n,) int64, v0, v1 (n,) mm).
 
-    ``chords`` (n, 2, 2) mm lie on lines ``H = x . g = k * spacing``; ``d`` is
+    ``chords`` (n, 2, 2) mm lie on lines ``H = x . g = k * spacing`` (``spacing`` one
+    for all, or (n,) one per chord); ``d`` is
     the direction along them; each interval has ``v0 <= v1``.
     """
     mid = chords.mean(axis=1)
@@ -231,11 +232,12 @@ def chord_stacks(
     groups: int,
     g: np.ndarray,
     d: np.ndarray,
-    spacing: float,
+    spacing: float | np.ndarray,
 ) -> ChordStacks:
     """The zigzag stacks of parallel chords (n, 2, 2) mm, never across groups.
 
-    ``group`` (n,) int64 in ``[0, groups)``: the island of each chord. Links
+    ``group`` (n,) int64 in ``[0, groups)``: the island of each chord; ``spacing``
+    the lines' (one, or (n,) one per chord: groups may differ). Links
     between levels are found for all chords at once with ``searchsorted``
     on exact integer keys (level, rank of the along-line coordinate); the
     levels of different groups are kept two apart so no link crosses groups.
