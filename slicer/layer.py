@@ -338,7 +338,7 @@ def _island_order(box: np.ndarray, pos: np.ndarray) -> list[int]:
         # every seam's distance from the start and from every seam, at once (the same
         # numbers as one norm per step); a visited seam is ruled out by an infinite one
         table = np.linalg.norm(seams[None, :, :] - seams[:, None, :], axis=2)
-        d = np.linalg.norm(seams - pos, axis=1)
+        d = geom.lengths(seams - pos)
         for _ in range(len(box)):
             j = int(np.argmin(d))
             out.append(j)
@@ -348,7 +348,7 @@ def _island_order(box: np.ndarray, pos: np.ndarray) -> list[int]:
     left = list(range(len(box)))
     here = pos
     while left:
-        d = np.linalg.norm(seams[left] - here, axis=1)
+        d = geom.lengths(seams[left] - here)
         j = left.pop(int(np.argmin(d)))
         out.append(j)
         here = seams[j]
@@ -376,7 +376,7 @@ def _stacks(
     regions = np.concatenate([groups[j][0] for j in todo])
     spacings = np.repeat([float(groups[j][1]) for j in todo], sizes)
     chords, owner = hatch_many(regions, angle, mirror, spacings)
-    keep = np.linalg.norm(chords[:, 1] - chords[:, 0], axis=1) >= min_length
+    keep = geom.lengths(chords[:, 1] - chords[:, 0]) >= min_length
     if not keep.any():
         return out
     chords, owner = chords[keep], owner[keep]

@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer.geom import sorted_unique, split_rows
+from slicer.geom import lengths, sorted_unique, split_rows
 
 
 def ring_points(ring: np.ndarray) -> np.ndarray:
@@ -106,7 +106,7 @@ def join_paths(
     pts = np.concatenate(paths)
     a = pts[ends[:-1] - 1]  # each path's last point, but the last path's
     b = pts[ends[:-1]]  # each path's first point, but the first path's
-    gap = np.linalg.norm(b - a, axis=1)
+    gap = lengths(b - a)
     near = gap <= max_gap
     if not near.any():
         return paths
@@ -150,7 +150,7 @@ def join_runs(
     joint[np.cumsum(counts) - 1] = False  # a run's last path joins nothing
     a = pts[ends - 1]
     b = pts[np.minimum(ends, len(pts) - 1)]
-    gap = np.linalg.norm(b - a, axis=1)
+    gap = lengths(b - a)
     cand = np.flatnonzero(joint & (gap <= max_gap))
     ok = np.zeros(len(ends), dtype=bool)
     if len(cand):
@@ -160,7 +160,7 @@ def join_runs(
         ok[cand] = shapely.dwithin(regions[region_of], middle, slack)
     if laid is not None:
         # every step from a point to the next, less the gaps left unjoined
-        step = np.linalg.norm(np.diff(pts, axis=0), axis=1)
+        step = lengths(np.diff(pts, axis=0))
         owner = np.repeat(np.arange(len(runs)), [len(r[0]) for r in runs])[:-1]
         laid[:] = np.bincount(owner, step, minlength=len(runs))
         laid -= np.bincount(which[~ok], gap[~ok], minlength=len(runs))
@@ -260,9 +260,9 @@ def chord_stacks(
     # candidates on the next level: chords b with v1_b > v0_a and v0_b < v1_a
     nb_lo = start[np.minimum(levels + 1, nlev)]
     nb_hi = start[np.minimum(levels + 2, nlev)]
-    values, rank = np.unique(np.concatenate([v0, v1]), return_inverse=True)
-    r0, r1 = rank[:n].astype(np.int64), rank[n:].astype(np.int64)
-    span = len(values) + 1
+    rank, distinct = _ranks(np.concatenate([v0, v1]))
+    r0, r1 = rank[:n], rank[n:]
+    span = distinct + 1
     key0 = levels * span + r0
     key1 = levels * span + r1
     up = (levels + 1) * span
@@ -296,9 +296,23 @@ def chord_stacks(
     bounds = np.searchsorted(stack_of[seq], np.arange(len(heads) + 1))
     fw = _forward(chords, d)  # each chord along d; a zigzag alternates from there
     first_c, last_c = seq[bounds[:-1]], seq[bounds[1:] - 1]
-    ends = np.stack([fw[first_c, 0], fw[first_c, 1], fw[last_c, 0], fw[last_c, 1]], axis=1)
+    ends = np.concatenate([fw[first_c], fw[last_c]], axis=1)  # (s, 4, 2) corners
     group_stacks = np.searchsorted(group[heads], np.arange(groups + 1))
     return ChordStacks(fw, seq, bounds, ends, first_c, last_c, group_stacks)
+
+
+def _ranks(values: np.ndarray) -> tuple[np.ndarray, int]:
+    """Each value's rank among the distinct values (n,) int64, and how many are distinct:
+    ``np.unique``'s inverse, from one sort."""
+    order = np.argsort(values, kind="stable")
+    ordered = values[order]
+    new = np.empty(len(values), dtype=bool)
+    new[:1] = True
+    np.not_equal(ordered[1:], ordered[:-1], out=new[1:])
+    step = np.cumsum(new)
+    rank = np.empty(len(values), dtype=np.int64)
+    rank[order] = step - 1
+    return rank, int(step[-1]) if len(step) else 0
 
 
 def walk_stacks(
