@@ -122,19 +122,93 @@ def layer_paths(
     ``support_paths`` is :func:`slicer.support.support_paths` when support is
     enabled (imported lazily by the plan), else None.
     """
+    return layer_paths_many([(regions, ctx)], field, support_paths)[0]
+
+
+def layer_paths_many(
+    layers: list[tuple[LayerRegions, LayerContext]],
+    field: InfillField,
+    support_paths: SupportPaths | None = None,
+) -> list[list[Path]]:
+    """:func:`layer_paths` of every layer (``(regions, context)``, one settings for all),
+    the same paths as one by one: the walls and domains of all their islands are made
+    in one pass (:func:`slicer.islands.island_geometry`), and so are the joints of all
+    their infill runs (:func:`slicer.order.join_runs`)."""
+    out: list[list[Path]] = [[] for _ in layers]
+    busy = [j for j, (regions, _) in enumerate(layers) if len(regions.islands)]
+    for j, (regions, ctx) in enumerate(layers):
+        support = regions.support
+        if j not in busy and support_paths is not None and support is not None and (
+                not support.is_empty):
+            b = support.bounds
+            out[j] = _support(regions, ctx, support_paths, np.array([b[0], b[3]]))
+    if not busy:
+        return out
+    settings = layers[busy[0]][1].settings
+    w = settings.line_width
+    sizes = [len(layers[j][0].islands) for j in busy]
+    first_island = np.cumsum([0, *sizes]).tolist()
+    outer_width, fill, rings = island_geometry(
+        np.concatenate([layers[j][0].islands for j in busy]), w, settings.perimeters,
+        fill_distance(settings), settings.wall_order,
+    )
+    planned = [
+        _planned_layer(layers[j][0], layers[j][1], field, outer_width[a:b], fill[a:b],
+                       rings[a:b])
+        for j, a, b in zip(busy, first_island[:-1], first_island[1:], strict=True)
+    ]
+    # every layer's runs joined at once: each run keeps to its own island's domain
+    runs = [(pts, ends, first_island[slot] + k)
+            for slot, plan in enumerate(planned) for pts, ends, k in plan.runs]
+    laid = np.zeros(len(runs))
+    joined = order.join_runs(runs, fill, 2.0 * w, w / 2.0, laid)
+    done = 0
+    for j, plan in zip(busy, planned, strict=True):
+        count = len(plan.runs)
+        mine = joined[done : done + count]
+        widths = _capped_widths(laid[done : done + count], plan.runs, plan.hatched_skin,
+                                plan.skin, w)
+        done += count
+        paths: list[Path] = []
+        for item in plan.items:
+            if isinstance(item, Path):
+                paths.append(item)
+            else:
+                width = widths.get(item[1])
+                island = plan.runs[item[1]][2]
+                paths.extend(Path(item[0], coords, width, island) for coords in mine[item[1]])
+        regions, ctx = layers[j]
+        has_support = (support_paths is not None and regions.support is not None
+                       and not regions.support.is_empty)
+        if support_paths is not None and has_support:
+            paths.extend(_support(regions, ctx, support_paths, plan.pos))
+        out[j] = paths
+    return out
+
+
+@dataclass
+class _PlannedLayer:
+    """A layer's walls and infill runs in print order, before the runs' joints:
+    ``items`` walls (:class:`Path`) and runs by kind (``(kind, run)``), ``runs``
+    ``(points, ends, island)``, the runs of hatched skin, each island's skin and the
+    nozzle's last position."""
+
+    items: list[Path | tuple[str, int]]
+    runs: list[tuple[np.ndarray, np.ndarray, int]]
+    hatched_skin: list[int]
+    skin: np.ndarray
+    pos: np.ndarray
+
+
+def _planned_layer(
+    regions: LayerRegions, ctx: LayerContext, field: InfillField, outer_width: np.ndarray,
+    fill: np.ndarray, rings: list,
+) -> _PlannedLayer:
+    """One layer's walls and infill runs (:class:`_PlannedLayer`) from its islands'
+    walls and domains."""
     settings = ctx.settings
     islands = regions.islands
-    support = regions.support
-    has_support = support_paths is not None and support is not None and not support.is_empty
-    if len(islands) == 0:
-        if support_paths is None or support is None or support.is_empty:
-            return []
-        b = support.bounds
-        return _support(regions, ctx, support_paths, np.array([b[0], b[3]]))
     w = settings.line_width
-    outer_width, fill, rings = island_geometry(
-        islands, w, settings.perimeters, fill_distance(settings), settings.wall_order
-    )
     if regions.skin is not None and not regions.skin.is_empty:
         skin = _skin_by_island(fill, regions.skin)
         sparse = geom.difference(fill, regions.skin)
@@ -196,20 +270,7 @@ def layer_paths(
                 hatched_skin.append(len(runs))
             items.append((kind, len(runs)))
             runs.append((pts, ends, k))
-    laid = np.zeros(len(runs))
-    joined = order.join_runs(runs, fill, 2.0 * w, w / 2.0, laid)
-    widths = _capped_widths(laid, runs, hatched_skin, skin, w)
-    out: list[Path] = []
-    for item in items:
-        if isinstance(item, Path):
-            out.append(item)
-        else:
-            width = widths.get(item[1])
-            island = runs[item[1]][2]
-            out.extend(Path(item[0], coords, width, island) for coords in joined[item[1]])
-    if support_paths is not None and has_support:
-        out.extend(_support(regions, ctx, support_paths, pos))
-    return out
+    return _PlannedLayer(items, runs, hatched_skin, skin, pos)
 
 
 def _skin_by_island(fill: np.ndarray, skin: shapely.Geometry) -> np.ndarray:

@@ -159,11 +159,14 @@ def join_runs(
         middle = shapely.points((a[cand] + b[cand]) / 2.0)
         ok[cand] = shapely.dwithin(regions[region_of], middle, slack)
     if laid is not None:
-        # every step from a point to the next, less the gaps left unjoined
+        # every step from a point to the next within a run, less the gaps left unjoined
+        # (a run's sum is its own: the same whatever other runs are joined beside it)
         step = lengths(np.diff(pts, axis=0))
-        owner = np.repeat(np.arange(len(runs)), [len(r[0]) for r in runs])[:-1]
-        laid[:] = np.bincount(owner, step, minlength=len(runs))
-        laid -= np.bincount(which[~ok], gap[~ok], minlength=len(runs))
+        owner = np.repeat(np.arange(len(runs)), [len(r[0]) for r in runs])
+        step[owner[1:] != owner[:-1]] = 0.0
+        laid[:] = np.bincount(owner[:-1], step, minlength=len(runs))
+        left = joint & ~ok
+        laid -= np.bincount(which[left], gap[left], minlength=len(runs))
     pieces = split_rows(pts, ends[:-1][~ok[:-1]])
     per_run = np.bincount(which[~ok], minlength=len(runs))
     bounds = np.cumsum(per_run)

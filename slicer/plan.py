@@ -28,7 +28,7 @@ from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.fields.linear import LinearField
 from slicer.geom import private_copy
 from slicer.labels import nearest_body
-from slicer.layer import LayerRegions, Path, fill_distance, layer_paths
+from slicer.layer import LayerRegions, Path, fill_distance, layer_paths_many
 from slicer.lazycut import LazyOutlines
 from slicer.mesh import PlacedMesh, prepare, read_stl
 from slicer.settings import SettingsError, SliceSettings
@@ -40,6 +40,9 @@ _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
 # distinct layers whose G-code is kept for the identical layers that follow
 _REPEATS = 4
+# layers whose toolpaths are made together (one pass over their islands' walls and
+# their runs' joints)
+_TOGETHER = 16
 
 
 # modules that some layers load on first use (a narrow skin's lines, curved paths'
@@ -276,33 +279,41 @@ class SlicePlan:
 
     def layer_toolpaths(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> list[Path]:
         """Every toolpath of layer ``i`` in print order."""
-        i = self._check(i)
-        islands = self._islands(i, excluded_bodies)
-        if self._reuse:  # the linear field and the walls never read the domain: no copy
-            ctx = LayerContext(
-                index=i,
-                z=float(self._geo.tops[i]),
-                domain=self.outline(i, excluded_bodies),
-                bounds=self._geo.bounds,
-                settings=self.settings,
+        return self._toolpaths([self._check(i)], excluded_bodies)[0]
+
+    def _toolpaths(self, layers: Sequence[int], excluded: frozenset[int]) -> list[list[Path]]:
+        """The toolpaths of ``layers`` (checked indices), made together
+        (:func:`slicer.layer.layer_paths_many`)."""
+        inputs = []
+        for i in layers:
+            islands = self._islands(i, excluded)
+            if self._reuse:  # the linear field and the walls never read the domain: no copy
+                ctx = LayerContext(
+                    index=i,
+                    z=float(self._geo.tops[i]),
+                    domain=self.outline(i, excluded),
+                    bounds=self._geo.bounds,
+                    settings=self.settings,
+                )
+            else:
+                ctx = self.layer_context(i, excluded)
+            skin = self._skins.get(i)
+            if excluded and skin is not None:  # no skin over a cancelled body
+                skin = geom.intersection(skin, ctx.domain)
+            regions = LayerRegions(
+                islands=islands,
+                skin=skin,
+                support=_private(self._support[i]) if self._support is not None else None,
+                interface=(_private(self._interface[i]) if self._interface is not None
+                           else None),
             )
-        else:
-            ctx = self.layer_context(i, excluded_bodies)
-        skin = self._skins.get(i)
-        if excluded_bodies and skin is not None:  # no skin over a cancelled body
-            skin = geom.intersection(skin, ctx.domain)
-        regions = LayerRegions(
-            islands=islands,
-            skin=skin,
-            support=_private(self._support[i]) if self._support is not None else None,
-            interface=_private(self._interface[i]) if self._interface is not None else None,
-        )
+            inputs.append((regions, ctx))
         support_fn = None
         if self._support is not None:
             from slicer.support import support_paths
 
             support_fn = support_paths
-        return layer_paths(regions, ctx, self._field, support_fn)
+        return layer_paths_many(inputs, self._field, support_fn)
 
     def layer_code(self, i: int, excluded_bodies: frozenset[int] = frozenset()) -> gcode.LayerCode:
         """Layer ``i``'s G-code with its filament (mm) and time (s).
@@ -322,6 +333,7 @@ class SlicePlan:
         made: list[gcode.LayerCode | None] = []
         first_of: dict[bytes, int] = {}  # a key's first layer to be made here
         later: list[tuple[int, int]] = []  # (slot, slot of the layer it repeats)
+        wanted: list[tuple[int, bytes | None, int]] = []  # (slot, key, layer) to make
         pending: list[tuple[int, bytes | None, gcode.LayerJob]] = []  # (slot, key, job)
         points = 0
         for i in (self._check(k) for k in range(self._check(lo), hi)):
@@ -337,14 +349,19 @@ class SlicePlan:
                     made.append(None)
                     continue
                 first_of[key] = len(made)
-            job = self._layer_job(i, excluded_bodies)
-            size = sum(len(p.coords) for p in job.paths)
-            if pending and points + size > gcode.BATCH_POINTS:
-                self._make_codes(pending, made)
-                pending, points = [], 0
-            pending.append((len(made), key, job))
-            points += size
+            wanted.append((len(made), key, i))
             made.append(None)
+        for start in range(0, len(wanted), _TOGETHER):
+            chunk = wanted[start : start + _TOGETHER]
+            paths = self._toolpaths([i for _, _, i in chunk], excluded_bodies)
+            for (slot, key, i), layer_paths in zip(chunk, paths, strict=True):
+                job = self._layer_job(i, layer_paths, excluded_bodies)
+                size = sum(len(p.coords) for p in job.paths)
+                if pending and points + size > gcode.BATCH_POINTS:
+                    self._make_codes(pending, made)
+                    pending, points = [], 0
+                pending.append((slot, key, job))
+                points += size
         self._make_codes(pending, made)
         for k, source in later:
             code = made[source]
@@ -352,9 +369,11 @@ class SlicePlan:
             made[k] = code.moved_to(lo + k, self.layer_z(lo + k))
         return cast(list[gcode.LayerCode], made)
 
-    def _layer_job(self, i: int, excluded: frozenset[int]) -> gcode.LayerJob:
-        """What layer ``i``'s G-code is made from: its toolpaths, outline and owners."""
-        paths = self.layer_toolpaths(i, excluded)
+    def _layer_job(
+        self, i: int, paths: list[Path], excluded: frozenset[int]
+    ) -> gcode.LayerJob:
+        """What layer ``i``'s G-code is made from: its toolpaths ``paths``, outline and
+        owners."""
         outline = self.outline(i, excluded)
         if self._support is not None and self._support[i] is not None:
             outline = geom.union(outline, self._support[i])
