@@ -25,6 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
 import numpy as np
 import shapely
@@ -202,7 +203,7 @@ class _PlannedLayer:
 
 def _planned_layer(
     regions: LayerRegions, ctx: LayerContext, field: InfillField, outer_width: np.ndarray,
-    fill: np.ndarray, rings: list,
+    fill: np.ndarray, rings: list[Any],
 ) -> _PlannedLayer:
     """One layer's walls and infill runs (:class:`_PlannedLayer`) from its islands'
     walls and domains."""

@@ -21,7 +21,7 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("layer heights and face buckets", "slicer.plan", "_cut_model"),
     ("outlines", "slicer.lazycut", "LazyOutlines._cut"),
     ("skins", "slicer.skins", "SkinCache.get"),
-    ("walls", "slicer.plan", "layer_paths"),
+    ("walls", "slicer.plan", "layer_paths_many"),
     ("walls", "slicer.islands", "widen_thin_walls"),
     ("walls", "slicer.loops", "wall_loops"),
     ("infill", "slicer.layer", "_solid_small_regions"),
