@@ -153,11 +153,20 @@ def layer_paths_many(
         np.concatenate([layers[j][0].islands for j in busy]), w, settings.perimeters,
         fill_distance(settings), settings.wall_order,
     )
-    planned = [
-        _planned_layer(layers[j][0], layers[j][1], field, outer_width[a:b], fill[a:b],
-                       rings[a:b])
-        for j, a, b in zip(busy, first_island[:-1], first_island[1:], strict=True)
-    ]
+    spans = list(zip(busy, first_island[:-1], first_island[1:], strict=True))
+    fills = [_fill_regions(layers[j][0], layers[j][1], fill[a:b]) for j, a, b in spans]
+    # every layer's skin and sparse chords, hatched and stacked a line direction at a time
+    shortest = _MIN_PATH * w
+    asks = [_stack_asks(ctx_fill, layers[j][1], field) for (j, _, _), ctx_fill in
+            zip(spans, fills, strict=True)]
+    stacked = _stacks_many([ask for layer_asks in asks for ask in layer_asks], shortest)
+    planned = []
+    at = 0
+    for (j, a, b), layer_fill, layer_asks in zip(spans, fills, asks, strict=True):
+        answered = stacked[at : at + len(layer_asks)]
+        at += len(layer_asks)
+        planned.append(_planned_layer(layers[j][0], layers[j][1], field, outer_width[a:b],
+                                      rings[a:b], layer_fill, answered))
     # every layer's runs joined at once: each run keeps to its own island's domain
     runs = [(pts, ends, first_island[slot] + k)
             for slot, plan in enumerate(planned) for pts, ends, k in plan.runs]
@@ -201,15 +210,21 @@ class _PlannedLayer:
     pos: np.ndarray
 
 
-def _planned_layer(
-    regions: LayerRegions, ctx: LayerContext, field: InfillField, outer_width: np.ndarray,
-    fill: np.ndarray, rings: list[Any],
-) -> _PlannedLayer:
-    """One layer's walls and infill runs (:class:`_PlannedLayer`) from its islands'
-    walls and domains."""
+@dataclass
+class _FillRegions:
+    """A layer's infill regions per island: solid ``skin``, ``sparse``, and the skin
+    laid along its length (``skin_lines``, per island)."""
+
+    skin: np.ndarray
+    sparse: np.ndarray
+    skin_lines: list[list[np.ndarray]]
+
+
+def _fill_regions(regions: LayerRegions, ctx: LayerContext, fill: np.ndarray) -> _FillRegions:
+    """The skin and sparse regions of a layer's islands (infill domains ``fill``)."""
     settings = ctx.settings
-    islands = regions.islands
     w = settings.line_width
+    islands = regions.islands
     if regions.skin is not None and not regions.skin.is_empty:
         skin = _skin_by_island(fill, regions.skin)
         sparse = geom.difference(fill, regions.skin)
@@ -217,23 +232,47 @@ def _planned_layer(
         skin = np.full(len(islands), None, dtype=object)
         sparse = fill
     skin, sparse = _solid_small_regions(skin, sparse, settings.infill_solid_below_area)
-    shortest = _MIN_PATH * w
     skin_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
     if skinfill.wanted(settings):
         narrow, skin = skinfill.split_narrow(skin, w)
         skin_lines, skin = skinfill.along(narrow, skin, fill, w)
-    sparse_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
+    return _FillRegions(skin, sparse, skin_lines)
+
+
+# what a layer asks to be hatched and stacked: (groups of (regions, spacing), angle, layer)
+_StackAsk = tuple[list[tuple[np.ndarray, float]], float, int]
+
+
+def _stack_asks(regions: _FillRegions, ctx: LayerContext, field: InfillField) -> list[_StackAsk]:
+    """The stacks a layer needs: its skin's and, with the linear field, its sparse
+    infill's (one ask when both run one way: the same field, two spacings)."""
+    settings = ctx.settings
+    w = settings.line_width
     if isinstance(field, LinearField) and field.angle == settings.infill_angle:
-        # skin and sparse lines in one pass: the same field, two spacings
-        skin_stacks, sparse_stacks = _stacks(
-            [(skin, w), (sparse, sparse_spacing(settings))], field.angle, ctx.index, shortest
-        )
+        return [([(regions.skin, w), (regions.sparse, sparse_spacing(settings))],
+                 field.angle, ctx.index)]
+    asks = [([(regions.skin, w)], settings.infill_angle, ctx.index)]
+    if isinstance(field, LinearField):
+        asks.append(([(regions.sparse, sparse_spacing(settings))], field.angle, ctx.index))
+    return asks
+
+
+def _planned_layer(
+    regions: LayerRegions, ctx: LayerContext, field: InfillField, outer_width: np.ndarray,
+    rings: list[Any], fills: _FillRegions,
+    stacked: list[list[tuple[order.ChordStacks, int] | None]],
+) -> _PlannedLayer:
+    """One layer's walls and infill runs (:class:`_PlannedLayer`) from its islands'
+    walls, infill regions and the stacks it asked for (:func:`_stack_asks`)."""
+    islands = regions.islands
+    skin, sparse, skin_lines = fills.skin, fills.sparse, fills.skin_lines
+    sparse_lines: list[list[np.ndarray]] = [[] for _ in range(len(islands))]
+    if len(stacked) == 1 and len(stacked[0]) == 2:  # skin and sparse in one ask
+        skin_stacks, sparse_stacks = stacked[0]
     else:
-        (skin_stacks,) = _stacks([(skin, w)], settings.infill_angle, ctx.index, shortest)
+        (skin_stacks,) = stacked[0]
         if isinstance(field, LinearField):
-            (sparse_stacks,) = _stacks(
-                [(sparse, sparse_spacing(settings))], field.angle, ctx.index, shortest
-            )
+            (sparse_stacks,) = stacked[1]
         else:
             sparse_stacks = None
             sparse_lines = _sparse_lines(sparse, ctx, field)
@@ -253,9 +292,9 @@ def _planned_layer(
             ordered, pos = order.order_open_paths(skin_lines[k], pos)
             items.append((SKIN, len(runs)))
             runs.append((np.concatenate(ordered), np.cumsum([len(c) for c in ordered]), k))
-        for kind, stacked in ((SKIN, skin_stacks), (FILL, sparse_stacks)):
-            if stacked is not None:
-                stacks, first_group = stacked
+        for kind, kind_stacks in ((SKIN, skin_stacks), (FILL, sparse_stacks)):
+            if kind_stacks is not None:
+                stacks, first_group = kind_stacks
                 block, pos = order.walk_stacks(stacks, first_group + k, pos)
                 if len(block) == 0:
                     continue
@@ -267,7 +306,7 @@ def _planned_layer(
                 ends = np.cumsum([len(c) for c in ordered])
             else:
                 continue
-            if kind == SKIN and stacked is not None:
+            if kind == SKIN and kind_stacks is not None:
                 hatched_skin.append(len(runs))
             items.append((kind, len(runs)))
             runs.append((pts, ends, k))
@@ -417,39 +456,47 @@ def _island_order(box: np.ndarray, pos: np.ndarray) -> list[int]:
     return out
 
 
-def _stacks(
-    groups: list[tuple[np.ndarray, float]], angle: float, index: int, min_length: float
-) -> list[tuple[order.ChordStacks, int] | None]:
-    """Level sets of the linear field (Eq. 13, mirrored on odd layers) in every region, stacked.
+def _stacks_many(
+    asks: list[_StackAsk], min_length: float
+) -> list[list[tuple[order.ChordStacks, int] | None]]:
+    """Level sets of the linear field (Eq. 13, mirrored on odd layers) in every region,
+    stacked: for each ask ``(groups, angle, layer)`` (:func:`_stack_asks`), one entry
+    per group of ``(regions, spacing)`` (``regions`` (p,) one (Multi)Polygon or None
+    per island, lines ``spacing`` mm apart).
 
-    ``groups`` of ``(regions, spacing)``: ``regions`` (p,) one (Multi)Polygon or
-    None per island, lines ``spacing`` mm apart; all are hatched and stacked in
-    one pass. Chords shorter than ``min_length`` mm are dropped. Per group, the
-    stacks and the stacks' group of its first island (island ``k``'s chords are
+    The asks of one line direction (angle and parity) are hatched and stacked in one
+    pass, every region its own group of stacks, so a region's stacks are those of a
+    pass of its own. Chords shorter than ``min_length`` mm are dropped. Per group,
+    the stacks and the stacks' group of its first island (island ``k``'s chords are
     group ``first + k``, :func:`slicer.order.walk_stacks`); None where it has no
     chords at all.
     """
-    out: list[tuple[order.ChordStacks, int] | None] = [None] * len(groups)
-    todo = [j for j, (regions, spacing) in enumerate(groups) if spacing > 0 and len(regions)]
-    if not todo:
-        return out
-    mirror = index % 2 == 1
-    sizes = [len(groups[j][0]) for j in todo]
-    regions = np.concatenate([groups[j][0] for j in todo])
-    spacings = np.repeat([float(groups[j][1]) for j in todo], sizes)
-    chords, owner = hatch_many(regions, angle, mirror, spacings)
-    keep = geom.lengths(chords[:, 1] - chords[:, 0]) >= min_length
-    if not keep.any():
-        return out
-    chords, owner = chords[keep], owner[keep]
-    g, d = line_frame(angle, mirror)
-    # every region its own group of stacks: one pass for all the groups' islands
-    stacks = order.chord_stacks(chords, owner, len(regions), g, d, spacings[owner])
-    offsets = np.cumsum([0, *sizes])
-    has = np.bincount(owner, minlength=len(regions))
-    for j, lo, hi in zip(todo, offsets[:-1].tolist(), offsets[1:].tolist(), strict=True):
-        if has[lo:hi].any():
-            out[j] = (stacks, lo)
+    out: list[list[tuple[order.ChordStacks, int] | None]] = [
+        [None] * len(groups) for groups, _, _ in asks]
+    ways: dict[tuple[float, bool], list[tuple[int, int]]] = {}  # direction -> (ask, group)
+    for a, (groups, angle, index) in enumerate(asks):
+        for j, (regions, spacing) in enumerate(groups):
+            if spacing > 0 and len(regions):
+                ways.setdefault((angle, index % 2 == 1), []).append((a, j))
+    for (angle, mirror), todo in ways.items():
+        regions_of = [asks[a][0][j][0] for a, j in todo]
+        sizes = [len(r) for r in regions_of]
+        regions = np.concatenate(regions_of)
+        spacings = np.repeat([float(asks[a][0][j][1]) for a, j in todo], sizes)
+        chords, owner = hatch_many(regions, angle, mirror, spacings)
+        keep = geom.lengths(chords[:, 1] - chords[:, 0]) >= min_length
+        if not keep.any():
+            continue
+        chords, owner = chords[keep], owner[keep]
+        g, d = line_frame(angle, mirror)
+        # every region its own group of stacks: one pass for all the groups' islands
+        stacks = order.chord_stacks(chords, owner, len(regions), g, d, spacings[owner])
+        offsets = np.cumsum([0, *sizes])
+        has = np.bincount(owner, minlength=len(regions))
+        for (a, j), lo, hi in zip(todo, offsets[:-1].tolist(), offsets[1:].tolist(),
+                                  strict=True):
+            if has[lo:hi].any():
+                out[a][j] = (stacks, lo)
     return out
 
 
