@@ -25,7 +25,7 @@ STAGES: tuple[tuple[str, str, str], ...] = (
     ("walls", "slicer.islands", "widen_thin_walls"),
     ("walls", "slicer.loops", "wall_loops"),
     ("infill", "slicer.layer", "_solid_small_regions"),
-    ("infill", "slicer.layer", "_stacks"),
+    ("infill", "slicer.layer", "_stacks_many"),
     ("infill", "slicer.layer", "_sparse_lines"),
     ("ordering", "slicer.layer", "_island_order"),
     ("ordering", "slicer.loops", "order_loops"),
