@@ -351,8 +351,7 @@ class SlicePlan:
                 first_of[key] = len(made)
             wanted.append((len(made), key, i))
             made.append(None)
-        for start in range(0, len(wanted), _TOGETHER):
-            chunk = wanted[start : start + _TOGETHER]
+        for chunk in self._toolpath_chunks(wanted):
             paths = self._toolpaths([i for _, _, i in chunk], excluded_bodies)
             for (slot, key, i), layer_paths in zip(chunk, paths, strict=True):
                 job = self._layer_job(i, layer_paths, excluded_bodies)
@@ -368,6 +367,25 @@ class SlicePlan:
             assert code is not None
             made[k] = code.moved_to(lo + k, self.layer_z(lo + k))
         return cast(list[gcode.LayerCode], made)
+
+    def _toolpath_chunks(
+        self, wanted: list[tuple[int, bytes | None, int]]
+    ) -> list[list[tuple[int, bytes | None, int]]]:
+        """``wanted`` (slot, key, layer) in runs whose toolpaths are made together: at
+        most :data:`_TOGETHER` layers, and no more outline points than
+        :data:`slicer.gcode.BATCH_POINTS` unless one layer alone has more (a layer of
+        thousands of loops is made alone: the block's paths are held together)."""
+        chunks: list[list[tuple[int, bytes | None, int]]] = []
+        points = 0
+        for item in wanted:
+            size = int(shapely.get_num_coordinates(self._geo.outlines[item[2]]))
+            if not chunks or len(chunks[-1]) >= _TOGETHER or (
+                    points + size > gcode.BATCH_POINTS):
+                chunks.append([])
+                points = 0
+            chunks[-1].append(item)
+            points += size
+        return chunks
 
     def _layer_job(
         self, i: int, paths: list[Path], excluded: frozenset[int]
