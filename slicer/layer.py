@@ -133,8 +133,9 @@ def layer_paths_many(
 ) -> list[list[Path]]:
     """:func:`layer_paths` of every layer (``(regions, context)``, one settings for all),
     the same paths as one by one: the walls and domains of all their islands are made
-    in one pass (:func:`slicer.islands.island_geometry`), and so are the joints of all
-    their infill runs (:func:`slicer.order.join_runs`)."""
+    in one pass (:func:`slicer.islands.island_geometry`), their chords are hatched and
+    stacked a line direction at a time (:func:`_stacks_many`), and the joints of all
+    their infill runs are checked in one pass (:func:`slicer.order.join_runs`)."""
     out: list[list[Path]] = [[] for _ in layers]
     busy = [j for j, (regions, _) in enumerate(layers) if len(regions.islands)]
     for j, (regions, ctx) in enumerate(layers):
