@@ -27,6 +27,20 @@ def _cancellations() -> int:
     return task.cancelling() if task is not None else 0
 
 
+def cancel_requests() -> int:
+    """How many times the current task has been asked to stop (0 outside a task): read
+    before a call that may swallow a cancellation, for :func:`raise_if_cancelled_since`."""
+    return _cancellations()
+
+
+def raise_if_cancelled_since(before: int) -> None:
+    """Raise :class:`asyncio.CancelledError` when the current task was asked to stop
+    since :func:`cancel_requests` gave ``before``: a cancellation that an awaited call
+    (aiomqtt's connect, on 3.11) turned into its own error is not lost."""
+    if _cancellations() > before:
+        raise asyncio.CancelledError
+
+
 async def cancel_safe(awaitable: Awaitable[T]) -> T:
     """Await ``awaitable``; raise :class:`asyncio.CancelledError` if the current task was
     asked to stop meanwhile, even when the awaitable swallowed the cancellation."""

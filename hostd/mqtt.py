@@ -18,6 +18,7 @@ from typing import Any, Protocol
 import aiomqtt
 
 from drivers.backoff import Backoff  # the one reconnect policy (also the printer link's)
+from drivers.tasks import cancel_requests, raise_if_cancelled_since
 from hostd.api import Snapshot
 from hostd.homeassistant import HA_STATUS_TOPIC, DeviceTopics, discovery_messages
 from hostd.mqtt_calls import publish, subscribe
@@ -232,6 +233,8 @@ class MqttBridge:
         index = attempt = 0
         while True:
             host, port = brokers[index % len(brokers)]
+            asked = cancel_requests()
+            had_session = False
             try:
                 async with self._client(host, port) as client:
                     log.info("MQTT connected to %s:%s", host, port)
@@ -248,9 +251,16 @@ class MqttBridge:
                 log.exception("MQTT bridge failed; reconnecting")
             finally:
                 if self.connected.is_set():  # a full session: start the backoff over
+                    had_session = True
                     attempt = 0
                     self.connected.clear()
                     self.session_changed.set()
+            if not had_session:
+                # refused while connecting: aiomqtt waits for the broker's answer with
+                # asyncio.wait_for, which on 3.11 loses a cancellation that comes with a
+                # refusal, and the bridge would retry for ever after being stopped (no
+                # task group of ours ran yet, so the task's count is exact here)
+                raise_if_cancelled_since(asked)
             delay = self._backoff.delay(attempt // len(brokers), self._rng)
             attempt += 1
             index += 1

@@ -26,6 +26,7 @@ from typing import Protocol
 import aiomqtt
 
 from drivers.backoff import Backoff
+from drivers.tasks import cancel_requests, raise_if_cancelled_since
 from hostd.api import Snapshot
 from hostd.mqtt_calls import publish
 
@@ -71,8 +72,11 @@ class StandbyLink:
             others = [b for b in self._brokers if b != self._session.broker] or self._brokers
             host, port = others[tried % len(others)]
             tried += 1
+            asked = cancel_requests()
+            linked = False
             try:
                 async with self._client(host, port) as client:
+                    linked = True
                     self.broker = (host, port)
                     log.info("MQTT standby link to %s:%s", host, port)
                     attempt = 0
@@ -87,6 +91,8 @@ class StandbyLink:
                 pass  # the session came onto this broker: the link goes to another one
             finally:
                 self.broker = None
+            if not linked:  # refused while connecting: a cancellation lost there still counts
+                raise_if_cancelled_since(asked)
             await asyncio.sleep(self._backoff.delay(attempt // len(self._brokers), self._rng))
             attempt += 1
 
