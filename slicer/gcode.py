@@ -214,7 +214,7 @@ def _made_together(
     prime = f"G1 E{r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
     travels = format_moves(f"G0 F{_fpm(travel_f)} ", travel_b)
     # plain Python values for the per-path loop (numpy scalars are slow to index)
-    feed_of = {float(v): _fpm(float(v)) for v in np.unique(speeds).tolist()}
+    feed_of = {v: _fpm(v) for v in np.unique(speeds).tolist()}
     feeds = [feed_of[v] for v in speeds.tolist()]
     firsts, lasts = first_move.tolist(), last_move.tolist()
     kinds = [p.kind for p in paths]
@@ -283,19 +283,16 @@ def _budgeted(
     """The moves of every layer's packed paths (:func:`slicer.budget.budget_moves`):
     in one pass, or layer by layer where the budget looks along a layer's chain of
     moves (arcs bounded by the islands' scale, the wire's rate)."""
-    if len(layers) == 1 or not (arcs_wanted(settings) or line_rate(settings) > 0):
-        scale = None
-        if len(layers) == 1 and arcs_wanted(settings):
-            # the islands' scale bounds outer walls' arcs only: no arcs, no need to find it
-            scale = _island_scale(layers[0].outline, pts[starts], exact)
-        return budget_moves(pts, starts, ends, speeds, settings, loose, exact, scale)
+    arcs = arcs_wanted(settings)
+    if not (arcs or line_rate(settings) > 0):
+        return budget_moves(pts, starts, ends, speeds, settings, loose, exact)
     parts = []
     for job, p0, n in zip(layers, first_path.tolist(), counts.tolist(), strict=True):
         lo, hi = int(starts[p0]), int(ends[p0 + n - 1])
         s, e = starts[p0 : p0 + n] - lo, ends[p0 : p0 + n] - lo
         own = slice(p0, p0 + n)
-        scale = _island_scale(job.outline, pts[lo:hi][s], exact[own]) if arcs_wanted(
-            settings) else None
+        # the islands' scale bounds outer walls' arcs only: no arcs, no need to find it
+        scale = _island_scale(job.outline, pts[lo:hi][s], exact[own]) if arcs else None
         parts.append(budget_moves(pts[lo:hi], s, e, speeds[own], settings, loose[own],
                                   exact[own], scale))
     return _joined_moves(parts)
@@ -303,6 +300,8 @@ def _budgeted(
 
 def _joined_moves(parts: Sequence[Moves]) -> Moves:
     """Layers' moves one after the other, as one :class:`~slicer.budget.Moves`."""
+    if len(parts) == 1:
+        return parts[0]
     base = np.cumsum([0] + [len(m.pts) for m in parts[:-1]])
     return Moves(
         np.concatenate([m.pts for m in parts]),

@@ -103,10 +103,9 @@ def iter_layer_texts(
 
     fork = workers >= 2 and hasattr(os, "fork")
     probe = min(_PROBE, n) if fork else 0
-    tasks = [(0, min(probe, _PROBE // 2)), (_PROBE // 2, probe)] if probe else []
-    tasks = [(lo, hi) for lo, hi in tasks if lo < hi]
-    if not fork:
-        tasks = list(_chunks(0, n))
+    tasks = list(_chunks(0, n))
+    if fork:  # the layers timed here (0-3 and 4-7); while the outlines are cut, one by one
+        tasks = [(lo, hi) for lo, hi in tasks if hi <= probe]
     here: LayerWindow[tuple[str, float, float]] = LayerWindow(
         in_blocks(make, tasks), n, depth=1)
     try:

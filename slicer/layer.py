@@ -139,9 +139,8 @@ def layer_paths_many(
     out: list[list[Path]] = [[] for _ in layers]
     busy = [j for j, (regions, _) in enumerate(layers) if len(regions.islands)]
     for j, (regions, ctx) in enumerate(layers):
-        support = regions.support
-        if j not in busy and support_paths is not None and support is not None and (
-                not support.is_empty):
+        support = _support_region(regions)
+        if not len(regions.islands) and support_paths is not None and support is not None:
             b = support.bounds
             out[j] = _support(regions, ctx, support_paths, np.array([b[0], b[3]]))
     if not busy:
@@ -189,12 +188,16 @@ def layer_paths_many(
                 island = plan.runs[item[1]][2]
                 paths.extend(Path(item[0], coords, width, island) for coords in mine[item[1]])
         regions, ctx = layers[j]
-        has_support = (support_paths is not None and regions.support is not None
-                       and not regions.support.is_empty)
-        if support_paths is not None and has_support:
+        if support_paths is not None and _support_region(regions) is not None:
             paths.extend(_support(regions, ctx, support_paths, plan.pos))
         out[j] = paths
     return out
+
+
+def _support_region(regions: LayerRegions) -> shapely.Geometry | None:
+    """The layer's support region to fill, None when it has none."""
+    support = regions.support
+    return support if support is not None and not support.is_empty else None
 
 
 @dataclass

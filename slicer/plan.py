@@ -327,15 +327,13 @@ class SlicePlan:
         self, lo: int, hi: int, excluded_bodies: frozenset[int] = frozenset()
     ) -> list[gcode.LayerCode]:
         """:meth:`layer_code` of layers ``lo .. hi - 1``, the same bytes as one by one:
-        their G-code is made a few layers at a time (:func:`slicer.gcode.layer_codes`,
-        up to :data:`slicer.gcode.BATCH_POINTS` path points), which spends less per
-        layer on small layers."""
+        their toolpaths and G-code are made a few layers at a time
+        (:meth:`_toolpath_chunks`, :func:`slicer.gcode.layer_codes`), which spends less
+        per layer on small layers."""
         made: list[gcode.LayerCode | None] = []
         first_of: dict[bytes, int] = {}  # a key's first layer to be made here
         later: list[tuple[int, int]] = []  # (slot, slot of the layer it repeats)
         wanted: list[tuple[int, bytes | None, int]] = []  # (slot, key, layer) to make
-        pending: list[tuple[int, bytes | None, gcode.LayerJob]] = []  # (slot, key, job)
-        points = 0
         for i in (self._check(k) for k in range(self._check(lo), hi)):
             key = self._repeat_key(i, excluded_bodies)
             if key is not None:
@@ -353,15 +351,9 @@ class SlicePlan:
             made.append(None)
         for chunk in self._toolpath_chunks(wanted):
             paths = self._toolpaths([i for _, _, i in chunk], excluded_bodies)
-            for (slot, key, i), layer_paths in zip(chunk, paths, strict=True):
-                job = self._layer_job(i, layer_paths, excluded_bodies)
-                size = sum(len(p.coords) for p in job.paths)
-                if pending and points + size > gcode.BATCH_POINTS:
-                    self._make_codes(pending, made)
-                    pending, points = [], 0
-                pending.append((slot, key, job))
-                points += size
-        self._make_codes(pending, made)
+            self._make_codes([(slot, key, self._layer_job(i, layer_paths, excluded_bodies))
+                              for (slot, key, i), layer_paths in zip(chunk, paths, strict=True)],
+                             made)
         for k, source in later:
             code = made[source]
             assert code is not None
