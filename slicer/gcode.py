@@ -214,7 +214,7 @@ def _made_together(
     prime = f"G1 E{r:.5f} F{_fpm(settings.retract_speed)}" if r > 0 else ""
     travels = format_moves(f"G0 F{_fpm(travel_f)} ", travel_b)
     # plain Python values for the per-path loop (numpy scalars are slow to index)
-    feed_of = {v: _fpm(v) for v in np.unique(speeds).tolist()}
+    feed_of = {v: _fpm(v) for v in set(speeds.tolist())}
     feeds = [feed_of[v] for v in speeds.tolist()]
     firsts, lasts = first_move.tolist(), last_move.tolist()
     kinds = [p.kind for p in paths]

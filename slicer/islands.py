@@ -24,8 +24,8 @@ from slicer import loops
 
 # islands kept per thread (most recently used), and the most of their WKB kept, bytes
 # (the walls, rings and domain kept with an island take a few times its WKB)
-KEEP = 512
-KEEP_BYTES = 2_000_000
+KEEP = 2048
+KEEP_BYTES = 4_000_000
 # arcs of offset corners: segments per quarter circle
 _QUAD_SEGS = 6
 # a thin island's second wall level would cover less than this fraction of what the
@@ -96,6 +96,36 @@ def island_geometry(
     return widths, fills, [f[2] for f in got]
 
 
+def island_domains(
+    outlines: np.ndarray, w: float, perimeters: int, fill_distance: float, wall_order: str
+) -> np.ndarray:
+    """The infill domain of each of ``outlines`` (n,) (Multi)Polygons: its islands'
+    domains (:func:`island_geometry`, so their walls are made and kept with them),
+    gathered: (n,) object array of new geometries, a Polygon when one part is left, a
+    MultiPolygon when several, an empty Polygon when none. The islands of an outline
+    are disjoint, so their domains need no union; a thin island whose walls fill it
+    has no domain.
+    """
+    outlines = np.asarray(outlines, dtype=object)
+    islands, owner = shapely.get_parts(outlines, return_index=True)
+    _, fills, _ = island_geometry(islands, w, perimeters, fill_distance, wall_order)
+    parts, within = shapely.get_parts(fills, return_index=True)
+    keep = ~shapely.is_empty(parts)
+    parts, whose = parts[keep], owner[within[keep]]
+    out = np.empty(len(outlines), dtype=object)
+    out[:] = [shapely.Polygon()] * len(outlines)
+    counts = np.bincount(whose, minlength=len(outlines))
+    rows = np.flatnonzero(counts)
+    if len(rows):
+        # new geometries: the kept ones are private to this thread, these may be shared
+        gathered = shapely.multipolygons(parts, indices=np.searchsorted(rows, whose))
+        single = counts[rows] == 1
+        out[rows[~single]] = gathered[~single]
+        if single.any():
+            out[rows[single]] = shapely.get_geometry(gathered[single], 0)
+    return out
+
+
 def _offsets(
     islands: np.ndarray, w: float, perimeters: int, fill_distance: float, wall_order: str
 ) -> tuple[np.ndarray, np.ndarray, list[Any]]:
@@ -114,6 +144,10 @@ def _offsets(
     # a widened wall fills its island: specks of infill domain would lie on it
     fill = np.full(len(islands), shapely.Polygon(), dtype=object)
     rest = np.isnan(outer_width)
+    if len(levels) and fill_distance >= levels[-1]:
+        # nothing lies deeper inside an island than its innermost wall level reaches:
+        # where that is empty (thin struts, small pins) so is the domain
+        rest &= ~shapely.is_empty(walls[:, -1])
     fill[rest] = shapely.buffer(islands[rest], -fill_distance, quad_segs=_QUAD_SEGS)
     return outer_width, fill, loops.wall_loops(walls, wall_order)
 

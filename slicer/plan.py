@@ -10,6 +10,7 @@ with identical bytes.
 
 from __future__ import annotations
 
+import functools
 import importlib
 import os
 import threading
@@ -27,6 +28,7 @@ from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.fields.linear import LinearField
 from slicer.geom import private_copy
+from slicer.islands import island_domains
 from slicer.labels import nearest_body
 from slicer.layer import LayerRegions, Path, fill_distance, layer_paths_many
 from slicer.lazycut import LazyOutlines
@@ -130,6 +132,9 @@ class SlicePlan:
                 fill_distance(settings),
                 settings.top_layers,
                 settings.bottom_layers,
+                inward=functools.partial(
+                    island_domains, w=settings.line_width, perimeters=settings.perimeters,
+                    fill_distance=fill_distance(settings), wall_order=settings.wall_order),
             )
         )
         self._support: list[shapely.Geometry] | None = None
@@ -183,11 +188,10 @@ class SlicePlan:
         for key in ("layer_height", "first_layer_height"):
             if getattr(settings, key) != getattr(self.settings, key):
                 raise SettingsError(key, "cannot change once a model is cut into layers")
-        same_skins = (
-            settings.top_layers,
-            settings.bottom_layers,
-            fill_distance(settings),
-        ) == (self.settings.top_layers, self.settings.bottom_layers, fill_distance(self.settings))
+        same_skins = all(
+            getattr(settings, key) == getattr(self.settings, key)
+            for key in ("top_layers", "bottom_layers", "line_width", "perimeters", "wall_order")
+        ) and fill_distance(settings) == fill_distance(self.settings)
         return SlicePlan(self._geo, settings, self._skins if same_skins else None)
 
     def cut_all(self, threads: int = 1) -> None:

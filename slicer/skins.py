@@ -44,6 +44,7 @@ block at once.
 from __future__ import annotations
 
 import threading
+from collections.abc import Callable
 from typing import Protocol
 
 import numpy as np
@@ -73,16 +74,23 @@ def _labels(geoms: np.ndarray) -> np.ndarray:
                     dtype=np.int64)
 
 
-def _domains(outlines: np.ndarray, fill_distance: float) -> np.ndarray:
+def _domains(
+    outlines: np.ndarray, fill_distance: float,
+    inward: Callable[[np.ndarray], np.ndarray] | None = None,
+) -> np.ndarray:
     """Infill domains used to find skins, (n,) object array: each outline of ``outlines``
-    (n,) buffered inward by ``fill_distance`` and simplified by ``_SIMPLIFY``.
+    (n,) buffered inward by ``fill_distance`` (or ``inward(outlines)``, the layers' own
+    infill domains) and simplified by ``_SIMPLIFY``.
 
     Skins need no finer detail than this, and it halves the overlays' work on
     curved parts. Plain Douglas-Peucker is several times faster than the
     topology-preserving kind; the latter is used only where the former lost
     a part or a hole, or made an invalid polygon.
     """
-    fill = shapely.buffer(outlines, -fill_distance, quad_segs=6)
+    if inward is None:
+        fill = shapely.buffer(outlines, -fill_distance, quad_segs=6)
+    else:
+        fill = inward(outlines)
     fast: np.ndarray = shapely.simplify(fill, _SIMPLIFY, preserve_topology=False)
     lost = (_rings(fast) != _rings(fill)) | ~shapely.is_valid(fast)
     if lost.any():
@@ -194,14 +202,19 @@ class SkinCache:
 
     Infill domains and window intersections are kept for the blocks around
     (they are never prepared, so threads may share them); two threads making
-    the same one at once make the same geometry.
+    the same one at once make the same geometry. A layer's infill domain is
+    its outline buffered in by ``fill_distance``, or ``inward(outlines)`` when
+    given: the plan passes its islands' own domains, whose walls are then made
+    in the same pass and kept for the layers' toolpaths.
     """
 
     def __init__(
-        self, outlines: LayerOutlines, fill_distance: float, top: int, bottom: int, block: int = 16
+        self, outlines: LayerOutlines, fill_distance: float, top: int, bottom: int, block: int = 16,
+        inward: Callable[[np.ndarray], np.ndarray] | None = None,
     ) -> None:
         self._outlines = outlines
         self._fill_distance = fill_distance
+        self._inward = inward
         self._top = max(int(top), 0)
         self._bottom = max(int(bottom), 0)
         self._block = block
@@ -307,7 +320,7 @@ class SkinCache:
         fill[:] = known
         todo = np.array([k is _MISSING for k in known], dtype=bool)
         if todo.any():
-            fill[todo] = _domains(window[first[todo]], self._fill_distance)
+            fill[todo] = _domains(window[first[todo]], self._fill_distance, self._inward)
         with self._lock:
             for label, layer in enumerate(first):
                 self._fill.setdefault(a + int(layer), fill[label])
