@@ -21,6 +21,7 @@ import numpy as np
 import shapely
 
 from slicer import loops
+from slicer.inset import inset
 
 # islands kept per thread (most recently used), and the most of their WKB kept, bytes
 # (the walls, rings and domain kept with an island take a few times its WKB)
@@ -133,11 +134,9 @@ def _offsets(
     ``buffer(island, -c_k)``, ``c_k = (k + 1/2) w``, the domain ``buffer(island,
     -fill_distance)``."""
     levels = (np.arange(perimeters) + 0.5) * w
-    walls = (
-        shapely.buffer(islands[:, None], -levels[None, :], quad_segs=_QUAD_SEGS)
-        if len(levels)
-        else np.empty((len(islands), 0), dtype=object)
-    )
+    walls = np.empty((len(islands), len(levels)), dtype=object)
+    for k, level in enumerate(levels.tolist()):
+        walls[:, k] = inset(islands, level, _QUAD_SEGS)
     outer_width = np.full(len(islands), np.nan)  # NaN: the settings' line width
     if perimeters >= 2:
         walls, outer_width = widen_thin_walls(islands, walls, w)
@@ -148,7 +147,7 @@ def _offsets(
         # nothing lies deeper inside an island than its innermost wall level reaches:
         # where that is empty (thin struts, small pins) so is the domain
         rest &= ~shapely.is_empty(walls[:, -1])
-    fill[rest] = shapely.buffer(islands[rest], -fill_distance, quad_segs=_QUAD_SEGS)
+    fill[rest] = inset(islands[rest], fill_distance, _QUAD_SEGS)
     return outer_width, fill, loops.wall_loops(walls, wall_order)
 
 
@@ -212,7 +211,7 @@ def widen_thin_walls(
     if len(cand) == 0:
         return walls, width
     walls = walls.copy()
-    walls[cand, 0] = shapely.buffer(islands[cand], -wide / 2.0, quad_segs=_QUAD_SEGS)
+    walls[cand, 0] = inset(islands[cand], wide / 2.0, _QUAD_SEGS)
     walls[cand, 1:] = shapely.Polygon()
     width[cand] = wide
     return walls, width

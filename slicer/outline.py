@@ -32,7 +32,7 @@ class OutlineTolerances:
     which a chain may close as a hole (clockwise).
     """
 
-    simplify: float = 0.02
+    simplify: float = 0.01
     stitch_gap: float = 2.0
     max_gap: float = 60.0
     hole_gap: float = 10.0

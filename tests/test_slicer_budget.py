@@ -12,7 +12,7 @@ import trimesh
 
 from bench import gcodeparse
 from slicer.arcs import for_printer
-from slicer.budget import OUTER_ARC, budget_moves, line_rate
+from slicer.budget import OUTER_ARC, OUTER_LINES, OUTER_LOOP, budget_moves, line_rate
 from slicer.fields.base import LayerContext, get_field
 from slicer.fields.wave import mean_stretch
 from slicer.gcode import _pack
@@ -50,6 +50,32 @@ def test_walls_stay_within_the_resolution_of_the_level_set() -> None:
         simple = shapely.linestrings(mv.pts[mv.starts[k] : mv.ends[k]])
         assert shapely.hausdorff_distance(exact, simple, densify=0.05) <= tol + 1e-9
         assert np.array_equal(simple.coords[0], path.coords[0])  # seams stay put
+
+
+def test_a_long_outer_wall_keeps_closer_to_its_curve_than_a_short_one() -> None:
+    settings = SliceSettings.from_mapping({"gcode.arcs": "off"})
+    tol = settings.resolution
+
+    def loop(radius: float, sections: int) -> np.ndarray:
+        a = np.linspace(0.0, 2.0 * np.pi, sections + 1)
+        return np.column_stack([radius * np.cos(a), radius * np.sin(a)])
+
+    # a 128-gon of 19 mm: two sides make a chord 0.023 mm inside, more than 0.6 x 0.025
+    big, small = loop(19.0, 128), loop(1.4, 40)  # 119 mm and 8.8 mm around
+    assert shapely.length(shapely.linestrings(small)) < OUTER_LOOP
+    pts, starts, ends = _pack([big, small])
+    speeds = np.full(2, 40.0)
+
+    def kept(exact: bool) -> list[np.ndarray]:
+        mv = budget_moves(pts, starts, ends, speeds, settings, exact=np.array([exact] * 2))
+        return [mv.pts[mv.starts[k] : mv.ends[k]] for k in range(2)]
+
+    (big_outer, small_outer), (big_inner, small_inner) = kept(True), kept(False)
+    off = shapely.hausdorff_distance(shapely.linestrings(big), shapely.linestrings(big_outer),
+                                     densify=0.05)
+    assert off <= OUTER_LINES * tol + 1e-9
+    assert len(big_inner) < len(big_outer)  # an inner wall drops every other corner
+    assert np.array_equal(small_outer, small_inner)  # a short loop: the whole tolerance
 
 
 def test_sparse_infill_gets_its_own_tolerance() -> None:
@@ -311,23 +337,12 @@ def test_an_arc_is_checked_along_its_long_segments_not_only_at_points() -> None:
     assert _arcs_within(pts, mv, settings.resolution) >= 1
 
 
-def _outer_wall_ious(plans: list[SlicePlan], layers: range) -> list[float]:
-    """Per layer, the IoU of the region the first plan's outer walls enclose against the
-    second's (arcs read as 2-degree chords)."""
-    regions = [
-        gcodeparse.outer_wall_regions(gcodeparse.parse_moves(
-            p.start_gcode() + [line for i in layers for line in p.layer_gcode(i)]))
-        for p in plans
-    ]
-    assert len(regions[0]) == len(regions[1]) == len(layers)
-    return list(gcodeparse.layer_iou(*regions).values())
-
-
 @pytest.mark.parametrize(("radius", "inner"), [(4.0, 2.0), (2.5, 0.0)])
 def test_a_small_rings_outer_wall_keeps_its_region_with_arcs(radius: float, inner: float) -> None:
     # a tube 2 mm thick and a rod of 2.5 mm radius: an arc's deviation counts against a
     # small region, so their outer walls' arcs are held to the island's size (held to
-    # OUTER_ARC of the resolution alone, the IoU was 0.9964 and 0.9939)
+    # OUTER_ARC of the resolution alone, the IoU with the lines was 0.9964 and 0.9939)
+    # without arcs ("plain") or with them ("fitted")
     mesh = trimesh.creation.cylinder(radius=radius, height=1.0, sections=256)
     if inner:
         mesh = mesh.difference(trimesh.creation.cylinder(radius=inner, height=3.0, sections=256))
@@ -337,4 +352,17 @@ def test_a_small_rings_outer_wall_keeps_its_region_with_arcs(radius: float, inne
     layers = range(2, 4)
     # arcs are fitted (the inner walls' at least)
     assert any(line.startswith(("G2 ", "G3 ")) for i in layers for line in fitted.layer_gcode(i))
-    assert min(_outer_wall_ious([fitted, plain], layers)) >= 0.999
+    # against the level set itself (the layer's outline w/2 in): the arcs' region keeps
+    # to it, at least as closely as the lines' (whose corners lie on it, chords inside)
+    w = settings.line_width
+    level = {i: shapely.buffer(plain.outline(i), -w / 2, quad_segs=16) for i in layers}
+    agree = {}
+    for plan in (fitted, plain):
+        regions = gcodeparse.outer_wall_regions(gcodeparse.parse_moves(
+            plan.start_gcode() + [line for i in layers for line in plan.layer_gcode(i)]))
+        assert len(regions) == len(layers)
+        agree[plan.settings.gcode_arcs] = min(gcodeparse.layer_iou(
+            regions, dict(zip(sorted(regions), level.values(), strict=True))).values())
+    # (the arcs follow the mesh's circle, a few um outside the polygon's flats)
+    assert agree["on"] >= 0.998
+    assert agree["on"] >= agree["off"]

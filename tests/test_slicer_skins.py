@@ -195,3 +195,45 @@ def test_a_band_geos_cannot_overlay_exactly_is_filled_on_the_precision_grid() ->
             continue
         skin = g if wide[i] is None else g.union(wide[i])
         assert rest[i].difference(skin.buffer(1e-4)).area < 1e-6
+
+
+def _island_domains(outlines: np.ndarray) -> np.ndarray:
+    # the plan's domains: each island's own, walls of 0.4 mm, FILL mm in
+    from slicer.islands import island_domains
+
+    return island_domains(outlines, 0.4, 2, FILL, "outer_first")
+
+
+def test_skins_from_the_islands_domains_are_the_skins_of_the_buffered_outlines() -> None:
+    from slicer import islands
+
+    outlines = _stack()
+    islands.forget()
+    plain = skin_regions(outlines, FILL, 3, 3)
+    ours = SkinCache(outlines, FILL, 3, 3, inward=_island_domains).solve(0, len(outlines))
+    for i, (a, b) in enumerate(zip(plain, ours, strict=True)):
+        a = shapely.Polygon() if a is None else a
+        b = shapely.Polygon() if b is None else b
+        assert shapely.is_valid(b), i
+        assert a.symmetric_difference(b).area < 1e-6, i
+    # and the islands' walls were made on the way: the layers' toolpaths find them kept
+    assert islands._kept()
+
+
+def test_an_islands_domain_is_its_buffer_and_empty_inside_an_empty_wall() -> None:
+    from slicer.islands import island_domains, island_geometry
+
+    wide = shapely.box(0, 0, 10, 4).difference(shapely.box(3, 1, 4, 3))
+    strut = shapely.box(20, 0, 20.9, 8)  # its second wall level (0.6 mm in) is empty
+    layer = shapely.MultiPolygon([wide, strut])
+    got = island_domains(np.array([layer, shapely.MultiPolygon(), strut], dtype=object),
+                         0.4, 2, FILL, "outer_first")
+    want = shapely.buffer(wide, -FILL, quad_segs=6)
+    assert got[0].geom_type == want.geom_type == "MultiPolygon"  # the hole splits it
+    assert got[0].symmetric_difference(want).area < 1e-9
+    assert got[1].is_empty
+    assert got[2].is_empty
+    _, fill, rings = island_geometry(np.array([strut], dtype=object), 0.4, 2, FILL,
+                                     "outer_first")
+    assert fill[0].is_empty  # no domain
+    assert len(rings[0])  # but walls
