@@ -27,6 +27,9 @@ from slicer.inset import inset
 # (the walls, rings and domain kept with an island take a few times its WKB)
 KEEP = 2048
 KEEP_BYTES = 4_000_000
+# the most points of an outline whose infill domain is its islands' own (island_domains):
+# a 16-layer skin block's window of 22 such layers stays within a few hundred islands
+DOMAIN_POINTS = 1000
 # arcs of offset corners: segments per quarter circle
 _QUAD_SEGS = 6
 # a thin island's second wall level would cover less than this fraction of what the
@@ -100,30 +103,40 @@ def island_geometry(
 def island_domains(
     outlines: np.ndarray, w: float, perimeters: int, fill_distance: float, wall_order: str
 ) -> np.ndarray:
-    """The infill domain of each of ``outlines`` (n,) (Multi)Polygons: its islands'
-    domains (:func:`island_geometry`, so their walls are made and kept with them),
-    gathered: (n,) object array of new geometries, a Polygon when one part is left, a
-    MultiPolygon when several, an empty Polygon when none. The islands of an outline
-    are disjoint, so their domains need no union; a thin island whose walls fill it
-    has no domain.
+    """The infill domain of each of ``outlines`` (n,) (Multi)Polygons: (n,) object array
+    of new geometries, a Polygon when one part is left, a MultiPolygon when several, an
+    empty Polygon when none.
+
+    An outline of at most :data:`DOMAIN_POINTS` points gets its islands' own domains
+    (:func:`island_geometry`, so their walls are made and kept with them), gathered:
+    the islands of an outline are disjoint, so their domains need no union, and a
+    thin island whose walls fill it has none. A larger outline is buffered in whole,
+    as its islands' walls would not stay kept until its toolpaths are made (a layer
+    of thousands of loops). Which way a layer goes depends on the layer alone.
     """
     outlines = np.asarray(outlines, dtype=object)
-    islands, owner = shapely.get_parts(outlines, return_index=True)
+    out = np.empty(len(outlines), dtype=object)
+    out[:] = [shapely.Polygon()] * len(outlines)
+    large = shapely.get_num_coordinates(outlines) > DOMAIN_POINTS
+    if large.any():
+        out[large] = shapely.buffer(outlines[large], -fill_distance, quad_segs=_QUAD_SEGS)
+    small = np.flatnonzero(~large)
+    islands, owner = shapely.get_parts(outlines[small], return_index=True)
+    if len(islands) == 0:
+        return out
     _, fills, _ = island_geometry(islands, w, perimeters, fill_distance, wall_order)
     parts, within = shapely.get_parts(fills, return_index=True)
     keep = ~shapely.is_empty(parts)
     parts, whose = parts[keep], owner[within[keep]]
-    out = np.empty(len(outlines), dtype=object)
-    out[:] = [shapely.Polygon()] * len(outlines)
-    counts = np.bincount(whose, minlength=len(outlines))
+    counts = np.bincount(whose, minlength=len(small))
     rows = np.flatnonzero(counts)
     if len(rows):
         # new geometries: the kept ones are private to this thread, these may be shared
         gathered = shapely.multipolygons(parts, indices=np.searchsorted(rows, whose))
         single = counts[rows] == 1
-        out[rows[~single]] = gathered[~single]
+        out[small[rows[~single]]] = gathered[~single]
         if single.any():
-            out[rows[single]] = shapely.get_geometry(gathered[single], 0)
+            out[small[rows[single]]] = shapely.get_geometry(gathered[single], 0)
     return out
 
 

@@ -237,3 +237,16 @@ def test_an_islands_domain_is_its_buffer_and_empty_inside_an_empty_wall() -> Non
                                      "outer_first")
     assert fill[0].is_empty  # no domain
     assert len(rings[0])  # but walls
+
+
+def test_a_large_outline_is_buffered_whole_to_the_same_domain(monkeypatch) -> None:
+    from slicer import islands
+
+    outlines = _stack()
+    own = islands.island_domains(outlines, 0.4, 2, FILL, "outer_first")
+    islands.forget()
+    monkeypatch.setattr(islands, "DOMAIN_POINTS", 0)  # every outline counts as large
+    whole = islands.island_domains(outlines, 0.4, 2, FILL, "outer_first")
+    assert not islands._kept()  # no island's walls were made for it
+    for i, (a, b) in enumerate(zip(own, whole, strict=True)):
+        assert a.symmetric_difference(b).area < 1e-9, i
