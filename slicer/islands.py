@@ -117,10 +117,11 @@ def island_domains(
     outlines = np.asarray(outlines, dtype=object)
     out = np.empty(len(outlines), dtype=object)
     out[:] = [shapely.Polygon()] * len(outlines)
-    large = shapely.get_num_coordinates(outlines) > DOMAIN_POINTS
+    points = shapely.get_num_coordinates(outlines)
+    large = points > DOMAIN_POINTS
     if large.any():
         out[large] = shapely.buffer(outlines[large], -fill_distance, quad_segs=_QUAD_SEGS)
-    small = np.flatnonzero(~large)
+    small = np.flatnonzero(~large & (points > 0))
     islands, owner = shapely.get_parts(outlines[small], return_index=True)
     if len(islands) == 0:
         return out
