@@ -29,7 +29,7 @@ import numpy as np
 import shapely
 
 from slicer.arcs import Arcs, arcs_wanted, fit_arcs
-from slicer.geom import sorted_unique
+from slicer.geom import lengths, sorted_unique
 from slicer.settings import SliceSettings
 
 # bytes a move line takes on the wire with its line number and checksum (about 30
@@ -133,10 +133,10 @@ def _path_lengths(pts: np.ndarray, starts: np.ndarray, ends: np.ndarray) -> np.n
     """Length of each packed path ``pts[starts[i]:ends[i]]``, (n,) mm."""
     step = np.zeros(len(pts) + 1)
     if len(pts) > 1:
-        step[2:] = np.hypot(pts[1:, 0] - pts[:-1, 0], pts[1:, 1] - pts[:-1, 1])
+        step[2:] = lengths(np.diff(pts, axis=0))
     run = np.cumsum(step)  # run[k]: the steps into points 0 .. k - 1
-    lengths: np.ndarray = run[ends] - run[starts + 1]
-    return lengths
+    out: np.ndarray = run[ends] - run[starts + 1]
+    return out
 
 
 def _pieces(
