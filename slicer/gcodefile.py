@@ -127,18 +127,23 @@ def iter_layer_texts(
             yield from here
             return
         # outlines are cut lazily; cut them all once here so the workers inherit
-        # them instead of each cutting the blocks its layers and their skins need;
-        # the first layers are sliced here meanwhile (they need the first blocks only)
-        cutter = threading.Thread(target=plan.cut_all, kwargs={"threads": workers}, name="cut")
-        cutter.start()
-        try:
-            # a short cut is left alone: layer work here would hold the interpreter
-            # lock the cutting threads need between their array operations
-            cutter.join(_CUT_ALONE)
-            while here.taken < n and cutter.is_alive():
-                yield here.take()
-        finally:
-            cutter.join()
+        # them instead of each cutting the blocks its layers and their skins need
+        if plan.cut_threads(workers) <= 1:
+            # light blocks are mostly Python: layers sliced beside their cut would
+            # only take turns with it on the interpreter lock, and slow it
+            plan.cut_all()
+        else:  # heavy blocks: the first layers are sliced here meanwhile
+            cutter = threading.Thread(target=plan.cut_all, kwargs={"threads": workers},
+                                      name="cut")
+            cutter.start()
+            try:
+                # a short cut is left alone: layer work here would hold the
+                # interpreter lock the cutting threads need between array calls
+                cutter.join(_CUT_ALONE)
+                while here.taken < n and cutter.is_alive():
+                    yield here.take()
+            finally:
+                cutter.join()
     finally:
         here.close()
     done = here.taken

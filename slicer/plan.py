@@ -201,6 +201,11 @@ class SlicePlan:
         """
         self._geo.outlines.cut_all(threads)
 
+    def cut_threads(self, threads: int) -> int:
+        """How many threads :meth:`cut_all` would use, at most ``threads`` (one when
+        the blocks cut so far were light: see :meth:`LazyOutlines.cut_threads`)."""
+        return self._geo.outlines.cut_threads(threads)
+
     # ---- facts ----------------------------------------------------------
     @property
     def layer_count(self) -> int:

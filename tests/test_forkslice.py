@@ -58,6 +58,32 @@ def test_one_and_two_workers_write_the_same_bytes(
     assert (one.layers, one.filament_mm, one.time_s) == (two.layers, two.filament_mm, two.time_s)
 
 
+@pytest.mark.parametrize("worth", [0.0, 60.0], ids=["cut-on-threads", "cut-here"])
+def test_outlines_cut_before_forking_on_threads_or_here_give_the_same_bytes(
+    tmp_path, monkeypatch, worth: float
+) -> None:
+    """A fresh plan's outlines are cut whole before the workers fork: on threads while
+    layers are sliced here (heavy blocks) or on this thread alone (light ones)."""
+    import slicer.lazycut
+
+    path = box_stl(tmp_path / "box.stl", (12.0, 8.0, 40.0))
+    write_gcode(SlicePlan.from_file(path, SliceSettings()), tmp_path / "one.gcode", workers=1)
+    monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
+    monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", worth)
+    plan = SlicePlan.from_file(path, SliceSettings())
+    cut = plan.cut_all
+    used: list[int] = []
+
+    def counted(threads: int = 1) -> None:
+        used.append(plan.cut_threads(threads))
+        cut(threads)
+
+    monkeypatch.setattr(plan, "cut_all", counted)
+    write_gcode(plan, tmp_path / "two.gcode", workers=2)
+    assert used == [1 if worth else 2]
+    assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
+
+
 def test_forked_layers_come_back_in_order_from_other_processes(tall_box: SlicePlan) -> None:
     n = tall_box.layer_count
     here = [_layer_text(tall_box, i) for i in range(20)]

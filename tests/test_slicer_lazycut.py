@@ -79,3 +79,42 @@ def test_shells_cut_whole_on_threads_give_the_objects_of_one_thread(monkeypatch)
         assert shapely.to_wkb(one.outline(i)) == shapely.to_wkb(many.outline(i)), i
         assert np.array_equal(one.layer_bodies(i)[1], many.layer_bodies(i)[1]), i
         assert one.layer_gcode(i) == many.layer_gcode(i), i
+
+
+def test_light_blocks_are_cut_on_one_thread_heavy_ones_on_several(monkeypatch) -> None:
+    """Blocks that took under ``_THREADS_WORTH`` each are cut on the calling thread
+    (two would take turns on the interpreter lock); heavier ones on the threads
+    asked for, with the same outlines."""
+    import threading
+
+    import slicer.lazycut
+
+    mesh = prepare(*read_stl(DATA / "featuretype_mm.stl"), (220.0, 220.0, 250.0))
+    planes = cut_planes(layer_tops(mesh.height, SETTINGS), SETTINGS)
+
+    def cut_on(worth: float) -> tuple[int, set[str], list[bytes]]:
+        monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", worth)
+        outlines = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes, block=4)
+        assert outlines.cut_threads(2) == 2  # nothing cut yet: nothing known
+        outlines.outline(0)
+        threads = outlines.cut_threads(2)
+        names: set[str] = set()
+        cut = outlines._cut
+
+        def cut_here(b: int) -> object:
+            names.add(threading.current_thread().name)
+            return cut(b)
+
+        monkeypatch.setattr(outlines, "_cut", cut_here)
+        outlines.cut_all(threads=2)
+        return threads, names, [shapely.to_wkb(outlines[i]) for i in range(len(planes))]
+
+    light_threads, light_names, light = cut_on(60.0)
+    heavy_threads, heavy_names, heavy = cut_on(0.0)
+    assert light_threads == 1
+    assert light_names == {threading.main_thread().name}
+    assert heavy_threads == 2
+    assert heavy_names
+    assert heavy_names <= {"cut-0", "cut-1"}
+    assert light == heavy
+    assert len(planes) > 8
