@@ -21,13 +21,14 @@ from slicer.section import cut_block, face_layer_ranges
 
 _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
-# mean seconds per block cut so far from which :meth:`LazyOutlines.cut_all` uses
-# more than one thread: light blocks are mostly Python between short array
-# calls, and two threads then contend for the interpreter lock. A 450-layer
-# tower (2.8 ms a block) cut its 29 blocks in 0.056 s on one thread and in
-# 0.086-0.099 s on two; Benchy (16 ms a block) in 0.25 s on one, 0.17 s on
-# two; a plate of 16 parts (7.8 ms) 0.031 s against 0.027 s
-_THREADS_WORTH = 0.005
+# estimated seconds per block left from which :meth:`LazyOutlines.cut_threads`
+# says more than one thread: light blocks are mostly Python between short array
+# calls, and two threads then take turns on the interpreter lock. A 450-layer
+# tower (2.3 ms a block) cut its 29 blocks in 0.056 s on one thread and in
+# 0.086-0.099 s on two; a cone on a sphere (6 ms) 0.030 s against 0.032-0.057 s;
+# a plate of 16 parts (8 ms) 0.031 s against 0.027 s; Benchy (25 ms) 0.25 s
+# against 0.17 s
+_THREADS_WORTH = 0.007
 
 
 @dataclass(frozen=True)
@@ -112,13 +113,23 @@ class LazyOutlines:
 
     def cut_threads(self, threads: int) -> int:
         """How many threads :meth:`cut_all` would cut the blocks left on, at most
-        ``threads``: one when fewer than two blocks are left or the blocks cut so
-        far took under :data:`_THREADS_WORTH` each."""
+        ``threads``: one when fewer than two blocks are left or the blocks left are
+        light, an estimated :data:`_THREADS_WORTH` or less each (the mean time of
+        the blocks cut so far, scaled by the faces a block left has against them:
+        a sphere's pole is lighter than its middle)."""
         with self._lock:
-            left = self._block_count() - sum(1 for b in self._blocks if b < self._block_count())
-            light = bool(self._blocks) and (
-                self._cut_seconds < _THREADS_WORTH * len(self._blocks))
-        return 1 if threads <= 1 or left < 2 or light else threads
+            count = self._block_count()
+            done = [b for b in self._blocks if b < count]
+            left = [b for b in range(count) if b not in self._blocks]
+            seconds = self._cut_seconds
+        if threads <= 1 or len(left) < 2:
+            return 1
+        if not done:
+            return threads
+        faces = np.diff(self._offsets)
+        cut_faces = max(int(faces[done].sum()), 1)
+        per_block = seconds / len(done) * (faces[left].mean() * len(done) / cut_faces)
+        return 1 if per_block < _THREADS_WORTH else threads
 
     def cut_all(self, threads: int = 1) -> None:
         """Cut every block not cut yet, on up to ``threads`` threads.

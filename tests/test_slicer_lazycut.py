@@ -118,3 +118,25 @@ def test_light_blocks_are_cut_on_one_thread_heavy_ones_on_several(monkeypatch) -
     assert heavy_names <= {"cut-0", "cut-1"}
     assert light == heavy
     assert len(planes) > 8
+
+
+def test_blocks_left_are_judged_by_their_faces_against_the_blocks_cut(monkeypatch) -> None:
+    """The time of the blocks cut so far is scaled by the faces of the blocks left: a
+    sphere's top block (its pole, few faces) at 6 ms says its middle blocks are heavy;
+    a box's top block at 6 ms says its other blocks, alike, are light."""
+    import trimesh
+
+    import slicer.lazycut
+
+    monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", 0.007)
+    sphere = trimesh.creation.icosphere(subdivisions=4, radius=15.0)
+    box = trimesh.creation.box(extents=(10.0, 10.0, 30.0))
+    threads = []
+    for shape in (sphere, box):
+        mesh = prepare(np.asarray(shape.vertices), np.asarray(shape.faces), (220, 220, 250))
+        planes = cut_planes(layer_tops(mesh.height, SETTINGS), SETTINGS)
+        outlines = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes, block=16)
+        outlines.last_nonempty()  # the top block, as the whole-model pass cuts it
+        outlines._cut_seconds = 0.006  # its time, fixed here (measured in a slice)
+        threads.append(outlines.cut_threads(2))
+    assert threads == [2, 1]
