@@ -146,3 +146,33 @@ def _last_number(text: str) -> float | None:
         except ValueError:
             continue
     return None
+
+
+_PYTHON_LOOP = ("import time\nt = time.perf_counter()\nx = 0\nfor i in range(2_000_000):\n"
+                "    x += i\nprint(time.perf_counter() - t)")
+_NUMPY_SORT = ("import time, numpy as np\na = np.random.default_rng(1).random(4_000_000)\n"
+               "t = time.perf_counter()\na.sort()\nprint(time.perf_counter() - t)")
+
+
+def machine_speed(python: str, runs: int = 3) -> dict[str, float]:
+    """The machine's speed now, to set runs of one benchmark at different times side by
+    side: seconds of a fixed pure-Python loop (the interpreter: most of our slicing) and
+    of a numpy sort of 4 M floats (compiled code, as the peers are), medians of ``runs``
+    fresh processes of ``python``."""
+    import statistics
+
+    def seconds(code: str) -> float:
+        out = subprocess.run([python, "-c", code], capture_output=True, text=True, check=True,
+                             timeout=60)
+        return float(out.stdout.strip())
+
+    return {
+        "python_loop_s": statistics.median(seconds(_PYTHON_LOOP) for _ in range(runs)),
+        "numpy_sort_s": statistics.median(seconds(_NUMPY_SORT) for _ in range(runs)),
+    }
+
+
+def speed_line(speed: dict[str, float]) -> str:
+    """:func:`machine_speed` as one line."""
+    return (f"machine: Python loop {speed['python_loop_s']:.3f} s, numpy sort "
+            f"{speed['numpy_sort_s']:.3f} s, load average {os.getloadavg()[0]:.2f}")

@@ -30,7 +30,7 @@ if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import corpus_table, gcodeparse
-from bench.measure import RunResult, ensure_gnu_time, run_measured
+from bench.measure import RunResult, ensure_gnu_time, machine_speed, run_measured, speed_line
 from bench.peers import CACHE, Peer, available_peers
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -353,11 +353,16 @@ def main(argv: list[str] | None = None) -> int:
     if args.large:
         return large_case(args, config, gcode_dir)
     if args.corpus:
+        before = machine_speed(sys.executable)
+        print(speed_line(before), file=sys.stderr)
         rows = [measure_model(m, runners, args.repeat, args.timeout, config, gcode_dir,
                               compare=m.stem != "bad_triangle_soup")
                 for m in corpus_paths(args.models_dir, args.models)]
+        after = machine_speed(sys.executable)
         print(corpus_table.table(rows))
+        print(f"before: {speed_line(before)}\nafter:  {speed_line(after)}")
         results["corpus"] = [asdict(r) for r in rows]
+        results["machine_before"], results["machine_after"] = before, after
         (args.out / "corpus_vs_peers.json").write_text(json.dumps(results, indent=1))
         return 0
     if not args.scale_only:

@@ -54,3 +54,16 @@ def test_targets_follow_the_design_rules():
     text = corpus_table.table([_row(1.2, 1.0, 2.0)])
     assert "worst time ratio: 1.20 (m)" in text
     assert "m (time)" in text
+
+
+def test_machine_speed_times_the_interpreter_and_compiled_code_in_fresh_processes() -> None:
+    import sys
+
+    from bench.measure import machine_speed, speed_line
+
+    speed = machine_speed(sys.executable, runs=1)
+    assert set(speed) == {"python_loop_s", "numpy_sort_s"}
+    assert all(0.0 < s < 60.0 for s in speed.values())
+    line = speed_line(speed)
+    assert line.startswith("machine: Python loop ")
+    assert "numpy sort" in line
