@@ -241,12 +241,14 @@ def summarise(results: list[RunResult]) -> Measured:
     """Medians of the successful runs; the failure reason when none succeeded."""
     good = [r for r in results if r.ok]
     if not good:
-        return Measured(ok=False, reason=results[-1].reason() if results else "not run")
+        return Measured(ok=False,
+                        reason=_clean(results[-1].reason()) if results else "not run")
     rss = [r.rss_mb for r in good if r.rss_mb is not None]
     bad = [r for r in results if not r.ok]
     return Measured(
         ok=True,
-        reason=f"{len(bad)} of {len(results)} runs failed: {bad[0].reason()}" if bad else "",
+        reason=_clean(f"{len(bad)} of {len(results)} runs failed: {bad[0].reason()}")
+        if bad else "",
         wall_s=statistics.median(r.wall_s for r in good),
         peak_rss_mb=statistics.median(rss) if rss else None,
         runs=[round(r.wall_s, 3) for r in good],
@@ -296,7 +298,7 @@ def table(rows: list[Row]) -> str:
         iou = "-"
         if row.iou_vs_prusa is not None:
             iou = f"{row.iou_vs_prusa:.3f} ({_fmt(row.iou_vs_prusa_common, '.3f')})"
-        notes = [f"{name}: {_clean(m.reason)}" for name, m in r.items() if m.reason]
+        notes = [f"{name}: {m.reason}" for name, m in r.items() if m.reason]
         lines.append(
             f"| {row.model} | {row.faces:,} | {_cell(ours)} | {_cell(pr)} | {_cell(cu)} "
             f"| {_ratio(ours, pr)} | {_ratio(ours, cu)} | {layers} | {fil} | {iou} "
@@ -313,7 +315,7 @@ def scale_table(rows: list[Row]) -> str:
         r = row.results
         ours, cu = r.get("hostd"), r.get("curaengine")
         layers = "/".join(_fmt(m.layers if m else None, "d") for m in (ours, cu))
-        notes = [f"{name}: {_clean(m.reason)}" for name, m in r.items() if m.reason]
+        notes = [f"{name}: {m.reason}" for name, m in r.items() if m.reason]
         lines.append(f"| {row.model} | {row.faces:,} | {_cell(ours)} | {_cell(cu)} "
                      f"| {_ratio(ours, cu)} | {layers} | {'; '.join(notes)} |")
     return "\n".join(lines)

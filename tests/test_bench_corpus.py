@@ -67,3 +67,14 @@ def test_machine_speed_times_the_interpreter_and_compiled_code_in_fresh_processe
     line = speed_line(speed)
     assert line.startswith("machine: Python loop ")
     assert "numpy sort" in line
+
+
+def test_failure_reasons_name_the_models_relative_to_the_checkout() -> None:
+    from bench.measure import RunResult
+    from bench.slice_vs_peers import ROOT, summarise
+
+    model = ROOT.parent / "shared" / "models" / "soup.stl"
+    failed = RunResult(("hostd",), 2, 0.1, None, 0.0, "", f"hostd slice: {model}: not closed")
+    reason = summarise([failed]).reason
+    assert str(ROOT.parent) not in reason
+    assert "../shared/models/soup.stl: not closed" in reason
