@@ -168,7 +168,7 @@ def large_case(args: argparse.Namespace, config: Path, gcode_dir: Path) -> int:
         rss = result.rss_mb or 0.0
         verdict = "ok" if result.ok and rss < target else "**over**"
         print(f"| {model.stem} | {stl_faces(model):,} | {size_mb:.1f} MB | {result.wall_s:.2f} s "
-              f"| {rss:.0f} MB | {target:.0f} MB | {verdict} | {result.reason()} |")
+              f"| {rss:.0f} MB | {target:.0f} MB | {verdict} | {_clean(result.reason())} |")
     return 0
 
 

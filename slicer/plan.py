@@ -203,7 +203,7 @@ class SlicePlan:
 
     def cut_threads(self, threads: int) -> int:
         """How many threads :meth:`cut_all` would use, at most ``threads`` (one when
-        the blocks cut so far were light: see :meth:`LazyOutlines.cut_threads`)."""
+        the blocks left are estimated light: see :meth:`LazyOutlines.cut_threads`)."""
         return self._geo.outlines.cut_threads(threads)
 
     # ---- facts ----------------------------------------------------------
