@@ -10,7 +10,7 @@ import importlib
 import os
 import sys
 import threading
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from types import ModuleType
 
 # numpy's BLAS on one thread for the one-shot commands, unless the environment says
@@ -49,18 +49,13 @@ def _jobs(text: str) -> int:
     return value
 
 
-def build_parser() -> argparse.ArgumentParser:
-    """The argument parser of every subcommand."""
-    parser = argparse.ArgumentParser(
-        prog="hostd",
-        description="3D-printer host with a just-in-time implicit slicer.",
-    )
-    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
-
-    p = sub.add_parser("run", help="run the daemon (embedded default without --config)")
+def _run_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd run``."""
     p.add_argument("--config", metavar="FILE", help="configuration file (TOML)")
 
-    p = sub.add_parser("slice", help="slice a model to a G-code file")
+
+def _slice_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd slice``."""
     p.add_argument("model", metavar="MODEL")
     p.add_argument("-o", "--output", metavar="OUT.gcode", required=True)
     p.add_argument("--config", metavar="FILE", help="take [slicing] and [printer] from FILE")
@@ -74,8 +69,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--jobs", type=_jobs, metavar="N",
                    help="processes slicing layers (default: the CPUs; 1: this one only)")
 
-    p = sub.add_parser("tailor", help="Linear, Stress A and B G-codes at equal mass of a "
-                       "folder's model and load case, pictures, predicted moduli")
+
+def _tailor_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd tailor``."""
     p.add_argument("folder", metavar="DIR", help="holds NAME.stl, NAME.load.toml (NAME.toml)")
     p.add_argument("-o", "--output", metavar="OUTDIR", help="where to write (default DIR/out)")
     p.add_argument("--optimal", action="store_true",
@@ -83,7 +79,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", metavar="FILE", help="take [slicing] and [printer] from FILE")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
 
-    p = sub.add_parser("preview", help="draw one layer's toolpaths as PNG")
+
+def _preview_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd preview``."""
     p.add_argument("model", metavar="MODEL")
     p.add_argument("--layer", type=int, required=True, metavar="N",
                    help="layer N of the model, counted from 1 as everywhere (-1: the last)")
@@ -92,7 +90,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--config", metavar="FILE")
     p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
 
-    p = sub.add_parser("tui", help="the terminal dashboard")
+
+def _tui_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd tui``."""
     group = p.add_mutually_exclusive_group()
     group.add_argument("--config", metavar="FILE")
     group.add_argument("--socket", metavar="PATH")
@@ -112,26 +112,36 @@ def build_parser() -> argparse.ArgumentParser:
                         "fleet table) at most once every S seconds (default: "
                         "$HOSTD_TUI_REDRAW_S, else as the status comes)")
 
-    p = sub.add_parser("status", help="one status snapshot from the running daemon")
+
+def _status_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd status``."""
     p.add_argument("--json", action="store_true", help="print the raw JSON snapshot")
     _add_target(p)
 
-    p = sub.add_parser("resume", help="resume an interrupted job from its last completed layer")
+
+def _resume_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd resume``."""
     p.add_argument("job", metavar="JOB")
     _add_target(p)
 
-    p = sub.add_parser("history", help="finished jobs and totals (newest first)")
+
+def _history_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd history``."""
     fmt = p.add_mutually_exclusive_group()
     fmt.add_argument("--json", action="store_true", help="every field of every job, and totals")
     fmt.add_argument("--csv", action="store_true", help="one row per job")
     p.add_argument("--limit", type=int, metavar="N", help="the last N jobs only")
     p.add_argument("--config", metavar="FILE", help="daemon configuration (its state folder)")
 
-    p = sub.add_parser("reprint", help="queue a finished job again with its exact settings")
+
+def _reprint_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd reprint``."""
     p.add_argument("job", metavar="JOB", help="job id, or name (the newest with that name)")
     p.add_argument("--config", metavar="FILE", help="daemon configuration (TOML)")
 
-    p = sub.add_parser("print", help="stream a G-code file (or an STL) to a printer")
+
+def _print_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd print``."""
     p.add_argument("file", metavar="FILE")
     p.add_argument("--port", required=True, metavar="PORT", help="serial device, or 'sim'")
     p.add_argument("--baud", type=int, default=250000, metavar="N")
@@ -141,7 +151,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="simulated printer speed with --port sim (0 = instant)")
     p.add_argument("--quiet", action="store_true", help="no progress bar")
 
-    p = sub.add_parser("simulate", help="run the simulated printer on a pseudo-terminal")
+
+def _simulate_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd simulate``."""
     p.add_argument("--time-scale", type=float, default=1.0, metavar="X")
     p.add_argument("--baud", type=int, default=250000, metavar="N",
                    help="wire speed to emulate (0 = unlimited)")
@@ -156,6 +168,41 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the faults")
     p.add_argument("--link", metavar="PATH",
                    help="keep a symlink at PATH to the current pseudo-terminal")
+
+
+# subcommand -> (its help, what adds its arguments), in the order `hostd --help` lists them
+_SUBCOMMANDS: dict[str, tuple[str, Callable[[argparse.ArgumentParser], None]]] = {
+    "run": ("run the daemon (embedded default without --config)", _run_arguments),
+    "slice": ("slice a model to a G-code file", _slice_arguments),
+    "tailor": ("Linear, Stress A and B G-codes at equal mass of a folder's model and load "
+               "case, pictures, predicted moduli", _tailor_arguments),
+    "preview": ("draw one layer's toolpaths as PNG", _preview_arguments),
+    "tui": ("the terminal dashboard", _tui_arguments),
+    "status": ("one status snapshot from the running daemon", _status_arguments),
+    "resume": ("resume an interrupted job from its last completed layer", _resume_arguments),
+    "history": ("finished jobs and totals (newest first)", _history_arguments),
+    "reprint": ("queue a finished job again with its exact settings", _reprint_arguments),
+    "print": ("stream a G-code file (or an STL) to a printer", _print_arguments),
+    "simulate": ("run the simulated printer on a pseudo-terminal", _simulate_arguments),
+}
+
+
+def build_parser(command: str | None = None) -> argparse.ArgumentParser:
+    """The argument parser of every subcommand, or, given ``command``, of that one alone.
+
+    The others are then listed (``hostd --help`` is the same) but get no
+    arguments of their own: adding them all took some 10 ms of every ``hostd``
+    start, mostly help formatters each asking for the terminal's size.
+    """
+    parser = argparse.ArgumentParser(
+        prog="hostd",
+        description="3D-printer host with a just-in-time implicit slicer.",
+    )
+    sub = parser.add_subparsers(dest="command", required=True, metavar="COMMAND")
+    for name, (text, add_arguments) in _SUBCOMMANDS.items():
+        p = sub.add_parser(name, help=text)
+        if command is None or command == name:
+            add_arguments(p)
     return parser
 
 
@@ -198,7 +245,9 @@ def _import_command(name: str) -> ModuleType:
 
 def main(argv: Sequence[str] | None = None) -> int:
     """The command line: runs one subcommand and returns the process exit code."""
-    args = build_parser().parse_args(argv)
+    argv = sys.argv[1:] if argv is None else list(argv)
+    named = argv[0] if argv and argv[0] in _SUBCOMMANDS else None
+    args = build_parser(named).parse_args(argv)
     if args.command not in _BLAS_POOL_KEPT:
         for variable in _BLAS_VARIABLES:
             os.environ.setdefault(variable, "1")

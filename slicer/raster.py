@@ -197,14 +197,15 @@ class Picture:
         self.height, self.width = pixels.shape[:2]
 
     def png(self) -> bytes:
-        """The picture as a PNG file (8-bit RGBA, no filter, zlib level 9)."""
+        """The picture as a PNG file (8-bit RGBA, no filter, zlib's default level 6: level 9
+        took 7 ms for a 220 x 124 thumbnail, level 6 1 ms, for a file 5 % larger)."""
         rows = np.zeros((self.height, 1 + 4 * self.width), dtype=np.uint8)
         rows[:, 1:] = self.pixels.reshape(self.height, -1)
         header = struct.pack(">IIBBBBB", self.width, self.height, 8, 6, 0, 0, 0)
         return b"".join((
             b"\x89PNG\r\n\x1a\n",
             _chunk(b"IHDR", header),
-            _chunk(b"IDAT", zlib.compress(rows.tobytes(), 9)),
+            _chunk(b"IDAT", zlib.compress(rows.tobytes(), 6)),
             _chunk(b"IEND", b""),
         ))
 
