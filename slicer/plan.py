@@ -36,8 +36,6 @@ from slicer.mesh import PlacedMesh, prepare, read_stl
 from slicer.settings import SettingsError, SliceSettings
 from slicer.skins import SkinCache
 
-# layers whose outlines are cut together on first use (the skin cache's block)
-_CUT_BLOCK = 16
 _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
 # distinct layers whose G-code is kept for the identical layers that follow
@@ -556,7 +554,7 @@ def _cut_model(
     """
     tops = layer_tops(mesh.height, settings)
     planes = cut_planes(tops, settings)
-    outlines = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes, _CUT_BLOCK)
+    outlines = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes)
     top = outlines.last_nonempty()
     if top < 0:
         raise ModelError("no layer has a closed outline: the mesh does not enclose a solid")

@@ -140,3 +140,37 @@ def test_blocks_left_are_judged_by_their_faces_against_the_blocks_cut(monkeypatc
         outlines._cut_seconds = 0.006  # its time, fixed here (measured in a slice)
         threads.append(outlines.cut_threads(2))
     assert threads == [2, 1]
+
+
+def test_light_layers_are_cut_in_bigger_blocks_with_the_same_outlines(monkeypatch) -> None:
+    """A box's layers cross a dozen faces each: cut in blocks of 64 layers (the calls
+    per block, not the array work, are most of a light block's time); a fine sphere's
+    cross hundreds: blocks of 16. Either way the outlines are those of blocks of 16,
+    and a 64-layer block of 6 ms is judged as light as a 16-layer one of 1.5 ms."""
+    import trimesh
+
+    import slicer.lazycut
+    from slicer.lazycut import BLOCK, LIGHT_BLOCK
+
+    sphere = trimesh.creation.icosphere(subdivisions=5, radius=15.0)
+    box = trimesh.creation.box(extents=(10.0, 10.0, 30.0))
+    chosen = []
+    for shape in (sphere, box):
+        mesh = prepare(np.asarray(shape.vertices), np.asarray(shape.faces), (220, 220, 250))
+        planes = cut_planes(layer_tops(mesh.height, SETTINGS), SETTINGS)
+        auto = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes)
+        fixed = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes, block=BLOCK)
+        chosen.append(auto._block)
+        for i in range(len(planes)):
+            assert shapely.to_wkb(auto[i]) == shapely.to_wkb(fixed[i])
+    assert chosen == [BLOCK, LIGHT_BLOCK]
+    monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", 0.007)
+    mesh = prepare(np.asarray(box.vertices), np.asarray(box.faces), (220, 220, 250))
+    planes = cut_planes(layer_tops(mesh.height * 5, SETTINGS), SETTINGS)
+    outlines = LazyOutlines(mesh.vertices * [1, 1, 5], mesh.faces, mesh.face_body, planes)
+    assert outlines._block == LIGHT_BLOCK and outlines._block_count() >= 3
+    outlines.last_nonempty()
+    outlines._cut_seconds = 0.006  # a 64-layer block's time: 1.5 ms per 16 layers
+    assert outlines.cut_threads(2) == 1
+    outlines._cut_seconds = 0.040  # 10 ms per 16 layers
+    assert outlines.cut_threads(2) == 2
