@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import os
 import tempfile
-import threading
 import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
@@ -28,8 +27,6 @@ _PROBE = 8
 # walls took 0.30 s, and forked it finished in 0.34 s instead of 0.45 s; models
 # with less left were as fast either way (medians of 7, bench/.cache/corpus)
 _FORK_WORTH = 0.05
-# seconds the outline cut runs alone before the first layers are sliced beside it
-_CUT_ALONE = 0.05
 # tasks (of _CHUNK layers) a forked worker may have made or in hand beyond the one
 # being written: the window's depth in layers is _AHEAD * workers * _CHUNK
 _AHEAD = 2
@@ -129,21 +126,11 @@ def iter_layer_texts(
         # outlines are cut lazily; cut them all once here so the workers inherit
         # them instead of each cutting the blocks its layers and their skins need
         if plan.cut_threads(workers) <= 1:
-            # light blocks are mostly Python: layers sliced beside their cut would
-            # only take turns with it on the interpreter lock, and slow it
+            # light blocks: a fork and the outlines sent back would cost more than
+            # cutting them here
             plan.cut_all()
-        else:  # heavy blocks: the first layers are sliced here meanwhile
-            cutter = threading.Thread(target=plan.cut_all, kwargs={"threads": workers},
-                                      name="cut")
-            cutter.start()
-            try:
-                # a short cut is left alone: layer work here would hold the
-                # interpreter lock the cutting threads need between array calls
-                cutter.join(_CUT_ALONE)
-                while here.taken < n and cutter.is_alive():
-                    yield here.take()
-            finally:
-                cutter.join()
+        else:  # heavy blocks: a share in each of workers - 1 forked processes
+            plan.cut_in_processes(workers)
     finally:
         here.close()
     done = here.taken

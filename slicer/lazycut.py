@@ -9,6 +9,7 @@ any order, from any thread or forked process.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from dataclasses import dataclass
@@ -19,6 +20,9 @@ import shapely
 from slicer.outline import GapReport, OutlineTolerances, build_layers
 from slicer.section import cut_block, face_layer_ranges
 
+# per layer of a block its polygons (p,) object and their bodies (p,) int64, and
+# what its cut repaired
+Polygons = tuple[tuple[np.ndarray, ...], tuple[np.ndarray, ...], GapReport]
 _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
 # estimated seconds per block left from which :meth:`LazyOutlines.cut_threads`
@@ -180,6 +184,28 @@ class LazyOutlines:
         if failed:
             raise failed[0]
 
+    def cut_in_processes(self, processes: int) -> None:
+        """Cut every block not cut yet, here and in ``processes - 1`` forked processes at
+        once (:mod:`slicer.forkcut`): on this thread alone with one process, fewer than
+        two blocks left, or no ``fork``. Only where forking is safe: no other thread
+        of this process may hold a lock the children need."""
+        with self._lock:
+            todo = [b for b in range(self._block_count()) if b not in self._blocks]
+        if processes <= 1 or len(todo) < 2 or not hasattr(os, "fork"):
+            for b in todo:
+                self._get(b)
+            return
+        from slicer.forkcut import balanced_shares, cut_in_processes
+
+        shares = balanced_shares(todo, np.diff(self._offsets)[todo], processes)
+        cut_in_processes(shares, self._cut_polygons, self._keep)
+
+    def _keep(self, b: int, polygons: Polygons) -> None:
+        """Hold block ``b``, cut elsewhere (the first one kept stays)."""
+        block = _block(polygons)
+        with self._lock:
+            self._blocks.setdefault(b, block)
+
     def report(self) -> tuple[GapReport, int]:
         """What the blocks cut so far had to fix, and how many printed layers are empty."""
         with self._lock:
@@ -221,6 +247,11 @@ class LazyOutlines:
 
     def _cut(self, b: int) -> _Block:
         """Cut, chain and nest the layers of block ``b``."""
+        return _block(self._cut_polygons(b))
+
+    def _cut_polygons(self, b: int) -> Polygons:
+        """The polygons of block ``b``'s layers (cut, chained, nested), their bodies and
+        what the cut repaired."""
         first = b * self._block
         last = min(first + self._block, len(self._planes))
         faces = self._members[self._offsets[b] : self._offsets[b + 1]]  # ascending face index
@@ -234,13 +265,19 @@ class LazyOutlines:
         )
         polys = []
         bodies = []
-        outlines = []
         for i in range(first, last):
             p, body = layers.get(i, (_EMPTY, _NO_BODY))
             polys.append(p)
             bodies.append(body)
-            outlines.append(shapely.MultiPolygon() if len(p) == 0 else shapely.multipolygons(p))
-        return _Block(tuple(outlines), tuple(polys), tuple(bodies), report)
+        return tuple(polys), tuple(bodies), report
+
+
+def _block(polygons: Polygons) -> _Block:
+    """A block of its layers' polygons, bodies and report, with each layer's outline."""
+    polys, bodies, report = polygons
+    outlines = tuple(shapely.MultiPolygon() if len(p) == 0 else shapely.multipolygons(p)
+                     for p in polys)
+    return _Block(outlines, polys, bodies, report)
 
 
 def block_layers(lo: np.ndarray, hi: np.ndarray, layers: int) -> int:

@@ -199,6 +199,12 @@ class SlicePlan:
         """
         self._geo.outlines.cut_all(threads)
 
+    def cut_in_processes(self, processes: int) -> None:
+        """Cut every layer outline not cut yet here and in ``processes - 1`` forked
+        processes at once (:meth:`LazyOutlines.cut_in_processes`): only where forking
+        is safe, as before forking workers that share the outlines."""
+        self._geo.outlines.cut_in_processes(processes)
+
     def cut_threads(self, threads: int) -> int:
         """How many threads :meth:`cut_all` would use, at most ``threads`` (one when
         the blocks left are estimated light: see :meth:`LazyOutlines.cut_threads`)."""

@@ -4,6 +4,7 @@ process, errors carried back, the window's depth bounding what the workers make.
 from __future__ import annotations
 
 import os
+import time
 from collections.abc import Iterator
 
 import pytest
@@ -29,6 +30,15 @@ def forked_layers(layer, tasks: list[tuple[int, int]], workers: int, depth: int 
             yield from window
         finally:
             window.close()
+
+
+def meet(folder, count: int = 2, timeout_s: float = 30.0) -> None:
+    """Wait (in a worker) until ``count`` processes have called this with ``folder``:
+    the first layer each worker makes, so that every worker is sure to take a task."""
+    (folder / str(os.getpid())).touch()
+    deadline = time.monotonic() + timeout_s
+    while len(list(folder.iterdir())) < count and time.monotonic() < deadline:
+        time.sleep(0.005)
 
 
 @pytest.fixture(scope="module")
@@ -58,12 +68,13 @@ def test_one_and_two_workers_write_the_same_bytes(
     assert (one.layers, one.filament_mm, one.time_s) == (two.layers, two.filament_mm, two.time_s)
 
 
-@pytest.mark.parametrize("worth", [0.0, 60.0], ids=["cut-on-threads", "cut-here"])
-def test_outlines_cut_before_forking_on_threads_or_here_give_the_same_bytes(
+@pytest.mark.parametrize("worth", [0.0, 60.0], ids=["cut-in-processes", "cut-here"])
+def test_outlines_cut_before_forking_in_processes_or_here_give_the_same_bytes(
     tmp_path, monkeypatch, worth: float
 ) -> None:
-    """A fresh plan's outlines are cut whole before the workers fork: on threads while
-    layers are sliced here (heavy blocks) or on this thread alone (light ones)."""
+    """A fresh plan's outlines are cut whole before the workers fork: a share in a
+    forked child and the rest here (heavy blocks), or all on this thread (light
+    ones); the file is the one process's, byte for byte."""
     import slicer.lazycut
 
     path = box_stl(tmp_path / "box.stl", (12.0, 8.0, 40.0))
@@ -71,25 +82,30 @@ def test_outlines_cut_before_forking_on_threads_or_here_give_the_same_bytes(
     monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
     monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", worth)
     plan = SlicePlan.from_file(path, SliceSettings())
-    cut = plan.cut_all
-    used: list[int] = []
+    used: list[str] = []
+    for name in ("cut_all", "cut_in_processes"):
+        real = getattr(plan, name)
 
-    def counted(threads: int = 1) -> None:
-        used.append(plan.cut_threads(threads))
-        cut(threads)
+        def counted(*args, real=real, name=name) -> None:
+            used.append(name)
+            real(*args)
 
-    monkeypatch.setattr(plan, "cut_all", counted)
+        monkeypatch.setattr(plan, name, counted)
     write_gcode(plan, tmp_path / "two.gcode", workers=2)
-    assert used == [1 if worth else 2]
+    assert used == (["cut_all"] if worth else ["cut_in_processes"])
     assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
 
 
-def test_forked_layers_come_back_in_order_from_other_processes(tall_box: SlicePlan) -> None:
+def test_forked_layers_come_back_in_order_from_other_processes(
+    tall_box: SlicePlan, tmp_path
+) -> None:
     n = tall_box.layer_count
     here = [_layer_text(tall_box, i) for i in range(20)]
     pids: list[int] = []
 
     def layer(i: int) -> tuple[str, float, float]:
+        if i in (0, 4):  # the first layer of each of the first two tasks
+            meet(tmp_path)
         text, filament, seconds = _layer_text(tall_box, i)
         return f"{text};pid {os.getpid()}\n", filament, seconds
 
@@ -117,9 +133,13 @@ def test_a_worker_s_error_is_raised_here_and_the_workers_end() -> None:
     assert got == [f";{i}\n" for i in range(8)]
 
 
-def test_closing_early_stops_the_workers() -> None:
-    layers = forked_layers(lambda i: (f"{os.getpid()}", 1.0, 0.5), [(k, k + 1) for k in range(60)],
-                           2)
+def test_closing_early_stops_the_workers(tmp_path) -> None:
+    def layer(i: int) -> LayerText:
+        if i < 2:
+            meet(tmp_path)
+        return f"{os.getpid()}", 1.0, 0.5
+
+    layers = forked_layers(layer, [(k, k + 1) for k in range(60)], 2)
     pids = {int(next(layers)[0]), int(next(layers)[0])}
     assert len(pids) == 2
     assert os.getpid() not in pids
@@ -127,6 +147,45 @@ def test_closing_early_stops_the_workers() -> None:
     for pid in pids:
         with pytest.raises(ChildProcessError):
             os.waitpid(pid, os.WNOHANG)
+
+
+def test_a_slow_task_does_not_hold_up_the_tasks_after_it(tmp_path) -> None:
+    """Tasks go to whichever worker is free: while one worker is held on the first
+    task, the other makes every task after it (handed out in turn, half of them
+    would wait behind the slow one)."""
+    made = tmp_path / "made"
+    made.mkdir()
+
+    def layer(i: int) -> LayerText:
+        if i == 0:  # held until the other worker has made the 11 layers after it
+            deadline = time.monotonic() + 30.0
+            while len(list(made.iterdir())) < 11 and time.monotonic() < deadline:
+                time.sleep(0.005)
+        else:
+            (made / str(i)).write_text(str(os.getpid()))
+        return f"{os.getpid()}", 0.0, 0.0
+
+    tasks = [(k, k + 1) for k in range(12)]
+    pids = [int(text) for text, _f, _s in forked_layers(layer, tasks, 2, depth=12)]
+    assert len(pids) == 12
+    assert pids[0] not in pids[1:]
+    assert len(set(pids[1:])) == 1
+    assert sorted(int(p.name) for p in made.iterdir()) == list(range(1, 12))
+
+
+def test_a_worker_that_dies_fails_its_task_and_the_other_makes_the_rest(tmp_path) -> None:
+    """A worker killed in the middle of a task fails that task's layers (the window
+    raises there); the layers before it, made by the other worker, come back."""
+    def layer(i: int) -> LayerText:
+        if i == 5:
+            os.kill(os.getpid(), 9)
+        return f";{i}\n", 0.0, 0.0
+
+    got: list[str] = []
+    with pytest.raises(RuntimeError, match="ended before sending its layers"):
+        for text, _f, _s in forked_layers(layer, [(k, k + 1) for k in range(10)], 2):
+            got.append(text)
+    assert got == [f";{i}\n" for i in range(5)]
 
 
 def test_the_window_s_depth_bounds_what_the_workers_make(tmp_path) -> None:

@@ -168,7 +168,8 @@ def test_light_layers_are_cut_in_bigger_blocks_with_the_same_outlines(monkeypatc
     mesh = prepare(np.asarray(box.vertices), np.asarray(box.faces), (220, 220, 250))
     planes = cut_planes(layer_tops(mesh.height * 5, SETTINGS), SETTINGS)
     outlines = LazyOutlines(mesh.vertices * [1, 1, 5], mesh.faces, mesh.face_body, planes)
-    assert outlines._block == LIGHT_BLOCK and outlines._block_count() >= 3
+    assert outlines._block == LIGHT_BLOCK
+    assert outlines._block_count() >= 3
     outlines.last_nonempty()
     outlines._cut_seconds = 0.006  # a 64-layer block's time: 1.5 ms per 16 layers
     assert outlines.cut_threads(2) == 1
