@@ -1,77 +1,67 @@
-"""Outline blocks cut in forked processes beside this one, sent back as WKB.
+"""Outline blocks cut in a forked process beside this one, sent back as WKB.
 
 Cutting a block is numpy and shapely calls with Python between them: two
 threads cutting at once take turns on the interpreter lock (a lattice's 120 ms
 cut took 0.18 s on two threads with the first layers sliced beside them), where
-a forked process runs on its own core. Each child cuts its share of the blocks
-left (shares balanced by the faces each block holds), packs the polygons as
-WKB (exact: the same doubles come back) with each polygon's body and each
-block's repair report, writes them to a pipe and exits; this process cuts
-its own share meanwhile, then reads the others' back. A block's outlines do
-not depend on where they are cut, so the bytes are the same. A child that fails
-leaves its share to be cut here.
+a forked process runs on its own core. :class:`CutAway` forks a child that cuts
+the blocks left from the top down while this process goes on with its own work
+(the first layers, which need the bottom blocks); then this process cuts from
+the bottom up until the two meet, and keeps the child's blocks. Which blocks
+each has taken is one flag a block in shared memory, set before a block is
+begun: the two can at worst both cut the block where they meet, which gives the
+same polygons. The child packs the polygons as WKB (exact: the same doubles
+come back) with each polygon's body and each block's repair report. A block's
+outlines do not depend on where they are cut, so the bytes are the same; a
+child that fails leaves its blocks to be cut here.
 """
 
 from __future__ import annotations
 
 import contextlib
 import gc
+import mmap
 import os
 import pickle
+import signal
+import struct
 import threading
 from collections.abc import Callable, Sequence
+from typing import BinaryIO
 
 import numpy as np
 import shapely
 
 from slicer.lazycut import Polygons
 
-
-def balanced_shares(blocks: Sequence[int], weight: np.ndarray, shares: int) -> list[list[int]]:
-    """``blocks`` in ``shares`` lists of about equal total ``weight`` (one number per
-    block, e.g. its faces), each list ascending: the heaviest block first to the
-    lightest share."""
-    totals = [0.0] * shares
-    out: list[list[int]] = [[] for _ in range(shares)]
-    for k in np.argsort(-np.asarray(weight, dtype=np.float64), kind="stable").tolist():
-        lightest = totals.index(min(totals))
-        out[lightest].append(blocks[k])
-        totals[lightest] += float(weight[k])
-    return [sorted(share) for share in out]
+_LENGTH = struct.Struct("<q")  # bytes of one packed block that follow
 
 
-def cut_in_processes(
-    shares: Sequence[Sequence[int]],
-    cut: Callable[[int], Polygons],
-    keep: Callable[[int, Polygons], None],
-) -> None:
-    """Cut ``shares[0]`` here with ``cut(b)`` and every other share in a forked child;
-    ``keep(b, polygons)`` is given each block, here in the calling thread, in no
-    set order. A child's error, or its end before sending, has its blocks cut
-    here instead (the error itself is raised by that cut, if it recurs)."""
-    children = [_Child.fork(share, cut) for share in shares[1:] if share]
-    try:
-        for b in shares[0]:
-            keep(b, cut(b))
-    finally:
-        for child in children:
-            for b, polygons in child.collect(cut):
-                keep(b, polygons)
+class CutAway:
+    """The blocks ``todo`` (ascending) cut by ``cut(b)``: in a forked child from the
+    top down from now on, here from the bottom up in :meth:`meet`; every block is
+    given to ``keep(b, polygons)`` (in the thread calling :meth:`meet`).
 
+    The first ``reserved`` blocks are left to this process (the work it does
+    meanwhile needs them); ``done(b)`` says a block is had already (cut here
+    meanwhile), so :meth:`meet` does not cut it again. Needs ``os.fork``; only
+    where forking is safe (no other thread of this process holding a lock the
+    child needs).
+    """
 
-class _Child:
-    """A forked process cutting a share of blocks, and the thread reading its pipe."""
-
-    def __init__(self, pid: int, share: Sequence[int], fd: int) -> None:
-        self.pid = pid
-        self.share = list(share)
-        self._chunks: list[bytes] = []
-        self._reader = threading.Thread(target=self._read, args=(fd,), daemon=True,
-                                        name=f"cut-{pid}")
-        self._reader.start()
-
-    @classmethod
-    def fork(cls, share: Sequence[int], cut: Callable[[int], Polygons]) -> _Child:
+    def __init__(
+        self, todo: Sequence[int], cut: Callable[[int], Polygons],
+        keep: Callable[[int, Polygons], None], done: Callable[[int], bool], reserved: int = 0,
+    ) -> None:
+        self._todo = list(todo)
+        self._cut = cut
+        self._keep = keep
+        self._done = done
+        self._taken = mmap.mmap(-1, max(1, len(self._todo)))  # shared with the child
+        self._reserved = min(reserved, len(self._todo))
+        for k in range(self._reserved):
+            self._taken[k] = 1
+        self._records: list[bytes] = []
+        self._met = False
         read_end, write_end = os.pipe()
         gc.freeze()  # the parent's objects stay out of the child's collections: fewer pages
         try:
@@ -79,30 +69,75 @@ class _Child:
         finally:
             gc.unfreeze()
         if pid == 0:  # the child: never returns
-            code = 1
-            try:
-                os.close(read_end)
-                _write_all(write_end, pack({b: cut(b) for b in share}))
-                code = 0
-            finally:
-                os._exit(code)
+            os.close(read_end)
+            self._work(write_end)
         os.close(write_end)
-        return cls(pid, share, read_end)
+        self.pid = pid
+        self._reader = threading.Thread(target=self._read, args=(read_end,), daemon=True,
+                                        name=f"cut-{pid}")
+        self._reader.start()
+
+    def meet(self) -> None:
+        """Cut here, from the bottom up, the blocks the child has not begun; wait for it
+        and keep its blocks; cut here the blocks it failed to send."""
+        if self._met:
+            return
+        self._met = True
+        try:
+            for k, b in enumerate(self._todo):
+                if self._taken[k] and k >= self._reserved:
+                    break  # the child has it, and every block above
+                self._taken[k] = 1
+                if not self._done(b):
+                    self._keep(b, self._cut(b))
+        finally:
+            self._reader.join()
+            _, status = os.waitpid(self.pid, 0)
+        sent = set()
+        if os.waitstatus_to_exitcode(status) == 0:
+            with contextlib.suppress(Exception):  # unreadable: cut here below
+                for record in self._records:
+                    for b, polygons in unpack(record).items():
+                        self._keep(b, polygons)
+                        sent.add(b)
+        for b in self._todo:
+            if b not in sent and not self._done(b):
+                self._keep(b, self._cut(b))
+
+    def close(self) -> None:
+        """End the child without its blocks (when :meth:`meet` will not be called)."""
+        if self._met:
+            return
+        self._met = True
+        with contextlib.suppress(ProcessLookupError):
+            os.kill(self.pid, signal.SIGKILL)
+        self._reader.join()
+        os.waitpid(self.pid, 0)
+
+    def _work(self, pipe: int) -> None:
+        """In the child: cut the blocks not taken, top down, sending each; exit."""
+        code = 1
+        try:
+            for k in range(len(self._todo) - 1, -1, -1):
+                if self._taken[k]:
+                    break  # this process has it, and every block below
+                self._taken[k] = 1
+                b = self._todo[k]
+                data = pack({b: self._cut(b)})
+                _write_all(pipe, _LENGTH.pack(len(data)) + data)
+            code = 0
+        finally:
+            os._exit(code)
 
     def _read(self, fd: int) -> None:
+        """On a thread here: the child's records as they come (the pipe never fills)."""
         with open(fd, "rb", buffering=0) as pipe:
-            while chunk := pipe.read(1 << 20):
-                self._chunks.append(chunk)
-
-    def collect(self, cut: Callable[[int], Polygons]) -> list[tuple[int, Polygons]]:
-        """The child's blocks, once it has ended; its share cut with ``cut`` here when
-        it failed or sent what cannot be read."""
-        self._reader.join()
-        _, status = os.waitpid(self.pid, 0)
-        if os.waitstatus_to_exitcode(status) == 0:
-            with contextlib.suppress(Exception):
-                return list(unpack(b"".join(self._chunks)).items())
-        return [(b, cut(b)) for b in self.share]
+            while len(head := _read_exact(pipe, _LENGTH.size)) == _LENGTH.size:
+                (length,) = _LENGTH.unpack(head)
+                record = _read_exact(pipe, length)
+                if len(record) != length:
+                    return  # cut off: the blocks not read are cut here
+                self._records.append(record)
 
 
 def pack(blocks: dict[int, Polygons]) -> bytes:
@@ -140,6 +175,17 @@ def unpack(data: bytes) -> dict[int, Polygons]:
         out[b] = (polys, body, report)
         layer += count
     return out
+
+
+def _read_exact(pipe: BinaryIO, n: int) -> bytes:
+    """``n`` bytes from ``pipe``, fewer only at its end."""
+    data = b""
+    while len(data) < n:
+        chunk = pipe.read(n - len(data))
+        if not chunk:
+            break
+        data += chunk
+    return data
 
 
 def _write_all(fd: int, data: bytes) -> None:

@@ -27,6 +27,12 @@ _PROBE = 8
 # walls took 0.30 s, and forked it finished in 0.34 s instead of 0.45 s; models
 # with less left were as fast either way (medians of 7, bench/.cache/corpus)
 _FORK_WORTH = 0.05
+# an outline cut estimated to take this long or more (s) is begun in a forked process
+# while the first layers are sliced here: below it the fork, the WKB sent back and
+# the pages copied cost more than the overlap gains. The 158-layer lattice's 0.12 s
+# cut took 0.09 s beside 8 layers (0.04 s); a cone on a sphere, 0.03 s estimated,
+# about as long either way
+_CUT_AWAY_WORTH = 0.015
 # tasks (of _CHUNK layers) a forked worker may have made or in hand beyond the one
 # being written: the window's depth in layers is _AHEAD * workers * _CHUNK
 _AHEAD = 2
@@ -101,8 +107,13 @@ def iter_layer_texts(
     fork = workers >= 2 and hasattr(os, "fork")
     probe = min(_PROBE, n) if fork else 0
     tasks = list(_chunks(0, n))
-    if fork:  # the layers timed here (0-3 and 4-7); while the outlines are cut, one by one
+    if fork:  # the layers timed here (0-3 and 4-7)
         tasks = [(lo, hi) for lo, hi in tasks if hi <= probe]
+    # outlines are cut lazily; with cores to spare, a heavy cut is begun in a forked
+    # process, from the top down, while the first layers are sliced here
+    away = None
+    if fork and plan.cut_estimate() >= _CUT_AWAY_WORTH:
+        away = plan.cut_away(probe + plan.settings.top_layers + 1)
     here: LayerWindow[tuple[str, float, float]] = LayerWindow(
         in_blocks(make, tasks), n, depth=1)
     try:
@@ -116,6 +127,8 @@ def iter_layer_texts(
             timed = here.taken - min(here.taken, _PROBE // 2)
             per_layer = (time.perf_counter() - started) / max(timed, 1)
             fork = per_layer * (n - here.taken) >= _FORK_WORTH
+        if away is not None:  # the rest cut here from the bottom up, the child's kept
+            away.meet()
         if not fork:
             if probe and here.taken < n:  # the rest, task by task
                 here.close()
@@ -123,15 +136,12 @@ def iter_layer_texts(
                                    depth=1, first=here.taken)
             yield from here
             return
-        # outlines are cut lazily; cut them all once here so the workers inherit
-        # them instead of each cutting the blocks its layers and their skins need
-        if plan.cut_threads(workers) <= 1:
-            # light blocks: a fork and the outlines sent back would cost more than
-            # cutting them here
-            plan.cut_all()
-        else:  # heavy blocks: a share in each of workers - 1 forked processes
-            plan.cut_in_processes(workers)
+        # the outlines are all cut before forking, so the workers inherit them instead
+        # of each cutting the blocks its layers and their skins need
+        plan.cut_all()
     finally:
+        if away is not None:
+            away.close()  # the child ended, when the layers here failed first
         here.close()
     done = here.taken
     from slicer.forkslice import ForkedLayers

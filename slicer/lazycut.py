@@ -13,12 +13,16 @@ import os
 import threading
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import numpy as np
 import shapely
 
 from slicer.outline import GapReport, OutlineTolerances, build_layers
 from slicer.section import cut_block, face_layer_ranges
+
+if TYPE_CHECKING:
+    from slicer.forkcut import CutAway
 
 # per layer of a block its polygons (p,) object and their bodies (p,) int64, and
 # what its cut repaired
@@ -129,22 +133,35 @@ class LazyOutlines:
     def cut_threads(self, threads: int) -> int:
         """How many threads :meth:`cut_all` would cut the blocks left on, at most
         ``threads``: one when fewer than two blocks are left or the blocks left are
-        light, an estimated :data:`_THREADS_WORTH` or less per 16 layers (the mean
-        time of the blocks cut so far, scaled by the faces a block left has against
-        them: a sphere's pole is lighter than its middle)."""
+        light, an estimated :data:`_THREADS_WORTH` or less per 16 layers
+        (:meth:`cut_estimate`)."""
+        left = self._block_count() - len(self._cut_blocks())
+        if threads <= 1 or left < 2:
+            return 1
+        per_block = self.cut_estimate() / left
+        return 1 if per_block < _THREADS_WORTH * self._block / BLOCK else threads
+
+    def cut_estimate(self) -> float:
+        """Estimated seconds to cut the blocks left on one thread: the mean time of the
+        blocks cut so far, scaled by the faces the blocks left have against them (a
+        sphere's pole is lighter than its middle); inf when none is cut yet."""
         with self._lock:
             count = self._block_count()
-            done = [b for b in self._blocks if b < count]
+            done = self._cut_blocks()
             left = [b for b in range(count) if b not in self._blocks]
             seconds = self._cut_seconds
-        if threads <= 1 or len(left) < 2:
-            return 1
+        if not left:
+            return 0.0
         if not done:
-            return threads
+            return float("inf")
         faces = np.diff(self._offsets)
         cut_faces = max(int(faces[done].sum()), 1)
-        per_block = seconds / len(done) * (faces[left].mean() * len(done) / cut_faces)
-        return 1 if per_block < _THREADS_WORTH * self._block / BLOCK else threads
+        return seconds / cut_faces * float(faces[left].sum())
+
+    def _cut_blocks(self) -> list[int]:
+        """The printed blocks cut so far."""
+        count = self._block_count()
+        return [b for b in self._blocks if b < count]
 
     def cut_all(self, threads: int = 1) -> None:
         """Cut every block not cut yet, on up to ``threads`` threads.
@@ -184,21 +201,26 @@ class LazyOutlines:
         if failed:
             raise failed[0]
 
-    def cut_in_processes(self, processes: int) -> None:
-        """Cut every block not cut yet, here and in ``processes - 1`` forked processes at
-        once (:mod:`slicer.forkcut`): on this thread alone with one process, fewer than
-        two blocks left, or no ``fork``. Only where forking is safe: no other thread
-        of this process may hold a lock the children need."""
+    def cut_away(self, reserved_layers: int = 0) -> CutAway | None:
+        """Start cutting the blocks left in a forked process, from the top down, while
+        this one goes on (:class:`slicer.forkcut.CutAway`; its ``meet`` cuts the rest
+        here and keeps them all); the blocks of the first ``reserved_layers`` layers
+        are left to this process. None with fewer than two blocks left or no
+        ``fork``. Only where forking is safe: no other thread of this process may
+        hold a lock the child needs."""
         with self._lock:
             todo = [b for b in range(self._block_count()) if b not in self._blocks]
-        if processes <= 1 or len(todo) < 2 or not hasattr(os, "fork"):
-            for b in todo:
-                self._get(b)
-            return
-        from slicer.forkcut import balanced_shares, cut_in_processes
+        if len(todo) < 2 or not hasattr(os, "fork"):
+            return None
+        from slicer.forkcut import CutAway
 
-        shares = balanced_shares(todo, np.diff(self._offsets)[todo], processes)
-        cut_in_processes(shares, self._cut_polygons, self._keep)
+        reserved = -(-reserved_layers // self._block)
+        return CutAway(todo, self._cut_polygons, self._keep, self._has,
+                       sum(1 for b in todo if b < reserved))
+
+    def _has(self, b: int) -> bool:
+        with self._lock:
+            return b in self._blocks
 
     def _keep(self, b: int, polygons: Polygons) -> None:
         """Hold block ``b``, cut elsewhere (the first one kept stays)."""

@@ -17,7 +17,7 @@ import threading
 from collections import OrderedDict
 from collections.abc import Sequence
 from dataclasses import dataclass
-from typing import cast
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 import shapely
@@ -35,6 +35,9 @@ from slicer.lazycut import LazyOutlines
 from slicer.mesh import PlacedMesh, prepare, read_stl
 from slicer.settings import SettingsError, SliceSettings
 from slicer.skins import SkinCache
+
+if TYPE_CHECKING:
+    from slicer.forkcut import CutAway
 
 _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
@@ -199,11 +202,16 @@ class SlicePlan:
         """
         self._geo.outlines.cut_all(threads)
 
-    def cut_in_processes(self, processes: int) -> None:
-        """Cut every layer outline not cut yet here and in ``processes - 1`` forked
-        processes at once (:meth:`LazyOutlines.cut_in_processes`): only where forking
-        is safe, as before forking workers that share the outlines."""
-        self._geo.outlines.cut_in_processes(processes)
+    def cut_away(self, reserved_layers: int = 0) -> CutAway | None:
+        """Start cutting the outlines not cut yet in a forked process while this one
+        goes on (:meth:`LazyOutlines.cut_away`): only where forking is safe, as
+        before forking workers that share the outlines; its ``meet()`` ends it."""
+        return self._geo.outlines.cut_away(reserved_layers)
+
+    def cut_estimate(self) -> float:
+        """Estimated seconds to cut the outlines not cut yet on one thread
+        (:meth:`LazyOutlines.cut_estimate`)."""
+        return self._geo.outlines.cut_estimate()
 
     def cut_threads(self, threads: int) -> int:
         """How many threads :meth:`cut_all` would use, at most ``threads`` (one when

@@ -68,31 +68,28 @@ def test_one_and_two_workers_write_the_same_bytes(
     assert (one.layers, one.filament_mm, one.time_s) == (two.layers, two.filament_mm, two.time_s)
 
 
-@pytest.mark.parametrize("worth", [0.0, 60.0], ids=["cut-in-processes", "cut-here"])
-def test_outlines_cut_before_forking_in_processes_or_here_give_the_same_bytes(
+@pytest.mark.parametrize("worth", [0.0, 60.0], ids=["cut-away", "cut-here"])
+def test_outlines_cut_away_or_here_before_forking_give_the_same_bytes(
     tmp_path, monkeypatch, worth: float
 ) -> None:
-    """A fresh plan's outlines are cut whole before the workers fork: a share in a
-    forked child and the rest here (heavy blocks), or all on this thread (light
-    ones); the file is the one process's, byte for byte."""
-    import slicer.lazycut
-
+    """A fresh plan's outlines are all cut before the workers fork: a heavy cut begun
+    in a forked child while the first layers are sliced here, a light one here; the
+    file is the one process's, byte for byte."""
     path = box_stl(tmp_path / "box.stl", (12.0, 8.0, 40.0))
     write_gcode(SlicePlan.from_file(path, SliceSettings()), tmp_path / "one.gcode", workers=1)
     monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
-    monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", worth)
+    monkeypatch.setattr(gcodefile, "_CUT_AWAY_WORTH", worth)
     plan = SlicePlan.from_file(path, SliceSettings())
     used: list[str] = []
-    for name in ("cut_all", "cut_in_processes"):
-        real = getattr(plan, name)
+    real = plan.cut_away
 
-        def counted(*args, real=real, name=name) -> None:
-            used.append(name)
-            real(*args)
+    def counted(*args):
+        used.append("cut_away")
+        return real(*args)
 
-        monkeypatch.setattr(plan, name, counted)
+    monkeypatch.setattr(plan, "cut_away", counted)
     write_gcode(plan, tmp_path / "two.gcode", workers=2)
-    assert used == (["cut_all"] if worth else ["cut_in_processes"])
+    assert used == ([] if worth else ["cut_away"])
     assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
 
 

@@ -4,6 +4,7 @@ a failed child's share cut here instead, the blocks sent back bit for bit."""
 from __future__ import annotations
 
 import os
+import time
 
 import numpy as np
 import pytest
@@ -38,26 +39,38 @@ def same_outlines(a: LazyOutlines, b: LazyOutlines) -> None:
         assert bodies_a.dtype == bodies_b.dtype, i
 
 
-def test_blocks_cut_in_two_processes_are_those_of_one() -> None:
-    """The bunny (open underside: gaps bridged and chains dropped, reported) cut
-    here and in a child: every layer's outline, polygons, bodies and the repairs
-    reported are those of one thread; nothing was left uncut."""
+def test_blocks_cut_in_a_child_and_here_are_those_of_one_process() -> None:
+    """The bunny (open underside: gaps bridged and chains dropped, reported) cut by a
+    child from the top down and here from the bottom up: every layer's outline,
+    polygons, bodies and the repairs reported are those of one thread; the child
+    cut some blocks, reserved ones were left here."""
     one = outlines_of("bunny.stl")
     one.cut_all()
     two = outlines_of("bunny.stl")
-    two.cut_in_processes(2)
-    assert two._block_count() >= 2
+    kept: list[int] = []
+    keep = two._keep
+    two._keep = lambda b, polygons: (kept.append(b), keep(b, polygons))[1]
+    away = two.cut_away(reserved_layers=40)  # the first 3 blocks of 16
+    assert away is not None
+    two.outline(0)  # the first block cut here meanwhile
+    top = two._block_count() - 1
+    deadline = time.monotonic() + 30.0
+    while not away._taken[top] and time.monotonic() < deadline:
+        time.sleep(0.001)  # the child begins at the top
+    away.meet()
     assert set(two._blocks) == set(range(two._block_count()))
     same_outlines(one, two)
     assert one.report() == two.report()
-    todo = list(range(two._block_count()))
-    child = forkcut.balanced_shares(todo, np.diff(two._offsets)[todo], 2)[1]
-    assert any(two._blocks[b].report.closed for b in child)  # repairs came back from it
+    assert two.report()[0].closed > 0
+    # block 0 was cut here before meeting; 1 and 2 (reserved) here in meet(); the
+    # child's from the top down: the top block is among them
+    assert kept[:2] == [1, 2]
+    assert two._block_count() - 1 in kept[2:]
 
 
-def test_a_child_that_fails_leaves_its_share_to_be_cut_here(monkeypatch) -> None:
-    """A child whose cut raises (here: any block cut outside this process) sends
-    nothing and exits 1: its blocks are cut here, with the same outlines."""
+def test_a_child_that_fails_leaves_its_blocks_to_be_cut_here(monkeypatch) -> None:
+    """A child whose cut raises (here: any block cut outside this process) exits 1
+    having sent nothing: its blocks are cut here, with the same outlines."""
     parent = os.getpid()
     one = outlines_of("featuretype_mm.stl")
     one.cut_all()
@@ -72,9 +85,27 @@ def test_a_child_that_fails_leaves_its_share_to_be_cut_here(monkeypatch) -> None
         return real(self, b)
 
     monkeypatch.setattr(LazyOutlines, "_cut_polygons", only_here)
-    two.cut_in_processes(2)
-    assert sorted(cut_here) == list(range(two._block_count()))  # both shares, here
+    away = two.cut_away()
+    assert away is not None
+    away.meet()
+    assert sorted(cut_here) == list(range(two._block_count()))  # every block, here
     same_outlines(one, two)
+
+
+def test_closing_a_child_not_met_ends_it_and_keeps_nothing() -> None:
+    """:meth:`close` before :meth:`meet` kills and reaps the child; nothing of it is
+    kept, and the outlines are still cut here on demand."""
+    outlines = outlines_of("featuretype_mm.stl")
+    away = outlines.cut_away()
+    assert away is not None
+    away.close()
+    with pytest.raises(ChildProcessError):
+        os.waitpid(away.pid, os.WNOHANG)
+    assert not outlines._blocks
+    fresh = outlines_of("featuretype_mm.stl")
+    top = len(outlines) - 1
+    assert shapely.to_wkb(outlines[top]) == shapely.to_wkb(fresh[top])
+    assert len(outlines[top].geoms) > 0
 
 
 def test_packed_blocks_come_back_bit_for_bit_with_empty_layers() -> None:
@@ -96,14 +127,3 @@ def test_packed_blocks_come_back_bit_for_bit_with_empty_layers() -> None:
             assert np.array_equal(p, q)
             assert p.dtype == q.dtype
         assert got_report == report
-
-
-def test_shares_balance_the_blocks_weights() -> None:
-    """Heaviest first to the lightest share: weights 9, 1, 1, 1, 8, 2 in two shares
-    of 11 each; every block in exactly one share, each share ascending."""
-    shares = forkcut.balanced_shares([10, 11, 12, 13, 14, 15], np.array([9, 1, 1, 1, 8, 2]), 2)
-    weight = dict(zip([10, 11, 12, 13, 14, 15], [9, 1, 1, 1, 8, 2], strict=True))
-    assert sorted(b for share in shares for b in share) == [10, 11, 12, 13, 14, 15]
-    assert [sum(weight[b] for b in share) for share in shares] == [11, 11]
-    assert all(share == sorted(share) for share in shares)
-
