@@ -16,6 +16,12 @@ from tests.slicer_helpers import DATA
 SETTINGS = SliceSettings()
 
 
+def placed(shape):
+    """A trimesh shape placed on the bed, and the planes its layers are cut at."""
+    mesh = prepare(np.asarray(shape.vertices), np.asarray(shape.faces), (220, 220, 250))
+    return mesh, cut_planes(layer_tops(mesh.height, SETTINGS), SETTINGS)
+
+
 def test_layers_out_of_order_on_threads_equal_layers_in_order() -> None:
     ordered = SlicePlan.from_file(DATA / "bunny.stl", SETTINGS)
     layers = list(range(0, 48))
@@ -133,8 +139,7 @@ def test_blocks_left_are_judged_by_their_faces_against_the_blocks_cut(monkeypatc
     box = trimesh.creation.box(extents=(10.0, 10.0, 30.0))
     threads = []
     for shape in (sphere, box):
-        mesh = prepare(np.asarray(shape.vertices), np.asarray(shape.faces), (220, 220, 250))
-        planes = cut_planes(layer_tops(mesh.height, SETTINGS), SETTINGS)
+        mesh, planes = placed(shape)
         outlines = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes, block=16)
         outlines.last_nonempty()  # the top block, as the whole-model pass cuts it
         outlines._cut_seconds = 0.006  # its time, fixed here (measured in a slice)
@@ -156,8 +161,7 @@ def test_light_layers_are_cut_in_bigger_blocks_with_the_same_outlines(monkeypatc
     box = trimesh.creation.box(extents=(10.0, 10.0, 30.0))
     chosen = []
     for shape in (sphere, box):
-        mesh = prepare(np.asarray(shape.vertices), np.asarray(shape.faces), (220, 220, 250))
-        planes = cut_planes(layer_tops(mesh.height, SETTINGS), SETTINGS)
+        mesh, planes = placed(shape)
         auto = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes)
         fixed = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes, block=BLOCK)
         chosen.append(auto._block)
