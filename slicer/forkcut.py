@@ -82,7 +82,6 @@ class CutAway:
         and keep its blocks; cut here the blocks it failed to send."""
         if self._met:
             return
-        self._met = True
         try:
             for k, b in enumerate(self._todo):
                 if self._taken[k] and k >= self._reserved:
@@ -90,9 +89,12 @@ class CutAway:
                 self._taken[k] = 1
                 if not self._done(b):
                     self._keep(b, self._cut(b))
-        finally:
-            self._reader.join()
-            _, status = os.waitpid(self.pid, 0)
+        except BaseException:
+            self.close()  # the child would go on cutting every block below it
+            raise
+        self._met = True
+        self._reader.join()
+        _, status = os.waitpid(self.pid, 0)
         sent = set()
         if os.waitstatus_to_exitcode(status) == 0:
             with contextlib.suppress(Exception):  # unreadable: cut here below

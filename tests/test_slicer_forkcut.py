@@ -127,3 +127,25 @@ def test_packed_blocks_come_back_bit_for_bit_with_empty_layers() -> None:
             assert np.array_equal(p, q)
             assert p.dtype == q.dtype
         assert got_report == report
+
+
+def test_an_error_here_while_meeting_ends_the_child_and_is_raised(monkeypatch) -> None:
+    """A cut that fails in this process while meeting the child (a bad layer) is
+    raised at once, the child killed and reaped rather than left cutting."""
+    parent = os.getpid()
+    outlines = outlines_of("featuretype_mm.stl")
+    real = LazyOutlines._cut_polygons
+
+    def fails_here(self: LazyOutlines, b: int):
+        if os.getpid() == parent:
+            raise ValueError(f"block {b} cannot be cut")
+        return real(self, b)
+
+    monkeypatch.setattr(LazyOutlines, "_cut_polygons", fails_here)
+    away = outlines.cut_away()
+    assert away is not None
+    with pytest.raises(ValueError, match="block 0 cannot be cut"):
+        away.meet()
+    with pytest.raises(ChildProcessError):
+        os.waitpid(away.pid, os.WNOHANG)
+    away.close()  # nothing left to end
