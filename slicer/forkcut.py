@@ -26,11 +26,11 @@ import signal
 import struct
 import threading
 from collections.abc import Callable, Sequence
-from typing import BinaryIO
 
 import numpy as np
 import shapely
 
+from slicer.forkslice import write_all
 from slicer.lazycut import Polygons
 
 _LENGTH = struct.Struct("<q")  # bytes of one packed block that follow
@@ -126,21 +126,21 @@ class CutAway:
                 self._taken[k] = 1
                 b = self._todo[k]
                 data = pack({b: self._cut(b)})
-                _write_all(pipe, _LENGTH.pack(len(data)) + data)
+                write_all(pipe, _LENGTH.pack(len(data)) + data)
             code = 0
         finally:
             os._exit(code)
 
     def _read(self, fd: int) -> None:
-        """On a thread here: the child's records as they come (the pipe never fills)."""
-        with open(fd, "rb", buffering=0) as pipe:
-            while len(head := _read_exact(pipe, _LENGTH.size)) == _LENGTH.size:
+        """On a thread here: the child's records as they come (the pipe never fills);
+        a record cut off ends the reading, and the blocks not read are cut here."""
+        with open(fd, "rb") as pipe:
+            while len(head := pipe.read(_LENGTH.size)) == _LENGTH.size:
                 (length,) = _LENGTH.unpack(head)
-                record = _read_exact(pipe, length)
+                record = pipe.read(length)
                 if len(record) != length:
-                    return  # cut off: the blocks not read are cut here
+                    return
                 self._records.append(record)
-
 
 def pack(blocks: dict[int, Polygons]) -> bytes:
     """Blocks of polygons as bytes: the polygons' WKB in one vectorised call."""
@@ -150,10 +150,8 @@ def pack(blocks: dict[int, Polygons]) -> bytes:
     polygons = [p for b in ids for p in blocks[b][0]]
     bodies = [body for b in ids for body in blocks[b][1]]
     flat = np.concatenate(polygons) if polygons else np.empty(0, dtype=object)
-    wkb = shapely.to_wkb(flat)
-    lengths = np.fromiter((len(w) for w in wkb), dtype=np.int64, count=len(wkb))
     return pickle.dumps(
-        (ids, layers, counts, b"".join(wkb.tolist()), lengths,
+        (ids, layers, counts, shapely.to_wkb(flat).tolist(),
          np.concatenate(bodies) if bodies else np.empty(0, dtype=np.int64),
          [blocks[b][2] for b in ids]),
         protocol=pickle.HIGHEST_PROTOCOL,
@@ -162,12 +160,8 @@ def pack(blocks: dict[int, Polygons]) -> bytes:
 
 def unpack(data: bytes) -> dict[int, Polygons]:
     """The blocks :func:`pack` packed, polygons equal to the originals bit for bit."""
-    ids, layers, counts, joined, lengths, bodies, reports = pickle.loads(data)
-    ends = np.cumsum(lengths).tolist()
-    starts = [0, *ends[:-1]]
-    wkb = np.empty(len(ends), dtype=object)
-    wkb[:] = [joined[a:b] for a, b in zip(starts, ends, strict=True)]
-    flat = shapely.from_wkb(wkb)
+    ids, layers, counts, wkb, bodies, reports = pickle.loads(data)
+    flat = shapely.from_wkb(np.array(wkb, dtype=object))
     cuts = np.cumsum([0, *counts]).tolist()
     out: dict[int, Polygons] = {}
     layer = 0
@@ -177,20 +171,3 @@ def unpack(data: bytes) -> dict[int, Polygons]:
         out[b] = (polys, body, report)
         layer += count
     return out
-
-
-def _read_exact(pipe: BinaryIO, n: int) -> bytes:
-    """``n`` bytes from ``pipe``, fewer only at its end."""
-    data = b""
-    while len(data) < n:
-        chunk = pipe.read(n - len(data))
-        if not chunk:
-            break
-        data += chunk
-    return data
-
-
-def _write_all(fd: int, data: bytes) -> None:
-    view = memoryview(data)
-    while view:
-        view = view[os.write(fd, view):]

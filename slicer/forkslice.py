@@ -257,7 +257,7 @@ def _work(
             if len(record) != _TASK.size:
                 raise RuntimeError("a task number came cut in two")
             task = _TASK.unpack(record)[0]
-            _write_all(result_w, record)
+            write_all(result_w, record)
             taken = True
             lo, hi = tasks[task]
             made = make(lo, hi)
@@ -268,12 +268,12 @@ def _work(
                 data = text.encode("ascii")
                 out += _HEADER.pack(len(data), filament, seconds)
                 out += data
-            _write_all(result_w, out)
+            write_all(result_w, out)
             taken = False
     except BaseException as exc:  # sent to the parent, which raises it
         code = 1
         with contextlib.suppress(BaseException):
-            _write_all(result_w, (b"" if taken else _TASK.pack(-1)) + _error_record(exc))
+            write_all(result_w, (b"" if taken else _TASK.pack(-1)) + _error_record(exc))
     finally:
         os._exit(code)
 
@@ -303,7 +303,8 @@ def _raise_error(stream: BinaryIO, length: int | None = None) -> None:
     raise pickle.loads(_read_exact(stream, length))
 
 
-def _write_all(fd: int, data: bytes | bytearray) -> None:
+def write_all(fd: int, data: bytes | bytearray) -> None:
+    """Write all of ``data`` to the file descriptor ``fd`` (a pipe takes it in parts)."""
     view = memoryview(data)
     while view:
         view = view[os.write(fd, view):]

@@ -29,9 +29,11 @@ _PROBE = 8
 _FORK_WORTH = 0.05
 # an outline cut estimated to take this long or more (s) is begun in a forked process
 # while the first layers are sliced here: below it the fork, the WKB sent back and
-# the pages copied cost more than the overlap gains. The 158-layer lattice's 0.12 s
-# cut took 0.09 s beside 8 layers (0.04 s); a cone on a sphere, 0.03 s estimated,
-# about as long either way
+# the pages copied cost more than the overlap gains. Cut alone, the 158-layer
+# lattice's 0.126 s cut took 0.090 s in two processes; the whole slice of a cone on
+# a sphere (0.02 s estimated) took 0.295-0.299 s with its cut sent away, 0.308-0.315 s
+# without (medians of 9); at 0.015-0.02 s (a bracket, a plate with holes, a grid of
+# parts) 0.97-0.99x
 _CUT_AWAY_WORTH = 0.015
 # tasks (of _CHUNK layers) a forked worker may have made or in hand beyond the one
 # being written: the window's depth in layers is _AHEAD * workers * _CHUNK

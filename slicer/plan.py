@@ -213,11 +213,6 @@ class SlicePlan:
         (:meth:`LazyOutlines.cut_estimate`)."""
         return self._geo.outlines.cut_estimate()
 
-    def cut_threads(self, threads: int) -> int:
-        """How many threads :meth:`cut_all` would use, at most ``threads`` (one when
-        the blocks left are estimated light: see :meth:`LazyOutlines.cut_threads`)."""
-        return self._geo.outlines.cut_threads(threads)
-
     # ---- facts ----------------------------------------------------------
     @property
     def layer_count(self) -> int:
