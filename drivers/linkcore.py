@@ -65,6 +65,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.renumber: Renumber | None = None
         self.paused = False
         self.cancelled = False
+        self.stopping = False  # M112 queued or written: no job line goes after it
         self.started = False
         self.handshaking = False
         self.last_rx = 0.0  # any line received

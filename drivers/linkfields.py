@@ -36,6 +36,7 @@ class CoreFields:
     renumber: Renumber | None
     paused: bool
     cancelled: bool
+    stopping: bool
     force_replay: bool
     fenced: bool
     last_rx: float

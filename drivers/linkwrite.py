@@ -90,7 +90,7 @@ class Writing(CoreFields):
             return self._next_replay_line(now)
         if self.control:
             return self._next_control_line(now)
-        if self.pending and not self.paused and not self.cancelled:
+        if self.pending and not self.paused and not self.cancelled and not self.stopping:
             number = self.next_number
             if number >= self.config.renumber_at:
                 if len(self.window):
@@ -182,9 +182,10 @@ class Writing(CoreFields):
         if not self.window.has_room(len(data)):
             if not control.force:
                 return None
-            if control.probe and not self.may_force(len(data), now):
-                # into a receive buffer the model says full only as the silence doubles (an
-                # overrun merged a probe with the next line, checksum still matching)
+            if not self.may_force(len(data), now):
+                # into a receive buffer the model says full only as the silence doubles: an
+                # overrun merged a probe with the next line (checksum still matching), and
+                # cut an M112 short, to be asked for again only if more lines came
                 return None
         self.control.popleft()
         number = self._assign(control.command, internal=control.internal)
@@ -201,13 +202,21 @@ class Writing(CoreFields):
         self.history.pop(number - self.config.history, None)
         return number
 
-    def emergency(self, command: str) -> None:
-        """``command`` (``M112``, ``M108``, ``M410``) as the very next line, past the window
-        and any replay."""
+    def emergency(self, command: str) -> list[int]:
+        """``command`` (``M112``, ``M108``, ``M410``) as the very next line, past the line
+        window and any replay, into the first room in the printer's receive buffer.
+
+        ``M112`` also ends the job: the job lines not yet written are dropped (their
+        tokens returned, for the shell to fail) and none is written after it; the link
+        still answers the printer's resend requests, so an ``M112`` refused is sent again.
+        """
         self.queue_control(command, internal=False, force=True, front=True)
-        if command == "M112":
-            self.replay_next = None
-            self.force_replay = False
+        if command != "M112":
+            return []
+        self.replay_next = None
+        self.force_replay = False
+        self.stopping = True
+        return self.drop_pending()
 
     def pause(self, park: list[str]) -> None:
         """Stop job lines after those written; ``park`` lines go out first."""

@@ -63,7 +63,10 @@ __all__ = [
     "StreamerConfig",
 ]
 
-KILL_REPLY_S = 1.0  # an emergency stop waits this long for the printer's halt report
+KILL_REPLY_S = 1.0  # an emergency stop out of band waits this long for the halt report
+# without an emergency parser, M112 runs once the commands queued before it have been
+# taken (each may wait for room in a full planner): the link serves the printer that long
+KILL_QUEUED_S = 10.0
 
 
 class Streamer(Connecting):
@@ -222,6 +225,8 @@ class Streamer(Connecting):
         if self.core.cancelled:
             raise StreamCancelled("stream cancelled")
         self._check_alive()
+        if self.core.stopping:
+            raise LinkError("emergency stop")
         token, future = self._waiters.new()
         self._tags.queued(token, tag)
         self.core.queue_job(command, token)
@@ -282,22 +287,32 @@ class Streamer(Connecting):
     async def emergency_stop(self) -> None:
         """``M112`` at once: out of band with an emergency parser, else as the next line.
 
-        Then up to ``KILL_REPLY_S`` for the printer to report its halt, so that the port
-        is not closed (and what is still on the wire lost) before M112 has arrived; the
-        link is halted either way.
+        Job lines not yet written fail at once (:class:`LinkError`), and none is written
+        after the ``M112``. The link then waits for the printer to report its halt, up to
+        ``KILL_REPLY_S`` (out of band) or ``KILL_QUEUED_S`` (behind the printer's queue),
+        still answering its resend requests, so that an ``M112`` refused is sent again and
+        the port is not closed before it has arrived. Without that report the user is told
+        (``on_error``); the link is halted either way.
         """
         self._failed.clear()
         if "EMERGENCY_PARSER" in self.capable:
+            wait = KILL_REPLY_S
             with contextlib.suppress(TransportError):
                 await self._transport.write(b"M112\n")
         else:
-            self.core.emergency("M112")
+            wait = KILL_QUEUED_S
+            for token in self.core.emergency("M112"):
+                self._tags.dropped(token)
+                self._waiters.settle(token, error=LinkError("emergency stop"))
             await asyncio.sleep(0)
             await self._write_ready()
         if self.core.alive():
-            with contextlib.suppress(TimeoutError):
-                async with asyncio.timeout(KILL_REPLY_S):
+            try:
+                async with asyncio.timeout(wait):
                     await self._failed.wait()
+            except TimeoutError:
+                self.core.report(f"the printer did not report its halt within {wait:g} s of "
+                                 "the emergency stop (M112): it may still be moving")
         self.core.halt("emergency stop")
         self._dispatch(self.core.take_events())
 

@@ -493,6 +493,36 @@ def test_the_state_is_an_explicit_enum_and_halts_on_kill():
     assert any(not isinstance(e, Acked) for e in events)
 
 
+def test_an_m112_waits_for_room_in_the_receive_buffer_and_no_job_line_follows_it():
+    # it was forced into a receive buffer the model knew full: the board lost its end, and
+    # was asked for again only if more lines came (a CI run timed out waiting for it)
+    core = connected_core(LINK)
+    for i in range(40):
+        core.queue_job(f"G1 X{100 + i}.123 Y{50 + i}.456 E0.0123 F9000", 10 + i)
+    t = 0.01
+    written = _write_all(core, t)
+    in_flight = core.window.bytes_in_flight
+    stop = frame(core.next_number, "M112")
+    assert in_flight + len(stop) > LINK.rx_buffer  # the buffer as modelled has no room
+    dropped = core.emergency("M112")
+    assert dropped == list(range(10 + len(written), 50))  # the job lines not yet written
+    assert core.next_bytes(t) is None
+    core.feed("ok", t + 0.001)  # one line taken: room for the M112, and nothing after it
+    assert _write_all(core, t + 0.001) == [written[-1] + 1]
+    assert core.history[written[-1] + 1] == ("M112", False)
+    assert core.window.bytes_in_flight <= LINK.rx_buffer
+    core.queue_job("G1 X1", 99)  # the shell refuses these; the core would not write them
+    core.feed("ok", t + 0.002)
+    assert _write_all(core, t + 0.002) == []
+    # refused (its end cut off by noise): sent again
+    core.feed(f"Error:{ERR_CHECKSUM}{written[-1]}", t + 0.003)
+    core.feed(f"Resend: {written[-1] + 1}", t + 0.003)
+    core.feed("ok", t + 0.003)
+    assert _write_all(core, t + 0.003) == [written[-1] + 1]
+    core.feed("Error:Printer halted. kill() called!", t + 0.004)
+    assert core.state is LinkState.HALTED
+
+
 def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
     # the stall seen under load (bench/stall_hunt.py): lines 1-4 in flight, their oks lost;
     # a long silence sends a probe past the window at each probe interval, each a numbered

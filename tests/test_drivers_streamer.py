@@ -683,8 +683,17 @@ def test_emergency_stop_halts_the_printer_at_once(parser):
     with SimulatedPrinter(sim_config(time_scale=0.05, emergency_parser=parser)) as sim:
         link = asyncio.run(run(sim))
         executed = list(sim.executed)
+        stats = sim.stats()
     assert link.state == HALTED
     assert "M112" in executed
+    if not parser:
+        # never into a full receive buffer (whose overrun lost the M112's end), and no job
+        # line written after it (out of band, the parser reads it even from an overrun)
+        assert stats.rx_overflow_bytes == 0
+        assert stats.errors == 0
+        stop_number = max(n for n, (cmd, _) in link.core.history.items() if cmd == "M112")
+        assert all(internal for n, (_, internal) in link.core.history.items()
+                   if n > stop_number)
     body = job_lines(executed)
     stop = body.index("M112")
     assert body[:stop] == lines[:stop]
