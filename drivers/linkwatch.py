@@ -159,10 +159,18 @@ class Watching(CoreFields):
         if self.replay_next is not None:
             self.force_replay = True
         queued = next((c for c in self.control if c.probe), None)
-        if queued is not None:
+        if queued is None:
+            self.queue_control("M105", internal=True, probe=True, force=True)
+            queued = self.control.pop()
+        else:
             queued.force = True
-            return
-        self.queue_control("M105", internal=True, probe=True, force=True)
+            self.control.remove(queued)
+        # ahead of the lines waiting for room in the window (park or end G-code, a user's
+        # command): when the count holds room the printer has freed (oks lost), only a
+        # probe's answer frees it, and a probe behind them was never written (the link
+        # then declared a printer that answered every line dead)
+        at = next((k for k, c in enumerate(self.control) if not c.force), len(self.control))
+        self.control.insert(at, queued)
 
     def _watch_temperature(self, now: float) -> None:
         interval = self.config.temperature_interval_s

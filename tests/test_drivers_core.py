@@ -523,6 +523,31 @@ def test_an_m112_waits_for_room_in_the_receive_buffer_and_no_job_line_follows_it
     assert core.state is LinkState.HALTED
 
 
+def test_a_probe_passes_lines_waiting_for_room_when_the_oks_were_lost():
+    # a cancel's end G-code waited for room the count held wrongly (the oks of the lines
+    # in flight lost); the probe due was queued behind it, was never written, and the
+    # link declared the printer dead after its retries (a daemon test, under load)
+    core = connected_core(LINK)
+    for i in range(10):
+        core.queue_job(f"G1 X{100 + i}.123 Y{50 + i}.456 E0.0123 F9000", 10 + i)
+    t = 0.01
+    in_flight = _write_all(core, t)
+    end = ["M104 S0", "M140 S0", "M107", "M84"]
+    core.cancel(end)
+    assert _write_all(core, t) == []  # no room: the end G-code waits
+    probes: list[int] = []
+    while not probes:  # the oks are lost: silence, until a probe may pass the window
+        t += LINK.probe_after_s
+        core.tick(t)
+        probes = _write_all(core, t)
+        assert t < 60, "no probe written"
+    assert probes == [in_flight[-1] + 1]
+    assert core.history[probes[0]] == ("M105", True)
+    core.feed("ok T:20.0 /0.0 B:20.0 /0.0 @:0 B@:0", t)  # every line before it was done
+    assert [core.history[n][0] for n in _write_all(core, t)] == end
+    assert core.probes_unanswered == 0
+
+
 def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
     # the stall seen under load (bench/stall_hunt.py): lines 1-4 in flight, their oks lost;
     # a long silence sends a probe past the window at each probe interval, each a numbered
