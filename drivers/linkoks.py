@@ -101,6 +101,9 @@ class Acknowledging(CoreFields):
         answer sets the count right.
         """
         history = self.history
+        oldest = self.window.oldest()
+        if oldest is not None and oldest.number is None and not probe_answer:
+            return self.window.ack_one()  # a line written out of band, every one before done
         number = self.last_acked_number + 1
         if self._oks_lost:
             # the port was cut: oks of lines run meanwhile are lost, so the count is behind

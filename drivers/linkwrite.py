@@ -218,6 +218,14 @@ class Writing(CoreFields):
         self.stopping = True
         return self.drop_pending()
 
+    def out_of_band(self, command: str) -> None:
+        """``command`` was written unnumbered, straight after the lines already written
+        (``M108`` or ``M410`` to an emergency parser). Marlin acts on it at once and still
+        queues it, answering ``ok`` in its place in the stream: it is in flight like the
+        lines before it. Uncounted, its ``ok`` acknowledged the next line before the
+        printer had run it."""
+        self.window.push(InFlight(None, command, len(command) + 1, internal=True))
+
     def pause(self, park: list[str]) -> None:
         """Stop job lines after those written; ``park`` lines go out first."""
         self.paused = True

@@ -406,6 +406,7 @@ class Streamer(Connecting):
     async def _urgent(self, command: str) -> None:
         if "EMERGENCY_PARSER" in self.capable:
             await self._transport.write(f"{command}\n".encode())
+            self.core.out_of_band(command)
         else:
             self.core.emergency(command)
             self._wake.set()

@@ -93,6 +93,10 @@ class SendWindow:
         self._entries.append(entry)
         self._bytes += entry.nbytes
 
+    def oldest(self) -> InFlight | None:
+        """The line written first of those in flight (None: nothing in flight)."""
+        return self._entries[0] if self._entries else None
+
     def ack_one(self) -> list[InFlight]:
         """A plain ``ok``: the oldest line is done."""
         if not self._entries:
@@ -124,10 +128,16 @@ class SendWindow:
                 entry = entries.popleft()  # the usual case: the oldest line, nothing else
                 self._bytes -= entry.nbytes
                 return [entry]
-        done = [e for e in entries if e.number is None or e.number <= number]
+        # an unnumbered line (written out of band) is done once a line after it is
+        last = max((k for k, e in enumerate(entries)
+                    if e.number is not None and e.number <= number), default=-1)
+        done: list[InFlight] = []
+        kept: deque[InFlight] = deque()
+        for k, e in enumerate(entries):
+            finished = k < last if e.number is None else e.number <= number
+            (done if finished else kept).append(e)
         if done:
-            self._entries = deque(e for e in self._entries
-                                  if e.number is not None and e.number > number)
+            self._entries = kept
             self._bytes -= sum(e.nbytes for e in done)
         return done
 

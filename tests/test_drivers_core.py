@@ -548,6 +548,27 @@ def test_a_probe_passes_lines_waiting_for_room_when_the_oks_were_lost():
     assert core.probes_unanswered == 0
 
 
+def test_an_out_of_band_m108_takes_its_own_ok_not_the_next_lines():
+    # an emergency parser acts on M108 at once, and Marlin still queues the line and
+    # answers ok for it; uncounted, that ok acknowledged the next line before it ran
+    core = connected_core(LINK)
+    for i in range(2):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    t = 0.01
+    before = _write_all(core, t)
+    core.out_of_band("M108")  # written raw after them: a slot of the printer's queue
+    core.queue_job("G1 X9", 20)
+    after = _write_all(core, t)
+    assert after == [before[-1] + 1]
+    acked = []
+    for _ in before:
+        acked += _acked(core.feed("ok", t))
+    assert acked == before
+    assert _acked(core.feed("ok", t)) == []  # the M108's
+    assert _acked(core.feed("ok", t)) == after
+    assert not len(core.window)
+
+
 def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
     # the stall seen under load (bench/stall_hunt.py): lines 1-4 in flight, their oks lost;
     # a long silence sends a probe past the window at each probe interval, each a numbered
