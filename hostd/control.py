@@ -48,19 +48,33 @@ def _claim_path(path: Path) -> None:
 
 
 def _bind_private(path: Path) -> socket.socket:
-    """A listening Unix stream socket at ``path`` with mode 0600, set before ``listen``."""
+    """A listening Unix stream socket at ``path`` with mode 0600, set before ``listen``.
+
+    It is bound and listening under a temporary name beside ``path``, then renamed
+    into place, so a client that sees the file can connect: bound at ``path``
+    itself, a client connecting between ``bind`` and ``listen`` was refused. A
+    ``path`` too close to the length limit for a longer name is bound in place.
+    """
     if len(os.fsencode(path)) > _SUN_PATH_MAX:
         raise ControlSocketError(f"socket path too long ({_SUN_PATH_MAX} bytes at most): {path}")
     path.parent.mkdir(parents=True, exist_ok=True)
     _claim_path(path)
+    aside = path.with_name(f".{path.name}.{os.getpid()}")
+    if len(os.fsencode(aside)) > _SUN_PATH_MAX:
+        aside = path
+    aside.unlink(missing_ok=True)
     sock = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
     try:
-        sock.bind(str(path))
-        os.chmod(path, 0o600)  # nobody can connect before listen(), so no window
+        sock.bind(str(aside))
+        os.chmod(aside, 0o600)  # nobody can connect before listen(), so no window
         sock.listen(64)
         sock.setblocking(False)
+        if aside != path:
+            os.replace(aside, path)
     except OSError:
         sock.close()
+        if aside != path:
+            aside.unlink(missing_ok=True)
         raise
     return sock
 

@@ -233,6 +233,32 @@ def test_a_live_socket_or_another_file_is_never_taken_over(tmp_path: Path) -> No
     assert path.read_text() == "not a socket"
 
 
+def test_the_socket_file_appears_only_once_it_listens(tmp_path: Path, monkeypatch) -> None:
+    # bound at its own path, a client that saw the file between bind() and listen() was
+    # refused; it is now bound aside and renamed into place once listening
+    from hostd import control
+
+    path = tmp_path / "hostd.sock"
+    seen: list[bool] = []
+
+    class Watched(socket.socket):
+        def listen(self, *args: Any) -> None:
+            seen.append(path.exists())
+            super().listen(*args)
+
+    monkeypatch.setattr(control.socket, "socket", Watched)
+    sock = control._bind_private(path)
+    monkeypatch.undo()
+    try:
+        assert seen == [False]
+        assert stat.S_IMODE(path.stat().st_mode) == 0o600
+        assert [p.name for p in tmp_path.iterdir()] == ["hostd.sock"]  # nothing left aside
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
+            client.connect(str(path))
+    finally:
+        sock.close()
+
+
 def run_cli(*args: str) -> Callable[[], Awaitable[tuple[int, str, str]]]:
     async def call() -> tuple[int, str, str]:
         proc = await asyncio.create_subprocess_exec(
