@@ -569,6 +569,31 @@ def test_an_out_of_band_m108_takes_its_own_ok_not_the_next_lines():
     assert not len(core.window)
 
 
+def test_an_out_of_band_m108_lost_to_an_overrun_leaves_the_count_behind_until_a_probe():
+    # its bytes never reached the queue, so no ok of its comes: the count lags one line
+    # (a line acknowledged late, never early) until silence brings a probe
+    core = connected_core(LINK)
+    for i in range(2):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    t = 0.01
+    before = _write_all(core, t)
+    core.out_of_band("M108")
+    core.queue_job("G1 X9", 20)
+    after = _write_all(core, t)
+    acked = []
+    for _ in before + after:  # the printer's oks: one for each numbered line
+        acked += _acked(core.feed("ok", t))
+    assert acked == before  # the last ok taken for the M108: behind, not ahead
+    probes: list[int] = []
+    while not probes:
+        t += LINK.probe_after_s
+        core.tick(t)
+        probes = _write_all(core, t)
+        assert t < 60, "no probe written"
+    assert _acked(core.feed("ok T:20.0 /0.0 B:20.0 /0.0 @:0 B@:0", t)) == after
+    assert not len(core.window)
+
+
 def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
     # the stall seen under load (bench/stall_hunt.py): lines 1-4 in flight, their oks lost;
     # a long silence sends a probe past the window at each probe interval, each a numbered
