@@ -493,14 +493,20 @@ def test_the_state_is_an_explicit_enum_and_halts_on_kill():
     assert any(not isinstance(e, Acked) for e in events)
 
 
+def _fill_window(core: LinkCore, count: int, t: float) -> list[int]:
+    """``count`` job moves (tokens from 10) queued; the numbers of those written at ``t``
+    (as many as the window holds)."""
+    for i in range(count):
+        core.queue_job(f"G1 X{100 + i}.123 Y{50 + i}.456 E0.0123 F9000", 10 + i)
+    return _write_all(core, t)
+
+
 def test_an_m112_waits_for_room_in_the_receive_buffer_and_no_job_line_follows_it():
     # it was forced into a receive buffer the model knew full: the board lost its end, and
     # was asked for again only if more lines came (a CI run timed out waiting for it)
     core = connected_core(LINK)
-    for i in range(40):
-        core.queue_job(f"G1 X{100 + i}.123 Y{50 + i}.456 E0.0123 F9000", 10 + i)
     t = 0.01
-    written = _write_all(core, t)
+    written = _fill_window(core, 40, t)
     in_flight = core.window.bytes_in_flight
     stop = frame(core.next_number, "M112")
     assert in_flight + len(stop) > LINK.rx_buffer  # the buffer as modelled has no room
@@ -523,24 +529,39 @@ def test_an_m112_waits_for_room_in_the_receive_buffer_and_no_job_line_follows_it
     assert core.state is LinkState.HALTED
 
 
+def _m108_out_of_band(core: LinkCore, t: float) -> tuple[list[int], list[int]]:
+    """Two job lines written, an out-of-band M108 after them, a job line after it: the
+    numbers written before and after the M108."""
+    for i in range(2):
+        core.queue_job(f"G1 X{i}", 10 + i)
+    before = _write_all(core, t)
+    core.out_of_band("M108")  # written raw after them: a slot of the printer's queue
+    core.queue_job("G1 X9", 20)
+    return before, _write_all(core, t)
+
+
+def _probe_after_silence(core: LinkCore, t: float) -> tuple[list[int], float]:
+    """Probe intervals of silence until a probe is written: its number(s), and when."""
+    probes: list[int] = []
+    while not probes:
+        t += LINK.probe_after_s
+        core.tick(t)
+        probes = _write_all(core, t)
+        assert t < 60, "no probe written"
+    return probes, t
+
+
 def test_a_probe_passes_lines_waiting_for_room_when_the_oks_were_lost():
     # a cancel's end G-code waited for room the count held wrongly (the oks of the lines
     # in flight lost); the probe due was queued behind it, was never written, and the
     # link declared the printer dead after its retries (a daemon test, under load)
     core = connected_core(LINK)
-    for i in range(10):
-        core.queue_job(f"G1 X{100 + i}.123 Y{50 + i}.456 E0.0123 F9000", 10 + i)
     t = 0.01
-    in_flight = _write_all(core, t)
+    in_flight = _fill_window(core, 10, t)
     end = ["M104 S0", "M140 S0", "M107", "M84"]
     core.cancel(end)
     assert _write_all(core, t) == []  # no room: the end G-code waits
-    probes: list[int] = []
-    while not probes:  # the oks are lost: silence, until a probe may pass the window
-        t += LINK.probe_after_s
-        core.tick(t)
-        probes = _write_all(core, t)
-        assert t < 60, "no probe written"
+    probes, t = _probe_after_silence(core, t)  # the oks are lost: silence
     assert probes == [in_flight[-1] + 1]
     assert core.history[probes[0]] == ("M105", True)
     core.feed("ok T:20.0 /0.0 B:20.0 /0.0 @:0 B@:0", t)  # every line before it was done
@@ -552,13 +573,8 @@ def test_an_out_of_band_m108_takes_its_own_ok_not_the_next_lines():
     # an emergency parser acts on M108 at once, and Marlin still queues the line and
     # answers ok for it; uncounted, that ok acknowledged the next line before it ran
     core = connected_core(LINK)
-    for i in range(2):
-        core.queue_job(f"G1 X{i}", 10 + i)
     t = 0.01
-    before = _write_all(core, t)
-    core.out_of_band("M108")  # written raw after them: a slot of the printer's queue
-    core.queue_job("G1 X9", 20)
-    after = _write_all(core, t)
+    before, after = _m108_out_of_band(core, t)
     assert after == [before[-1] + 1]
     acked = []
     for _ in before:
@@ -573,23 +589,13 @@ def test_an_out_of_band_m108_lost_to_an_overrun_leaves_the_count_behind_until_a_
     # its bytes never reached the queue, so no ok of its comes: the count lags one line
     # (a line acknowledged late, never early) until silence brings a probe
     core = connected_core(LINK)
-    for i in range(2):
-        core.queue_job(f"G1 X{i}", 10 + i)
     t = 0.01
-    before = _write_all(core, t)
-    core.out_of_band("M108")
-    core.queue_job("G1 X9", 20)
-    after = _write_all(core, t)
+    before, after = _m108_out_of_band(core, t)
     acked = []
     for _ in before + after:  # the printer's oks: one for each numbered line
         acked += _acked(core.feed("ok", t))
     assert acked == before  # the last ok taken for the M108: behind, not ahead
-    probes: list[int] = []
-    while not probes:
-        t += LINK.probe_after_s
-        core.tick(t)
-        probes = _write_all(core, t)
-        assert t < 60, "no probe written"
+    _, t = _probe_after_silence(core, t)
     assert _acked(core.feed("ok T:20.0 /0.0 B:20.0 /0.0 @:0 B@:0", t)) == after
     assert not len(core.window)
 
