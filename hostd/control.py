@@ -50,7 +50,7 @@ def _claim_path(path: Path) -> None:
 def _bind_private(path: Path) -> socket.socket:
     """A listening Unix stream socket at ``path`` with mode 0600, set before ``listen``.
 
-    It is bound and listening under a temporary name beside ``path``, then renamed
+    It is bound and listening under a temporary name beside ``path``, then linked
     into place, so a client that sees the file can connect: bound at ``path``
     itself, a client connecting between ``bind`` and ``listen`` was refused. A
     ``path`` too close to the length limit for a longer name is bound in place.
@@ -70,11 +70,14 @@ def _bind_private(path: Path) -> socket.socket:
         sock.listen(64)
         sock.setblocking(False)
         if aside != path:
-            os.replace(aside, path)
-    except OSError:
+            os.link(aside, path)  # never over a socket another daemon bound meanwhile
+            aside.unlink()
+    except OSError as exc:
         sock.close()
         if aside != path:
             aside.unlink(missing_ok=True)
+        if isinstance(exc, FileExistsError):
+            raise ControlSocketError(f"another daemon is serving {path}") from exc
         raise
     return sock
 

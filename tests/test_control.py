@@ -235,7 +235,7 @@ def test_a_live_socket_or_another_file_is_never_taken_over(tmp_path: Path) -> No
 
 def test_the_socket_file_appears_only_once_it_listens(tmp_path: Path, monkeypatch) -> None:
     # bound at its own path, a client that saw the file between bind() and listen() was
-    # refused; it is now bound aside and renamed into place once listening
+    # refused; it is now bound aside and linked into place once listening
     from hostd import control
 
     path = tmp_path / "hostd.sock"
@@ -257,6 +257,31 @@ def test_the_socket_file_appears_only_once_it_listens(tmp_path: Path, monkeypatc
             client.connect(str(path))
     finally:
         sock.close()
+
+
+def test_a_socket_another_daemon_bound_meanwhile_is_not_replaced(tmp_path: Path,
+                                                                 monkeypatch) -> None:
+    from hostd import control
+
+    path = tmp_path / "hostd.sock"
+    other = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
+
+    class Raced(socket.socket):
+        def listen(self, *args: Any) -> None:
+            other.bind(str(path))  # another daemon, between this one's claim and its link
+            other.listen(1)
+            super().listen(*args)
+
+    monkeypatch.setattr(control.socket, "socket", Raced)
+    try:
+        with pytest.raises(ControlSocketError, match="another daemon"):
+            control._bind_private(path)
+        monkeypatch.undo()
+        assert [p.name for p in tmp_path.iterdir()] == ["hostd.sock"]
+        with socket.socket(socket.AF_UNIX, socket.SOCK_STREAM) as client:
+            client.connect(str(path))  # the other daemon's, still serving
+    finally:
+        other.close()
 
 
 def run_cli(*args: str) -> Callable[[], Awaitable[tuple[int, str, str]]]:
