@@ -48,6 +48,8 @@ class PrinterConfig:
     baud: int = 250000
     bed: tuple[float, float, float] = (220.0, 220.0, 250.0)
     link: StreamerConfig = field(default_factory=StreamerConfig)
+    material: str = "PLA"  # loaded filament, matched against farm jobs' needs
+    nozzle_mm: float = 0.4
 
 
 @dataclass(frozen=True)
@@ -80,6 +82,20 @@ class MqttConfig:
     def brokers(self) -> tuple[tuple[str, int], ...]:
         """The brokers to connect to, in order: ``hosts``, else ``host`` and ``port``."""
         return self.hosts or ((self.host, self.port),)
+
+
+@dataclass(frozen=True)
+class FarmConfig:
+    """The farm queue on a NATS JetStream cluster (``[farm]``); off unless ``enabled``."""
+
+    enabled: bool = False
+    servers: tuple[str, ...] = ("nats://127.0.0.1:4222",)
+    user: str = ""
+    password: str = ""
+    tls: bool = False
+    ca_file: str = ""
+    max_bytes: int = 50_000_000  # largest model a submission may carry
+    ack_wait_s: float = 30.0  # a taken job's lease, extended by progress heartbeats
 
 
 @dataclass(frozen=True)
@@ -118,6 +134,7 @@ class Config:
     mqtt: MqttConfig = field(default_factory=MqttConfig)
     runner: RunnerConfig = field(default_factory=RunnerConfig)
     notify: NotifyConfig = field(default_factory=NotifyConfig)
+    farm: FarmConfig = field(default_factory=FarmConfig)
     slicing: SliceSettings = field(default_factory=SliceSettings)
     # the [slicing] keys the file gave (dotted): the others may come from the printer
     slicing_given: frozenset[str] = frozenset()
@@ -143,7 +160,8 @@ def load_config(path: str | Path | None = None, cwd: Path | None = None) -> Conf
 
 def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
     """Build a `Config` from parsed TOML, refusing unknown sections, keys and bad values."""
-    known = {"jobs", "state", "printer", "simulator", "mqtt", "runner", "slicing", "notify"}
+    known = {"jobs", "state", "printer", "simulator", "mqtt", "runner", "slicing", "notify",
+             "farm"}
     for name, value in data.items():
         if name not in known:
             raise ConfigError(name, "unknown section")
@@ -156,6 +174,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
     mqtt = _Section(data.get("mqtt", {}), "mqtt")
     runner = _Section(data.get("runner", {}), "runner")
     notify = _Section(data.get("notify", {}), "notify")
+    farm = _Section(data.get("farm", {}), "farm")
     config = Config(
         jobs=JobsConfig(
             folder=_folder(cwd, jobs.text("folder", "jobs", empty=False)),
@@ -169,6 +188,8 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             baud=printer.integer("baud", 250000, 300, 10_000_000),
             bed=printer.bed("bed", (220.0, 220.0, 250.0)),
             link=printer.link("link"),
+            material=printer.text("material", "PLA", empty=False).strip(),
+            nozzle_mm=printer.number("nozzle_mm", 0.4, 0.05, 5.0),
         ),
         simulator=SimConfig(
             time_scale=sim.number("time_scale", 1.0, 0.0, 1000.0),
@@ -199,10 +220,20 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             timeout_s=notify.number("timeout_s", 10.0, 0.1, 300.0),
             picture=notify.flag("picture", True),
         ),
+        farm=FarmConfig(
+            enabled=farm.flag("enabled", False),
+            servers=farm.texts("servers", FarmConfig.servers),
+            user=farm.text("user", ""),
+            password=farm.text("password", ""),
+            tls=farm.flag("tls", False),
+            ca_file=farm.text("ca_file", ""),
+            max_bytes=farm.integer("max_bytes", 50_000_000, 1, 2**40),
+            ack_wait_s=farm.number("ack_wait_s", 30.0, 1.0, 3600.0),
+        ),
         slicing=_anchor_files(slicing_settings(data.get("slicing", {}), None, "slicing"), cwd),
         slicing_given=frozenset(_dotted(data.get("slicing", {}))),
     )
-    for section in (jobs, state, printer, sim, mqtt, runner, notify):
+    for section in (jobs, state, printer, sim, mqtt, runner, notify, farm):
         section.refuse_unknown()
     return config
 
