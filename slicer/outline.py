@@ -163,12 +163,19 @@ def build_layers(
         return {}
     coords, offsets = drop_collinear(coords, offsets)
     sizes = np.diff(offsets)
+    # a loop of one or two points (a stray sheet's single segment closed on itself,
+    # or a loop thinned to a line) encloses nothing and is no ring: left out before
+    # the rings are built, which refuses fewer than three distinct points
     keep = sizes >= 3
+    if not keep.all():
+        coords = coords[np.repeat(keep, sizes)]
+        sizes = sizes[keep]
+        layer = layer[keep]
+        face = face[keep]
+    if len(sizes) == 0:
+        return {}
     ring_idx = np.repeat(np.arange(len(sizes)), sizes)
     rings = shapely.linearrings(coords, indices=ring_idx)
-    rings = rings[keep]
-    layer = layer[keep]
-    face = face[keep]
     if tol.simplify > 0:
         rings = shapely.simplify(rings, tol.simplify, preserve_topology=False)
         ok = (shapely.get_type_id(rings) == 2) & (shapely.get_num_coordinates(rings) >= 4)
