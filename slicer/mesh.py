@@ -316,10 +316,9 @@ def _remove_bad_faces(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int, _Edg
     corners.sort(axis=1)
     order, first = group_rows(corners)
     del corners
-    dup = np.zeros(len(faces), dtype=bool)
-    dup[order[~first]] = True  # all but the first (lowest-numbered) face of each group
-    keep &= ~dup
-    del order, dup
+    if not first.all():
+        keep &= _kept_copies(faces, order, first)
+    del order, first
     if not keep.all():
         faces = faces[keep]
     removed = int((~keep).sum())
@@ -331,6 +330,31 @@ def _remove_bad_faces(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int, _Edg
             removed += int(fins.sum())
             stats = _edge_stats(faces, nv)
     return faces, removed, stats
+
+
+def _kept_copies(faces: np.ndarray, order: np.ndarray, first: np.ndarray) -> NDArray[np.bool_]:
+    """Which faces stay of those given more than once (same three corners): (f,) bool.
+
+    ``order``/``first`` group the faces by their sorted corners
+    (:func:`slicer.grouping.group_rows`). Copies wound the same way are one face
+    given twice: the first stays. A face given once each way is a wall of no
+    thickness (an exporter's double wall where two bodies meet, or an inlay
+    body's face written with the body it sits in): the two cancel in the count
+    of surfaces around any point, so both go; of a group with more one way than
+    the other, the first face wound the majority's way stays.
+    """
+    a, b, c = faces[:, 0], faces[:, 1], faces[:, 2]
+    # +1 for corners in ascending cyclic order (a < b < c, b < c < a, c < a < b), else -1
+    ascents = (a < b).astype(np.int8) + (b < c) + (c < a)
+    sign = np.where(ascents == 2, 1, -1)[order]
+    group = np.cumsum(first) - 1
+    net = np.bincount(group, weights=sign)
+    want = np.sign(net)[group]
+    candidate = np.flatnonzero((sign == want) & (want != 0))
+    _, pick = np.unique(group[candidate], return_index=True)
+    keep = np.zeros(len(faces), dtype=bool)
+    keep[order[candidate[pick]]] = True
+    return keep
 
 
 def _fins(faces: np.ndarray, nv: int) -> NDArray[np.bool_]:

@@ -149,7 +149,15 @@ def _chain(
     n = len(start_key)
     order = np.argsort(start_key, kind="stable")
     sorted_keys = start_key[order]
-    pos = np.minimum(np.searchsorted(sorted_keys, end_key), n - 1)
+    pos = np.searchsorted(sorted_keys, end_key)
+    if n > 1 and bool((sorted_keys[1:] == sorted_keys[:-1]).any()):
+        # an edge shared by four or more faces (bodies sharing an edge, a wall
+        # given twice) starts and ends several segments: the k-th segment ending
+        # on it (in index order) goes on with the k-th starting there, so every
+        # segment has a successor and the loops close (any pairing keeps the
+        # same winding)
+        pos = pos + _rank_in_group(end_key)
+    pos = np.minimum(pos, n - 1)
     succ = np.where(sorted_keys[pos] == end_key, order[pos], -1)
     del order, sorted_keys, pos
     idx = np.arange(n)
@@ -206,6 +214,18 @@ def _chain(
         closed=closed,
         face=face_idx[seq[first]].astype(np.int64),
     )
+
+
+def _rank_in_group(keys: np.ndarray) -> np.ndarray:
+    """Each key's rank among the equal keys before it in index order, (n,) int64."""
+    order = np.argsort(keys, kind="stable")
+    ks = keys[order]
+    head = np.ones(len(ks), dtype=bool)
+    head[1:] = ks[1:] != ks[:-1]
+    first = np.maximum.accumulate(np.where(head, np.arange(len(ks)), 0))
+    rank = np.empty(len(ks), dtype=np.int64)
+    rank[order] = np.arange(len(ks)) - first
+    return rank
 
 
 def _reach_min(step: np.ndarray) -> np.ndarray:
