@@ -276,6 +276,10 @@ class Daemon:
                 bridge = MqttBridge(self.config.mqtt, self.config.printer.id, self.hub,
                                     self.controller, extras=self.addons.mqtt_extras)
                 group.create_task(bridge.run(), name="mqtt")
+            if self.config.farm.enabled:
+                from hostd.farm.agent import FarmAgent
+
+                group.create_task(FarmAgent(self).run(), name="farm")
             if _available("hostd.sdnotify"):
                 from hostd import sdnotify
 

@@ -1,0 +1,285 @@
+"""The farm queue end to end: `hostd run` daemons on simulated printers, a real three-node
+nats-server cluster, and the `hostd farm` command line."""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import json
+import subprocess
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import pytest
+from brokers import HOST, NatsCluster, start_nats_cluster
+from conftest import DATA, HOSTD, ROOT, DaemonProcess, commands_of, executed_job_lines
+
+from hostd.config import FarmConfig
+from hostd.farm.queue import JOBS_BUCKET, MODELS_BUCKET, PRINTERS_BUCKET, STREAM, FarmQueue
+from hostd.farm.records import Entry
+
+ACK_WAIT_S = 3.0
+
+
+@pytest.fixture(scope="module")
+def cluster(tmp_path_factory: pytest.TempPathFactory) -> Iterator[NatsCluster]:
+    """Three nats-server nodes for the whole file."""
+    nats = start_nats_cluster(tmp_path_factory.mktemp("nats"))
+    yield nats
+    nats.stop()
+
+
+def servers(cluster: NatsCluster) -> list[str]:
+    """The nodes' client URLs."""
+    return [f"nats://{HOST}:{node.client_port}" for node in cluster.nodes]
+
+
+@pytest.fixture
+def farm(cluster: NatsCluster) -> Iterator[NatsCluster]:
+    """The cluster with an empty farm (its stream, buckets and store removed after the test)."""
+    yield cluster
+
+    async def clear() -> None:
+        import nats
+
+        client = await nats.connect(servers=servers(cluster), connect_timeout=2)
+        js = client.jetstream(timeout=10)
+        for name in (STREAM, f"KV_{JOBS_BUCKET}", f"KV_{PRINTERS_BUCKET}",
+                     f"OBJ_{MODELS_BUCKET}"):
+            with contextlib.suppress(nats.js.errors.NotFoundError):
+                await js.delete_stream(name)
+        await client.close()
+
+    asyncio.run(clear())
+
+
+class Printers:
+    """Daemons with the farm enabled, each in a folder of its own; killed at the end."""
+
+    def __init__(self, root: Path, cluster: NatsCluster) -> None:
+        self.root = root
+        self.cluster = cluster
+        self.started: dict[str, DaemonProcess] = {}
+
+    def start(self, printer: str, material: str = "PLA", bed: str = "220, 220, 250",
+              time_scale: float = 0.0) -> DaemonProcess:
+        urls = ", ".join(f'"{url}"' for url in servers(self.cluster))
+        folder = self.root / printer
+        folder.mkdir(exist_ok=True)
+        daemon = DaemonProcess(folder, (
+            "[jobs]\nsettle_s = 0.2\n"
+            f"[simulator]\ntime_scale = {time_scale}\nbaud = 0\n"
+            f'[printer]\nid = "{printer}"\nmaterial = "{material}"\nbed = [{bed}]\n'
+            f"[farm]\nenabled = true\nservers = [{urls}]\nack_wait_s = {ACK_WAIT_S}\n"))
+        self.started[printer] = daemon
+        daemon.start()
+        daemon.wait_for(lambda: "farm: connected" in daemon.run_log(), 30, "the farm link")
+        return daemon
+
+    def close(self) -> None:
+        for daemon in self.started.values():
+            daemon.close()
+
+
+@pytest.fixture
+def printers(tmp_path: Path, farm: NatsCluster) -> Iterator[Printers]:
+    made = Printers(tmp_path, farm)
+    yield made
+    made.close()
+
+
+def hostd_farm(cluster: NatsCluster, *args: str, check: bool = True
+               ) -> subprocess.CompletedProcess[str]:
+    """`hostd farm --servers ... ARGS`."""
+    result = subprocess.run(
+        [*HOSTD, "farm", "--servers", ",".join(servers(cluster)), *args],
+        capture_output=True, text=True, timeout=60, cwd=ROOT)
+    if check:
+        assert result.returncode == 0, result.stderr
+    return result
+
+
+def submit(cluster: NatsCluster, model: Path, *args: str) -> list[str]:
+    ids = json.loads(hostd_farm(cluster, "submit", str(model), *args, "--json").stdout)
+    assert isinstance(ids, list)
+    assert all(isinstance(i, str) for i in ids)
+    return ids
+
+
+def listing(cluster: NatsCluster) -> dict[str, dict[str, Any]]:
+    rows = json.loads(hostd_farm(cluster, "list", "--json").stdout)
+    for row in rows:
+        assert set(row) >= {"id", "state", "printer", "reason"}
+    return {row["id"]: row for row in rows}
+
+
+def entry(cluster: NatsCluster, job_id: str) -> Entry:
+    async def read() -> Entry:
+        queue = await FarmQueue.open(FarmConfig(servers=tuple(servers(cluster))))
+        try:
+            return (await queue.entry(job_id))[0]
+        finally:
+            await queue.close()
+
+    return asyncio.run(read())
+
+
+def wait_rows(cluster: NatsCluster, check: Any, timeout: float, what: str
+              ) -> dict[str, dict[str, Any]]:
+    deadline = time.monotonic() + timeout
+    rows: dict[str, dict[str, Any]] = {}
+    while time.monotonic() < deadline:
+        rows = listing(cluster)
+        if check(rows):
+            return rows
+        time.sleep(0.3)
+    pytest.fail(f"timed out waiting for {what}: {rows}")
+
+
+def done_here(daemon: DaemonProcess) -> list[str]:
+    """The farm job ids this printer printed (its done/ G-code files)."""
+    return sorted(p.stem for p in (daemon.jobs / "done").glob("fj-*.gcode"))
+
+
+def assert_printed_once(daemon: DaemonProcess, job_ids: list[str]) -> None:
+    """What the simulated printer executed is each job's G-code, once, in the order taken."""
+    local = sorted(((daemon.jobs / "done" / f"{i}.summary.txt").read_text(), i) for i in job_ids)
+    ordered = [job_id for _text, job_id in sorted(
+        local, key=lambda item: int(item[0].split()[1]))]  # "job N fj-....stl"
+    expected: list[str] = []
+    for job_id in ordered:
+        expected += commands_of(daemon.jobs / "done" / f"{job_id}.gcode")
+    assert executed_job_lines(daemon.state / "simulator-executed.log") == expected
+
+
+def test_a_job_is_printed_once_by_the_printer_that_fits_and_one_none_fits_says_why(
+        printers: Printers) -> None:
+    cluster = printers.cluster
+    pla = printers.start("pla1", material="PLA")
+    petg = printers.start("petg1", material="PETG", bed="300, 300, 300")
+    for_petg = submit(cluster, DATA / "cube20_xyz.stl", "--needs", "material=petg",
+                      "--set", "infill.density=0.1")
+    any_two = submit(cluster, DATA / "cube20_xyz.stl", "--copies", "2")
+    wide = submit(cluster, DATA / "dogbone_100x30x5.stl", "--needs", "bed=250x250")
+    abs_job = submit(cluster, DATA / "cube20_xyz.stl", "--needs", "material=ABS")
+    nozzle = submit(cluster, DATA / "cube20_xyz.stl", "--needs", "nozzle=0.6")
+    assert len(any_two) == 2
+    done = {*for_petg, *any_two, *wide}
+    rows = wait_rows(cluster, lambda r: all(r[i]["state"] == "printed" for i in done), 90,
+                     "five printed jobs")
+    assert rows[for_petg[0]]["printer"] == "petg1"
+    assert rows[wide[0]]["printer"] == "petg1"
+    assert rows[abs_job[0]] == {"id": abs_job[0], "state": "waiting", "printer": None,
+                                "reason": "needs ABS: no printer has it loaded",
+                                "name": "cube20_xyz.stl"}
+    assert rows[nozzle[0]]["reason"] == "needs a 0.6 mm nozzle: no printer has one"
+    # each job printed by one printer, and what each printer ran is its jobs, once each
+    printed_pla, printed_petg = done_here(pla), done_here(petg)
+    assert sorted(printed_pla + printed_petg) == sorted(done)
+    for daemon, printed in ((pla, printed_pla), (petg, printed_petg)):
+        assert_printed_once(daemon, printed)
+        for job_id in printed:
+            assert (daemon.jobs / "done" / f"{job_id}.stl").read_bytes() == \
+                (DATA / ("dogbone_100x30x5.stl" if job_id in wide else "cube20_xyz.stl")
+                 ).read_bytes()
+    # the job's --set over the printer's own settings
+    assert "; infill = linear 0.1\n" in (petg.jobs / "done" / f"{for_petg[0]}.gcode").read_text()
+    assert "; infill = linear 0.2\n" in (petg.jobs / "done" / f"{wide[0]}.gcode").read_text()
+    # the material is changed at run time: the ABS job goes to the printer that loads it
+    subprocess.run([*HOSTD, "farm", "--config", str(pla.config), "material", "ABS"],
+                   check=True, capture_output=True, timeout=30, cwd=pla.folder)
+    rows = wait_rows(cluster, lambda r: r[abs_job[0]]["state"] == "printed", 60,
+                     "the ABS job printed")
+    assert rows[abs_job[0]]["printer"] == "pla1"
+    # a printed job is not given back; the stream holds only the offer nobody took
+    refused = hostd_farm(cluster, "requeue", abs_job[0], check=False)
+    assert refused.returncode == 1
+    assert "printed by pla1" in refused.stderr
+    assert rows[nozzle[0]]["state"] == "waiting"
+
+
+def test_bad_models_are_refused_at_submit_or_failed_once(printers: Printers,
+                                                         tmp_path: Path) -> None:
+    cluster = printers.cluster
+    text = tmp_path / "notes.stl"
+    text.write_text("these are not triangles\n")
+    refused = hostd_farm(cluster, "submit", str(text), check=False)
+    assert refused.returncode == 1
+    assert "notes.stl is not an STL file" in refused.stderr
+    small = tmp_path / "small.toml"
+    urls = ", ".join(f'"{u}"' for u in servers(cluster))
+    small.write_text(f"[farm]\nmax_bytes = 1000\nservers = [{urls}]\n")
+    big = subprocess.run([*HOSTD, "farm", "--config", str(small), "submit",
+                          str(DATA / "cube20_xyz.stl")],
+                         capture_output=True, text=True, timeout=60, cwd=ROOT)
+    assert big.returncode == 1
+    assert "over the farm's limit of 1000 bytes" in big.stderr
+    assert listing(cluster) == {}  # nothing was stored or offered
+    first, second = printers.start("a1"), printers.start("a2")
+    [soup] = submit(cluster, DATA / "bad_triangle_soup.stl")
+    rows = wait_rows(cluster, lambda r: r[soup]["state"] == "failed", 60, "the soup failed")
+    failed_on = rows[soup]["printer"]
+    assert failed_on in ("a1", "a2")
+    assert rows[soup]["reason"]
+    where = first if failed_on == "a1" else second
+    other = second if where is first else first
+    error = (where.jobs / "failed" / f"{soup}.error.txt").read_text().strip()
+    assert error == rows[soup]["reason"]  # the slicer's sentence
+    # failed once: the other printer never tried it, and it stays failed
+    [cube] = submit(cluster, DATA / "cube20_xyz.stl")
+    wait_rows(cluster, lambda r: r[cube]["state"] == "printed", 60, "a good job after it")
+    assert not (other.jobs / "failed").exists()
+    assert listing(cluster)[soup]["state"] == "failed"
+    assert f"farm: job {soup}" not in other.log()
+
+
+def test_a_killed_holder_keeps_the_job_until_it_is_given_back(printers: Printers) -> None:
+    cluster = printers.cluster
+    holder = printers.start("k1", time_scale=0.02)
+    [job] = submit(cluster, DATA / "dogbone_100x30x5.stl")
+    holder.wait_for(lambda: entry(cluster, job).layer >= 1, 60, "two layers printed")
+    holder.kill9()
+    other = printers.start("k2")
+    time.sleep(ACK_WAIT_S * 2.5)  # the lease runs out: the offer is delivered again
+    row = listing(cluster)[job]
+    assert row["state"] == "taken"
+    assert row["printer"] == "k1"
+    assert "no heartbeat from k1" in row["reason"]
+    assert done_here(other) == []
+    assert not (other.state / "simulator-executed.log").exists() or \
+        executed_job_lines(other.state / "simulator-executed.log") == []
+    holder.start()  # its restart reports the job interrupted, on its bed
+    rows = wait_rows(cluster, lambda r: r[job]["state"] == "interrupted", 30, "interrupted")
+    assert rows[job]["printer"] == "k1"
+    assert "hostd farm requeue" in rows[job]["reason"]
+    hostd_farm(cluster, "requeue", job)
+    rows = wait_rows(cluster, lambda r: r[job]["state"] == "printed", 90, "printed after requeue")
+    # printed once, whole, by one printer; the holder's interrupted copy was removed
+    printed = [d for d in (holder, other) if done_here(d) == [job]]
+    assert len(printed) == 1
+    assert (holder.jobs / "failed" / f"{job}.error.txt").read_text().strip() == \
+        "given back to the farm queue"
+    if printed[0] is other:
+        assert_printed_once(other, [job])
+
+
+def test_a_node_stopped_mid_run_loses_nothing(printers: Printers) -> None:
+    cluster = printers.cluster
+    first, second = printers.start("n1p"), printers.start("n2p")
+    ids = submit(cluster, DATA / "cube20_xyz.stl", "--copies", "6")
+    wait_rows(cluster, lambda r: any(r[i]["state"] == "printed" for i in ids), 60,
+              "a first job printed")
+    stopped = cluster.nodes[0]
+    stopped.stop()
+    try:
+        rows = wait_rows(cluster, lambda r: all(r[i]["state"] == "printed" for i in ids),
+                         120, "all six printed")
+    finally:
+        stopped.start()
+    assert {rows[i]["printer"] for i in ids} <= {"n1p", "n2p"}
+    printed = done_here(first) + done_here(second)
+    assert sorted(printed) == sorted(ids)  # each once, none lost
+    assert_printed_once(first, done_here(first))
+    assert_printed_once(second, done_here(second))
