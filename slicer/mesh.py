@@ -12,7 +12,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from slicer import repair
+from slicer import repair, shells
 from slicer.errors import ModelError
 from slicer.grouping import group_rows
 from slicer.stl_ascii import read_ascii_corners
@@ -20,6 +20,10 @@ from slicer.stl_ascii import read_ascii_corners
 # an open mesh whose open edges are at most this fraction of all edges is still
 # sliced (gaps closed per layer); beyond it the file is refused
 MAX_OPEN_EDGE_FRACTION = 0.02
+# ends of open edges closer than this (mm) are one corner written twice (a CAD tool
+# writing each body or patch on its own): far below a printable detail, above the
+# float32 rounding of coordinates up to a few metres
+WELD_TOLERANCE = 1e-3
 
 
 @dataclass(frozen=True)
@@ -178,9 +182,17 @@ def prepare(
     faces, removed, stats = _remove_bad_faces(faces, len(vertices))
     if len(faces) == 0:
         raise ModelError("no solid triangles left: every triangle is degenerate")
-    if removed:
-        warnings.append(f"repaired: removed {removed} degenerate, duplicate or dangling faces")
-    _refuse_open(stats.open, stats.total)
+    if stats.open:
+        welded, merged = repair.weld_open_vertices(
+            vertices, faces, stats.open_keys, WELD_TOLERANCE)
+        if merged:
+            was_open = stats.open
+            faces, more, stats = _remove_bad_faces(welded, len(vertices))
+            removed = _add_counts(removed, more)
+            warnings.append(
+                f"repaired: {merged:,} corners that nearly met (within {WELD_TOLERANCE:g} mm) "
+                f"welded, closing {was_open - stats.open:,} of {was_open:,} open edges")
+    warnings.extend(_removed_lines(removed))
     if not stats.consistent:
         faces, flipped = repair.fix_winding(vertices, faces)
         if flipped:
@@ -197,6 +209,16 @@ def prepare(
         if closed:
             warnings.append(f"repaired: filled small holes ({closed} open edges)")
             stats = _edge_stats(faces, len(vertices))
+    if stats.open:
+        face_body, bodies = _bodies(faces, len(vertices))
+        if bodies > 1:
+            drop, lines = shells.unclosed_bodies(
+                vertices, faces, face_body, bodies, stats.open_keys)
+            if drop.any():
+                faces = faces[~drop]
+                warnings.extend(lines)
+                stats = _edge_stats(faces, len(vertices))
+    _refuse_open(stats.open, stats.total)
     with np.errstate(all="ignore"):
         volume = signed_volume(vertices, faces)
     if volume < 0:
@@ -302,38 +324,73 @@ def _edge_stats(faces: np.ndarray, nv: int) -> _EdgeStats:
     )
 
 
-def _remove_bad_faces(faces: np.ndarray, nv: int) -> tuple[np.ndarray, int, _EdgeStats]:
+def _remove_bad_faces(
+    faces: np.ndarray, nv: int
+) -> tuple[np.ndarray, tuple[int, int, int, int], _EdgeStats]:
     """Drop faces with repeated vertices, duplicate faces and dangling fins.
 
     A fin is a face with two open edges hanging on an edge shared by three or
     more faces (a stray triangle, as in ``dragon_100k.stl``); it is looked for
-    only when such an edge exists. Returns the kept faces, how many went and
-    the edge statistics of what is kept.
+    only when such an edge exists. Returns the kept faces, how many went of
+    each kind (degenerate, copies wound the same way, faces cancelled by a copy
+    wound the other way, fins) and the edge statistics of what is kept.
     """
     f0, f1, f2 = faces[:, 0], faces[:, 1], faces[:, 2]
     keep = (f0 != f1) & (f1 != f2) & (f0 != f2)
+    degenerate = int((~keep).sum())
+    copies = cancelled = 0
     corners = faces.astype(np.int32 if nv < 2**31 else np.int64)
     corners.sort(axis=1)
     order, first = group_rows(corners)
     del corners
     if not first.all():
-        keep &= _kept_copies(faces, order, first)
+        kept, copies, cancelled = _kept_copies(faces, order, first, keep)
+        keep &= kept
     del order, first
     if not keep.all():
         faces = faces[keep]
-    removed = int((~keep).sum())
     stats = _edge_stats(faces, nv)
+    fin_count = 0
     if stats.overshared:
         fins = _fins(faces, nv)
         if fins.any():
             faces = faces[~fins]
-            removed += int(fins.sum())
+            fin_count = int(fins.sum())
             stats = _edge_stats(faces, nv)
-    return faces, removed, stats
+    return faces, (degenerate, copies, cancelled, fin_count), stats
 
 
-def _kept_copies(faces: np.ndarray, order: np.ndarray, first: np.ndarray) -> NDArray[np.bool_]:
-    """Which faces stay of those given more than once (same three corners): (f,) bool.
+def _triangles(n: int) -> str:
+    return f"{n:,} triangle" if n == 1 else f"{n:,} triangles"
+
+
+def _add_counts(a: tuple[int, int, int, int], b: tuple[int, int, int, int]
+                ) -> tuple[int, int, int, int]:
+    return (a[0] + b[0], a[1] + b[1], a[2] + b[2], a[3] + b[3])
+
+
+def _removed_lines(removed: tuple[int, int, int, int]) -> list[str]:
+    """The faces left out, in words, one line per kind that occurred."""
+    degenerate, copies, cancelled, fins = removed
+    lines = []
+    if degenerate:
+        lines.append(f"repaired: {_triangles(degenerate)} with two corners at one point left out")
+    if copies:
+        lines.append(f"repaired: {_triangles(copies)} given twice: one copy of each kept")
+    if cancelled:
+        lines.append(
+            f"repaired: {_triangles(cancelled)} given once each way (walls of no thickness "
+            "where bodies meet) left out")
+    if fins:
+        lines.append(f"repaired: {_triangles(fins)} hanging loose on an edge left out")
+    return lines
+
+
+def _kept_copies(
+    faces: np.ndarray, order: np.ndarray, first: np.ndarray, valid: NDArray[np.bool_]
+) -> tuple[NDArray[np.bool_], int, int]:
+    """Which faces stay of those given more than once (same three corners): (f,) bool,
+    and how many went as copies wound the same way and as cancelled pairs.
 
     ``order``/``first`` group the faces by their sorted corners
     (:func:`slicer.grouping.group_rows`). Copies wound the same way are one face
@@ -354,7 +411,11 @@ def _kept_copies(faces: np.ndarray, order: np.ndarray, first: np.ndarray) -> NDA
     _, pick = np.unique(group[candidate], return_index=True)
     keep = np.zeros(len(faces), dtype=bool)
     keep[order[candidate[pick]]] = True
-    return keep
+    size = np.bincount(group)
+    real = valid[order]  # degenerate faces are counted as such, not as copies
+    gone = np.bincount(group, weights=real) - (net != 0)
+    cancelled = int((size - np.abs(net))[size > 1].sum())
+    return keep, max(0, int(gone[size > 1].sum()) - cancelled), cancelled
 
 
 def _fins(faces: np.ndarray, nv: int) -> NDArray[np.bool_]:

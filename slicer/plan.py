@@ -626,6 +626,9 @@ def _warnings(geo: _Geometry) -> list[str]:
             f"open outlines in {len(report.gap_layers)} layers: closed {report.closed} gaps"
             + (f", dropped {report.dropped} open pieces" if report.dropped else "")
         )
+    if report.merged:
+        shells = {b for pair in report.merged for b in pair}
+        warnings.append(f"{len(shells)} bodies overlapped: united, printed as one")
     if report.repaired_layers:
         warnings.append(
             "self-intersecting or overlapping outlines made valid in "

@@ -104,7 +104,7 @@ def fill_small_holes(faces: np.ndarray, nv: int, open_keys: np.ndarray) -> tuple
     Returns the faces (new ones appended) and the number of open edges closed.
     """
     n = len(faces)
-    ra_parts, rb_parts = [], []
+    ra_parts, rb_parts, rf_parts = [], [], []
     for j in range(3):
         a = faces[:, j].astype(np.int64)
         b = faces[:, (j + 1) % 3].astype(np.int64)
@@ -113,7 +113,9 @@ def fill_small_holes(faces: np.ndarray, nv: int, open_keys: np.ndarray) -> tuple
         on_rim = open_keys[pos] == und
         ra_parts.append(a[on_rim])
         rb_parts.append(b[on_rim])
+        rf_parts.append(np.flatnonzero(on_rim))
     ra, rb = np.concatenate(ra_parts), np.concatenate(rb_parts)
+    rim_face = np.concatenate(rf_parts)
     if len(ra) == 0 or n == 0:
         return faces, 0
     # the rim continues from rb at the open edge starting there (unique starts only)
@@ -132,7 +134,12 @@ def fill_small_holes(faces: np.ndarray, nv: int, open_keys: np.ndarray) -> tuple
     v2 = step(v1)
     v3 = np.where(v2 >= 0, step(np.maximum(v2, 0)), -1)
     v4 = np.where(v3 >= 0, step(np.maximum(v3, 0)), -1)
-    tri = (v3 == ra) & (ra < np.minimum(v1, v2))  # one face per triangle, from its lowest vertex
+    # one face per triangle, from its lowest vertex; a triangle whose rim is one face's
+    # three edges is a lone triangle, not a hole (closing it would make a body of no
+    # volume): left open
+    i1 = np.minimum(np.searchsorted(starts, v1), len(starts) - 1)
+    lone = rim_face[order[i1]] == rim_face
+    tri = (v3 == ra) & (ra < np.minimum(v1, v2)) & ~lone
     quad = (v4 == ra) & (v3 != ra) & (ra < np.minimum(np.minimum(v1, v2), v3))
     new = [np.stack([ra[tri], v2[tri], v1[tri]], axis=1)]
     new.append(np.stack([ra[quad], v3[quad], v2[quad]], axis=1))
@@ -141,3 +148,40 @@ def fill_small_holes(faces: np.ndarray, nv: int, open_keys: np.ndarray) -> tuple
     if len(added) == 0:
         return faces, 0
     return np.concatenate([faces, added]), int(3 * tri.sum() + 4 * quad.sum())
+
+
+def weld_open_vertices(
+    vertices: np.ndarray, faces: np.ndarray, open_keys: np.ndarray, tolerance: float
+) -> tuple[np.ndarray, int]:
+    """Faces with the ends of open edges that lie within ``tolerance`` mm of each other
+    merged into one vertex, and how many vertices were merged away.
+
+    CAD tools write each body of a multibody design, or each patch of a body, on
+    its own, so corners that should be one differ in their last bits and the
+    edges between them look open. Only vertices on open edges are compared
+    (a KD-tree over those alone); each group of vertices chained within the
+    tolerance takes the lowest-numbered one's place. The caller drops the faces
+    this makes degenerate.
+    """
+    nv = len(vertices)
+    ends = np.unique(np.concatenate([open_keys // nv, open_keys % nv]))
+    if len(ends) < 2:
+        return faces, 0
+    from scipy.sparse import coo_matrix
+    from scipy.sparse.csgraph import connected_components
+    from scipy.spatial import cKDTree
+
+    pairs = cKDTree(vertices[ends]).query_pairs(tolerance, output_type="ndarray")
+    if len(pairs) == 0:
+        return faces, 0
+    graph = coo_matrix(
+        (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])),
+        shape=(len(ends), len(ends)),
+    )
+    _, comp = connected_components(graph, directed=False)
+    lowest = np.full(comp.max() + 1, len(ends), dtype=np.int64)
+    np.minimum.at(lowest, comp, np.arange(len(ends)))
+    target = np.arange(nv, dtype=np.int64)
+    target[ends] = ends[lowest[comp]]
+    merged = int((target[ends] != ends).sum())
+    return target[faces], merged

@@ -114,7 +114,10 @@ def test_stray_face_and_duplicates_are_repaired(tmp_path) -> None:
     f = np.vstack([f, f[:1], [[0, 0, 1]], [[f[0, 0], f[0, 1], fin_tip]]])
     stl = trimesh.Trimesh(vertices=v, faces=f, process=False)
     plan = SlicePlan.from_file(write_mesh(stl, tmp_path / "dirty.stl"), SliceSettings())
-    assert any(w.startswith("repaired: removed 3") for w in plan.warnings), plan.warnings
+    said = plan.warnings
+    assert any(w.startswith("repaired: 1 triangle given twice") for w in said), said
+    assert any("with two corners at one point" in w for w in plan.warnings), plan.warnings
+    assert any("hanging loose on an edge" in w for w in plan.warnings), plan.warnings
     assert not any("not closed" in w for w in plan.warnings)
 
 
