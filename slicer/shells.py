@@ -44,8 +44,8 @@ def unclosed_bodies(
     is a sheet (:data:`SHEET_FRACTION`), as long as some body stays; a tube or a
     bowl open at its ends stays, closed layer by layer; when every body is that
     open, none is left out (the whole mesh is then judged as before). Returns
-    ``drop`` (f,) bool and the report lines, e.g. ``"body 2 of 2 (an open surface of 1 triangle,
-    1.0 x 0.5 x 1.5 mm): encloses nothing, left out"``.
+    ``drop`` (f,) bool and the report lines, e.g. ``"body 2 of 2 (an open
+    surface of 1 triangle, 1.0 x 0.5 x 1.5 mm): encloses nothing, left out"``.
     """
     per_face = open_edges_per_face(faces, len(vertices), open_keys)
     open_count = np.bincount(face_body, weights=per_face, minlength=bodies)
