@@ -12,6 +12,10 @@ from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
+from hypothesis import settings as hypothesis_settings
+
+# `pytest --hypothesis-profile long`: the benchmark's run of the property suites
+hypothesis_settings.register_profile("long", max_examples=500, deadline=None)
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = Path(__file__).resolve().parent / "data"
