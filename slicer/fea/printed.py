@@ -111,11 +111,7 @@ def fill_fractions(roads: Roads, grid: VoxelGrid, shift: np.ndarray) -> np.ndarr
         ends = roads.ends[pick] + shift[:2] - grid.origin[:2]
         scale = float(np.mean(pixel))  # pixels are square within a few per cent
         for (a, b), width in zip(ends / pixel, roads.width[pick] / scale, strict=True):
-            w = max(1, round(width))
-            draw.line([tuple(a), tuple(b)], fill=1, width=w)
-            r = width / 2.0
-            for cx, cy in (a, b):
-                draw.ellipse((cx - r, cy - r, cx + r, cy + r), fill=1)
+            draw_road(draw, a, b, width, 1)
         covered = np.asarray(image, dtype=float).T  # (x pixels, y pixels)
         blocks = covered.reshape(nx, sub[0], ny, sub[1]).mean(axis=(1, 3))
         z0, z1 = top + shift[2] - height, top + shift[2]
@@ -123,6 +119,22 @@ def fill_fractions(roads: Roads, grid: VoxelGrid, shift: np.ndarray) -> np.ndarr
                           None) / grid.cell[2]
         fractions += blocks[:, :, None] * overlap[None, None, :]
     return np.clip(fractions, 0.0, 1.0)
+
+
+def draw_road(draw: ImageDraw.ImageDraw, a: np.ndarray, b: np.ndarray, width: float,
+              mark: int) -> None:
+    """Draw one road from ``a`` to ``b`` (2,) pixels, ``width`` pixels wide with round
+    ends, as ``mark``: a rectangle of the exact width (a thick line's width is not
+    kept at every angle) and a disc at each end."""
+    r = width / 2.0
+    delta = np.asarray(b, dtype=float) - np.asarray(a, dtype=float)
+    length = float(np.hypot(*delta))
+    if length > 1e-9:
+        side = np.array([-delta[1], delta[0]]) / length * r
+        corners = [tuple(a + side), tuple(b + side), tuple(b - side), tuple(a - side)]
+        draw.polygon(corners, fill=mark)
+    for cx, cy in (a, b):
+        draw.ellipse((cx - r, cy - r, cx + r, cy + r), fill=mark)
 
 
 def modulus_scale(fractions: np.ndarray, cells: np.ndarray) -> np.ndarray:

@@ -138,7 +138,7 @@ def fixed_nodes(mesh: HexMesh, faces: Faces, case: LoadCase) -> np.ndarray:
 
 
 def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = None,
-            adjoint: np.ndarray | None = None) -> Solution:
+            adjoint: np.ndarray | None = None, elasticity: np.ndarray | None = None) -> Solution:
     """Solve ``K u = f`` for the case and recover the stress.
 
     ``modulus_scale`` (e,) float64 in [0, 1] multiplies each element's modulus
@@ -150,6 +150,9 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
     mesh, with no factorisation of the whole matrix. ``adjoint`` (n, 3) float64 N:
     a second load on the same supports, solved with the same matrix and
     preconditioner (an objective's adjoint), its displacement in the answer.
+    ``elasticity`` (e, 6, 6) float64: each element's own elasticity at E = 1 (an
+    anisotropic box, see :mod:`slicer.fea.roadstiff`) in place of the isotropic one
+    (``modulus_scale`` still multiplies it).
     Raises LoadCaseError for a case the mesh cannot carry.
     """
     from slicer.fea.multigrid import Multigrid, assemble  # scipy.sparse.linalg: when solving
@@ -161,11 +164,17 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
     scale = (np.ones(len(mesh.nodes)) if modulus_scale is None
              else np.asarray(modulus_scale, dtype=float))
     scale = scale * case.youngs_mpa
-    ke = element_matrix(mesh.grid.cell, case.poisson)
     n = 3 * len(mesh.points)
     free = np.ones(n, dtype=bool)
     free[(3 * held[:, None] + np.arange(3)).ravel()] = False
-    stiffness = assemble(mesh, ke, scale)[free][:, free].tocsr()
+    if elasticity is None:
+        ke = element_matrix(mesh.grid.cell, case.poisson)
+        stiffness = assemble(mesh, ke, scale)[free][:, free].tocsr()
+    else:
+        from slicer.fea.anisotropic import assemble_each
+
+        material = elasticity * scale[:, None, None]
+        stiffness = assemble_each(mesh, material)[free][:, free].tocsr()
     if np.any(stiffness.diagonal() <= 0):
         raise LoadCaseError(f"{case.source}: part of the model carries no stiffness")
     positions = np.rint((mesh.points - mesh.grid.origin) / mesh.grid.cell).astype(np.int64)
@@ -186,7 +195,10 @@ def analyse(mesh: HexMesh, case: LoadCase, modulus_scale: np.ndarray | None = No
         other = w.reshape(-1, 3)
     dofs = mesh.dofs
     strain = u[dofs] @ strain_matrix(mesh.grid.cell).T  # (e, 6)
-    stress = (strain @ elasticity_matrix(case.poisson).T) * scale[:, None]
+    if elasticity is None:
+        stress = (strain @ elasticity_matrix(case.poisson).T) * scale[:, None]
+    else:
+        stress = np.einsum("eij,ej->ei", material, strain)
     return Solution(
         mesh=mesh,
         displacement=u.reshape(-1, 3),
