@@ -48,7 +48,23 @@ PARSE_ERRORS = {
     "zero normal": (BAR + "normal = [0, 0, 0]\n", "normal is zero"),
     "bad poisson": ("[material]\npoisson_ratio = 0.5\n" + BAR, "poisson_ratio"),
     "bad toml": ("[[fixed]\n", "not valid TOML"),
+    "zero gage": ("[test]\ngage_length_mm = 0\n" + BAR, "gage_length_mm must be positive"),
+    "unknown reading": ("[test]\nreads = 'strain'\n" + BAR,
+                        "reads must be one of extensometer, stiffness"),
+    "unknown test key": ("[test]\ngage = 20\n" + BAR, "[test]: unknown key 'gage'"),
 }
+
+
+def test_the_test_table_names_the_gage_length_and_the_headline() -> None:
+    from slicer.fea.gage import spans
+
+    lo, hi = np.zeros(3), np.array([30.0, 10.0, 3.0])
+    plain = parse_load_case(BAR, "part.load.toml")
+    named = parse_load_case("[test]\ngage_length_mm = 10\nreads = 'stiffness'\n" + BAR)
+    assert (named.gage_length_mm, named.reads) == (10.0, "stiffness")
+    assert named.key() != plain.key()  # the optimum reads the named gage
+    assert spans(plain, lo, hi) == (20.0, 30.0)  # the paper's 20 mm; the whole free length
+    assert spans(named, lo, hi) == (10.0, 25.0, 30.0)
 
 
 @pytest.mark.parametrize("name", sorted(PARSE_ERRORS))

@@ -9,7 +9,6 @@ grid and analysed).
 from __future__ import annotations
 
 import dataclasses
-import math
 import os
 import time
 import tomllib
@@ -20,7 +19,7 @@ from hostd.commands.slice import load_settings, write_gcode
 from hostd.commands.tailor_pictures import write_pictures
 from slicer.errors import ModelError
 from slicer.fea.loadcase import LOAD_SUFFIX
-from slicer.fea.predict import Prediction, predict_moduli
+from slicer.fea.predict import Prediction, TensionTest, predict_moduli, tension_test
 from slicer.fea.tailor import default_cache_dir, tailored_plan
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings, parse_assignment
@@ -122,11 +121,12 @@ def run(args) -> int:
         gcodes = {"Linear": out / "linear.gcode"}
         gcodes.update({NAMES[v]: out / f"stress-{v.lower()}.gcode" for v in variants})
         predictions = predict_moduli(model, load, settings, linear.bounds, gcodes)
+        test, objective = _test_of(model, load, settings, args.optimal)
     except ModelError as exc:
         raise UsageError(str(exc)) from exc
     except SettingsError as exc:
         raise UsageError(str(exc)) from exc
-    lines += _table(predictions)
+    lines += _table(predictions, test, objective)
     lines.append(f"done in {time.monotonic() - started:.1f} s")
     (out / "tailor.txt").write_text("\n".join(lines) + "\n", encoding="utf-8")
     for line in lines:
@@ -136,19 +136,52 @@ def run(args) -> int:
     return 0
 
 
-def _table(predictions: list[Prediction]) -> list[str]:
-    """The predicted apparent moduli as text lines, each against Linear."""
+def _test_of(model: Path, load: Path, settings: SliceSettings, optimal: bool
+             ) -> tuple[TensionTest, str | None]:
+    """The load case's test, and what the optimum was made for (None without it)."""
+    from slicer.fea.loadcase import read_load_case
+    from slicer.fea.optimal import objective_text
+    from slicer.mesh import read_stl
+
+    vertices, faces = read_stl(model)
+    case = read_load_case(load, settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio)
+    test = tension_test(vertices, faces, case)
+    return test, objective_text(case, test.spans[0]) if optimal else None
+
+
+def _table(predictions: list[Prediction], test: TensionTest, objective: str | None
+           ) -> list[str]:
+    """What a test bench would read of each print, each against Linear; the headline
+    (the measure the load case names) first, and the optimiser's objective."""
     base = next(p for p in predictions if p.name == "Linear")
-    rows = ["predicted from each G-code rebuilt and loaded (apparent modulus in the tension "
-            "test; stiffness = 1 / compliance under the load case):"]
+    spans = " / ".join(f"{s:g}" for s in test.spans)
+    if test.reads == "extensometer" and base.moduli:
+        headline = f"apparent modulus read by a {test.spans[0]:g} mm extensometer"
+    else:
+        headline = "whole-part stiffness (force over the loaded faces' displacement)"
+    rows = [f"headline (the load case's test): {headline}",
+            "predicted from each G-code's roads (fill and direction, perfectly bonded):"]
     for p in predictions:
         mass = "solid model" if p.name == "Solid" else f"mass {p.mass_g:.2f} g"
-        modulus = "" if math.isnan(p.modulus_mpa) else f"{p.modulus_mpa / 1000:.3f} GPa  "
-        gain = ""
-        if p.name != "Solid":
-            if modulus:
-                gain += f"  modulus {100.0 * (p.modulus_mpa / base.modulus_mpa - 1.0):+.0f} %"
-            gain += f"  stiffness {100.0 * (base.compliance / p.compliance - 1.0):+.0f} % vs Linear"
-        rows.append(f"  {p.name:9s} {modulus}{mass}{gain}")
+        parts = [f"  {p.name:9s} {mass}"]
+        if p.moduli:
+            values = " / ".join(f"{m / 1000:.3f}" for m in p.moduli)
+            parts.append(f"modulus at {spans} mm {values} GPa")
+        parts.append(f"stiffness {p.stiffness:.0f} N/mm")
+        if p.name not in ("Solid", "Linear"):
+            gains = [f"{100.0 * (m / b - 1.0):+.0f} %" for m, b in zip(p.moduli, base.moduli,
+                                                                      strict=True)]
+            if gains:
+                parts.append(f"vs Linear: modulus {' / '.join(gains)}")
+            parts.append(f"stiffness {100.0 * (p.stiffness / base.stiffness - 1.0):+.0f} %")
+        rows.append(", ".join(parts))
+    rows.append("headline vs Linear: " + ", ".join(
+        f"{p.name} {100.0 * (_headline(p, test) / _headline(base, test) - 1.0):+.0f} %"
+        for p in predictions if p.name not in ("Solid", "Linear")))
+    if objective is not None:
+        rows.append(f"the optimum makes small: {objective}")
     return rows
 
+
+def _headline(p: Prediction, test: TensionTest) -> float:
+    return p.modulus_mpa if test.reads == "extensometer" and p.moduli else p.stiffness

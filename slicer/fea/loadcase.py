@@ -23,7 +23,9 @@ _TABLES = {
     "fixed": {"box", "normal"},
     "force": {"box", "newtons", "normal"},
     "pressure": {"box", "mpa", "normal"},
+    "test": {"gage_length_mm", "reads"},
 }
+READS = ("extensometer", "stiffness")  # what a test bench reads: [test] reads
 
 
 class LoadCaseError(ModelError):
@@ -61,6 +63,8 @@ class LoadCase:
     fixed: tuple[Region, ...]
     loads: tuple[Load, ...]
     source: str = "load case"
+    gage_length_mm: float = 0.0  # [test] gage_length_mm; 0: the default (slicer.fea.gage)
+    reads: str = ""  # [test] reads; "": the extensometer for a pull along x, else stiffness
 
     def key(self) -> str:
         """A stable digest of everything that changes the analysis (for caching)."""
@@ -75,6 +79,8 @@ class LoadCase:
             vector = load.vector if load.vector is not None else np.zeros(3)
             digest.update(np.asarray(vector, dtype="<f8").tobytes())
             digest.update(repr(load.mpa).encode())
+        if self.gage_length_mm or self.reads:  # the optimum reads the named gage
+            digest.update(repr((self.gage_length_mm, self.reads)).encode())
         return digest.hexdigest()
 
 
@@ -122,11 +128,12 @@ def parse_load_case(
     for key, value in data.items():
         if key not in _TABLES:
             raise LoadCaseError(
-                f"{source}: unknown table or key {key!r} (use material, fixed, force, pressure)"
+                f"{source}: unknown table or key {key!r} "
+                "(use material, test, fixed, force, pressure)"
             )
-        if key == "material" and not isinstance(value, dict):
-            raise LoadCaseError(f"{source}: [material] must be a table")
-        if key != "material" and not (
+        if key in ("material", "test") and not isinstance(value, dict):
+            raise LoadCaseError(f"{source}: [{key}] must be a table")
+        if key not in ("material", "test") and not (
             isinstance(value, list) and all(isinstance(v, dict) for v in value)
         ):
             raise LoadCaseError(f"{source}: {key} must be written as [[{key}]] tables")
@@ -163,7 +170,18 @@ def parse_load_case(
         loads.append(Load(region, mpa=mpa))
     if not loads:
         raise LoadCaseError(f"{source}: no load: give at least one [[force]] or [[pressure]]")
-    return LoadCase(youngs, poisson, fixed, tuple(loads), source)
+    test = data.get("test", {})
+    _known(test, "test", "[test]", source)
+    gage = 0.0
+    if "gage_length_mm" in test:
+        gage = _number(test["gage_length_mm"], "[test] gage_length_mm", source)
+        if gage <= 0:
+            raise LoadCaseError(f"{source}: [test] gage_length_mm must be positive")
+    reads = test.get("reads", "")
+    if "reads" in test and reads not in READS:
+        raise LoadCaseError(f"{source}: [test] reads must be one of {', '.join(READS)}, "
+                            f"got {reads!r}")
+    return LoadCase(youngs, poisson, fixed, tuple(loads), source, gage, str(reads))
 
 
 def _known(entry: dict[str, Any], table: str, label: str, source: str) -> None:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 from numpy.typing import NDArray
 
-from slicer.fea.gage import extensometer, gage_span, pulls_along_x
+from slicer.fea.gage import extensometer, gage_length, gage_span, pulls_along_x
 from slicer.fea.hexmesh import HexMesh, element_matrix
 from slicer.fea.loadcase import LoadCase
 from slicer.fea.solve import Solution, analyse
@@ -15,7 +15,7 @@ MOVE = 0.2  # largest change of a box's density per update
 FLOOR = 0.05  # least density, as the stress field's floor
 SECONDARY = 0.1  # weight of the whole part's compliance beside a tension test's gage reading
 DAMPING = 0.5  # the criterion's exponent
-OBJECTIVE_VERSION = "gage-3"  # part of the cache key: bump when the objective changes
+OBJECTIVE_VERSION = "gage-4"  # part of the cache key: bump when the objective changes
 
 
 def strain_energy(solution: Solution, case: LoadCase, density: np.ndarray) -> np.ndarray:
@@ -35,14 +35,24 @@ def objective_load(mesh: HexMesh, case: LoadCase) -> np.ndarray | None:
     the extensometer's extension of the gage (signed so that a pull reads positive),
     which the apparent modulus divides; otherwise None, meaning the compliance
     ``f . u`` (the work of the case's own loads: the load points' deflection)."""
-    if not pulls_along_x(case):
+    if not pulls_along_x(case) or case.reads == "stiffness":
         return None
     grid = mesh.grid
-    gage, band = gage_span(grid.origin, grid.origin + grid.cell * np.array(grid.solid.shape))
+    lo, hi = grid.origin, grid.origin + grid.cell * np.array(grid.solid.shape)
+    gage, band = gage_span(lo, hi, gage_length(case, lo, hi))
     weights, _ = extensometer(mesh.points, gage, band)
     pull = sum(float(load.vector[0]) for load in case.loads if load.vector is not None)
     signed: NDArray[np.float64] = np.sign(pull) * weights
     return signed
+
+
+def objective_text(case: LoadCase, length: float) -> str:
+    """What :func:`optimal_density` makes small for ``case``, in words (``length`` mm the
+    extensometer's span, as :func:`slicer.fea.gage.gage_length` gives it)."""
+    if not pulls_along_x(case) or case.reads == "stiffness":
+        return "the whole part's compliance (force times its point's displacement)"
+    return (f"the extension of a {length:g} mm extensometer, plus {SECONDARY:g} of the "
+            "whole part's compliance")
 
 
 def optimal_density(
