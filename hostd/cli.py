@@ -192,6 +192,8 @@ def _farm_arguments(p: argparse.ArgumentParser) -> None:
     listing.add_argument("--json", action="store_true")
     requeue = actions.add_parser("requeue", help="give a held or failed job back to the queue")
     requeue.add_argument("job", metavar="ID")
+    requeue.add_argument("--force", action="store_true",
+                         help="also a job whose printer fell silent without reporting it")
     material = actions.add_parser("material", help="the material loaded now (with --config)")
     material.add_argument("material", metavar="NAME")
 

@@ -17,7 +17,14 @@ from brokers import HOST, NatsCluster, start_nats_cluster
 from conftest import DATA, HOSTD, ROOT, DaemonProcess, commands_of, executed_job_lines
 
 from hostd.config import FarmConfig
-from hostd.farm.queue import JOBS_BUCKET, MODELS_BUCKET, PRINTERS_BUCKET, STREAM, FarmQueue
+from hostd.farm.queue import (
+    CONSUMER,
+    JOBS_BUCKET,
+    MODELS_BUCKET,
+    PRINTERS_BUCKET,
+    STREAM,
+    FarmQueue,
+)
 from hostd.farm.records import Entry
 
 ACK_WAIT_S = 3.0
@@ -120,6 +127,21 @@ def entry(cluster: NatsCluster, job_id: str) -> Entry:
         queue = await FarmQueue.open(FarmConfig(servers=tuple(servers(cluster))))
         try:
             return (await queue.entry(job_id))[0]
+        finally:
+            await queue.close()
+
+    return asyncio.run(read())
+
+
+def redelivered(cluster: NatsCluster) -> int:
+    """How many deliveries the takers' consumer made beyond one per offer (an offer
+    delivered again once its lease ran out, or given back by a printer it did not fit)."""
+    async def read() -> int:
+        queue = await FarmQueue.open(FarmConfig(servers=tuple(servers(cluster))))
+        try:
+            info = await queue.js.consumer_info(STREAM, CONSUMER)
+            assert info.delivered is not None
+            return int(info.delivered.consumer_seq or 0) - int(info.delivered.stream_seq or 0)
         finally:
             await queue.close()
 
@@ -247,6 +269,10 @@ def test_a_killed_holder_keeps_the_job_until_it_is_given_back(printers: Printers
     assert row["state"] == "taken"
     assert row["printer"] == "k1"
     assert "no heartbeat from k1" in row["reason"]
+    # not given back while its printer may still be printing it, unless forced
+    refused = hostd_farm(cluster, "requeue", job, check=False)
+    assert refused.returncode == 1
+    assert "restart its daemon" in refused.stderr
     assert done_here(other) == []
     assert not (other.state / "simulator-executed.log").exists() or \
         executed_job_lines(other.state / "simulator-executed.log") == []
@@ -283,3 +309,95 @@ def test_a_node_stopped_mid_run_loses_nothing(printers: Printers) -> None:
     assert sorted(printed) == sorted(ids)  # each once, none lost
     assert_printed_once(first, done_here(first))
     assert_printed_once(second, done_here(second))
+
+
+class StallingRelay:
+    """A TCP relay on loopback to one node whose traffic can be held (a network that stops
+    carrying packets, connections kept), in a thread of its own."""
+
+    def __init__(self, port: int) -> None:
+        import threading
+
+        self.target = port
+        self.loop = asyncio.new_event_loop()
+        self.flowing = asyncio.Event()
+        self.port = 0
+        ready = threading.Event()
+        self.thread = threading.Thread(target=self._serve, args=(ready,), daemon=True)
+        self.thread.start()
+        assert ready.wait(10)
+
+    def _serve(self, ready: Any) -> None:
+        asyncio.set_event_loop(self.loop)
+
+        async def pump(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            with contextlib.suppress(OSError, ConnectionError):
+                while data := await reader.read(65536):
+                    await self.flowing.wait()
+                    writer.write(data)
+                    await writer.drain()
+            writer.close()
+
+        async def relay(reader: asyncio.StreamReader, writer: asyncio.StreamWriter) -> None:
+            up_reader, up_writer = await asyncio.open_connection(HOST, self.target)
+            await asyncio.gather(pump(reader, up_writer), pump(up_reader, writer))
+
+        async def start() -> None:
+            server = await asyncio.start_server(relay, HOST, 0)
+            self.port = server.sockets[0].getsockname()[1]
+            self.flowing.set()
+            ready.set()
+            await server.serve_forever()
+
+        self.main = self.loop.create_task(start())
+        with contextlib.suppress(asyncio.CancelledError):
+            self.loop.run_until_complete(self.main)
+        rest = asyncio.all_tasks(self.loop)
+        for task in rest:
+            task.cancel()
+        self.loop.run_until_complete(asyncio.gather(*rest, return_exceptions=True))
+        self.loop.close()
+
+    def hold(self) -> None:
+        self.loop.call_soon_threadsafe(self.flowing.clear)
+
+    def release(self) -> None:
+        self.loop.call_soon_threadsafe(self.flowing.set)
+
+    def close(self) -> None:
+        self.loop.call_soon_threadsafe(self.main.cancel)
+        self.thread.join(10)
+
+
+def test_a_holder_cut_off_longer_than_the_ack_wait_still_prints_it_alone(
+        printers: Printers) -> None:
+    cluster = printers.cluster
+    relay = StallingRelay(cluster.nodes[1].client_port)
+    try:
+        # the holder reaches the cluster only through the relay (a server list of one:
+        # nodes the cluster announces are learnt once connected, so it stays on it)
+        holder = printers.start("cut1", time_scale=0.02)
+        text = holder.config.read_text()
+        holder.config.write_text(text[:text.index("servers =")]
+                                 + f'servers = ["nats://{HOST}:{relay.port}"]\n'
+                                 + f"ack_wait_s = {ACK_WAIT_S}\n")
+        holder.close()
+        holder.start()
+        holder.wait_for(lambda: "farm: connected" in holder.run_log(), 30, "the farm link")
+        [job] = submit(cluster, DATA / "dogbone_100x30x5.stl")
+        holder.wait_for(lambda: entry(cluster, job).layer >= 1, 60, "two layers printed")
+        relay.hold()
+        other = printers.start("cut2")
+        time.sleep(ACK_WAIT_S * 3)  # the offer's lease runs out and it is delivered again
+        row = listing(cluster)[job]
+        assert row["printer"] == "cut1"
+        assert "no heartbeat from cut1" in row["reason"]  # cut off indeed
+        assert redelivered(cluster) >= 1
+        relay.release()
+        rows = wait_rows(cluster, lambda r: r[job]["state"] == "printed", 90, "printed")
+    finally:
+        relay.close()
+    assert rows[job]["printer"] == "cut1"
+    assert done_here(holder) == [job]
+    assert_printed_once(holder, [job])
+    assert done_here(other) == []

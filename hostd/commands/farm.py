@@ -89,12 +89,12 @@ async def _list(farm: FarmConfig) -> list[dict[str, Any]]:
         await queue.close()
 
 
-async def _requeue(farm: FarmConfig, job_id: str) -> None:
+async def _requeue(farm: FarmConfig, job_id: str, force: bool) -> None:
     from hostd.farm.queue import FarmQueue
 
     queue = await FarmQueue.open(farm, "hostd-farm-requeue")
     try:
-        await queue.requeue(job_id)
+        await queue.requeue(job_id, force)
     finally:
         await queue.close()
 
@@ -126,7 +126,7 @@ def run(args: argparse.Namespace) -> int:
             rows = asyncio.run(_list(farm))
             print(json.dumps(rows) if args.json else _table(rows))
         elif args.action == "requeue":
-            asyncio.run(_requeue(farm, args.job))
+            asyncio.run(_requeue(farm, args.job, args.force))
             print(f"{args.job} waiting again")
         elif args.action == "material":
             from hostd.farm.loaded import load_material

@@ -309,25 +309,34 @@ class FarmQueue:
             elif entry.state == "taken" and entry.beat and entry.lease_s and \
                     now - entry.beat > entry.lease_s:
                 reason = (f"no heartbeat from {entry.printer} for {now - entry.beat:.0f} s: "
-                          f"held until it restarts or `hostd farm requeue {entry.id}`")
+                          f"held until its daemon restarts (or `hostd farm requeue --force "
+                          f"{entry.id}`)")
             rows.append(Listed(entry.id, entry.state, entry.printer, reason, entry.name))
         order = {"failed": 0, "interrupted": 1, "taken": 2, "waiting": 3, "printed": 4}
         rows.sort(key=lambda row: order.get(row.state, 5))
         return rows
 
-    async def requeue(self, job_id: str) -> Entry:
+    async def requeue(self, job_id: str, force: bool = False) -> Entry:
         """Give a job back to the queue: a new generation offered, its holder cleared.
 
-        Refused for a printed job, and for one whose printer is printing it (its
-        heartbeat within its lease): stop it there first.
+        Refused for a printed job, and for one its printer is printing (heartbeat
+        within its lease): stop it there first. A taken job whose holder fell silent
+        (killed, or cut off from the cluster while it may still be printing) is
+        refused too unless ``force``: its daemon reports it interrupted when it
+        restarts, and only then is giving it back safe from a second print.
         """
         entry, revision = await self.entry(job_id)
         if entry.state == "printed":
             raise FarmError(f"job {job_id} was printed by {entry.printer}; submit it again "
                             "for another copy")
-        if entry.state == "taken" and time.time() - entry.beat <= max(entry.lease_s, 1.0):
+        silent = time.time() - entry.beat
+        if entry.state == "taken" and silent <= max(entry.lease_s, 1.0):
             raise FarmError(f"job {job_id} is being printed by {entry.printer} (heartbeat "
-                            f"{time.time() - entry.beat:.0f} s ago); stop it there first")
+                            f"{silent:.0f} s ago); stop it there first")
+        if entry.state == "taken" and not force:
+            raise FarmError(f"job {job_id} is held by {entry.printer}, silent for {silent:.0f} s:"
+                            f" restart its daemon (it then reports the job interrupted), or "
+                            f"requeue --force if that printer will not print it")
         again = entry.but(state="waiting", printer=None, reason=None, token=None, beat=0.0,
                           lease_s=0.0, layer=-1, generation=entry.generation + 1)
         try:
