@@ -10,6 +10,7 @@ from pathlib import Path
 from typing import Any
 
 from drivers.linkconfig import LinkSettingError, StreamerConfig
+from slicer.fea.material import material_keys, material_settings
 from slicer.settings import SettingsError, SliceSettings
 
 
@@ -161,7 +162,7 @@ def load_config(path: str | Path | None = None, cwd: Path | None = None) -> Conf
 def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
     """Build a `Config` from parsed TOML, refusing unknown sections, keys and bad values."""
     known = {"jobs", "state", "printer", "simulator", "mqtt", "runner", "slicing", "notify",
-             "farm"}
+             "farm", "material"}
     for name, value in data.items():
         if name not in known:
             raise ConfigError(name, "unknown section")
@@ -230,12 +231,23 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             max_bytes=farm.integer("max_bytes", 50_000_000, 1, 2**40),
             ack_wait_s=farm.number("ack_wait_s", 30.0, 1.0, 3600.0),
         ),
-        slicing=_anchor_files(slicing_settings(data.get("slicing", {}), None, "slicing"), cwd),
-        slicing_given=frozenset(_dotted(data.get("slicing", {}))),
+        slicing=_anchor_files(_with_material(data, slicing_settings(
+            data.get("slicing", {}), None, "slicing")), cwd),
+        slicing_given=frozenset(_dotted(data.get("slicing", {})))
+        | material_keys(data.get("material", {})),
     )
     for section in (jobs, state, printer, sim, mqtt, runner, notify, farm):
         section.refuse_unknown()
     return config
+
+
+def _with_material(data: Mapping[str, Any], settings: SliceSettings) -> SliceSettings:
+    """``settings`` with the ``[material]`` table's modulus, Poisson's ratio and density."""
+    try:
+        return material_settings(data.get("material", {}), settings,
+                                 frozenset(_dotted(data.get("slicing", {}))))
+    except SettingsError as exc:
+        raise ConfigError(exc.key, exc.reason) from exc
 
 
 def slicing_settings(
