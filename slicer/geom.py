@@ -30,9 +30,16 @@ def overlay(op: Callable[..., Shapes], a: Shapes, b: Shapes) -> Shapes:
         for idx in np.ndindex(a_arr.shape):
             out[idx] = overlay(op, a_arr[idx], b_arr[idx])
         return out
-    fa = shapely.make_valid(shapely.set_precision(a, GRID))
-    fb = shapely.make_valid(shapely.set_precision(b, GRID))
-    return op(fa, fb, grid_size=GRID)
+    return op(_on_grid(a), _on_grid(b), grid_size=GRID)
+
+
+def _on_grid(g: shapely.Geometry) -> shapely.Geometry:
+    """``g`` valid on the precision grid; an invalid ``g`` (parts of a region that
+    cross, from a degenerate mesh) is made valid first, as the grid alone cannot."""
+    try:
+        return shapely.make_valid(shapely.set_precision(g, GRID))
+    except GEOSException:
+        return shapely.make_valid(shapely.set_precision(shapely.make_valid(g), GRID))
 
 
 def intersection(a: Shapes, b: Shapes) -> Shapes:

@@ -98,6 +98,14 @@ def _convex_insets(polygons: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, 
         return out, ok
     x, y, ux, uy, ring = x[take], y[take], ux[take], uy[take], ring[take]
     d = dist[ring]
+    # each polygon's box (its points are grouped by polygon, in order)
+    first = np.flatnonzero(np.r_[True, ring[1:] != ring[:-1]])
+    x_lo, x_hi = np.zeros(m), np.zeros(m)
+    y_lo, y_hi = np.zeros(m), np.zeros(m)
+    x_lo[ring[first]] = np.minimum.reduceat(x, first)
+    x_hi[ring[first]] = np.maximum.reduceat(x, first)
+    y_lo[ring[first]] = np.minimum.reduceat(y, first)
+    y_hi[ring[first]] = np.maximum.reduceat(y, first)
     adjacent = None  # every edge's previous one is the polygon's own
     empty = np.zeros(m, dtype=bool)
     while True:
@@ -116,9 +124,9 @@ def _convex_insets(polygons: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, 
                 gap = -uy[prev][far] * (x[prev][far] - x[far]) + ux[prev][far] * (
                     y[prev][far] - y[far])
                 t[far] += gap / sin[far]
-        cx = x - d * uy + t * ux
-        cy = y + d * ux + t * uy
-        along = (cx[nxt] - cx) * ux + (cy[nxt] - cy) * uy
+            cx = x - d * uy + t * ux
+            cy = y + d * ux + t * uy
+            along = (cx[nxt] - cx) * ux + (cy[nxt] - cy) * uy
         back = ~(along > _MIN_EDGE)
         back &= ~gone[ring]
         empty |= gone
@@ -133,6 +141,13 @@ def _convex_insets(polygons: np.ndarray, dist: np.ndarray) -> tuple[np.ndarray, 
             x[stay], y[stay], ux[stay], uy[stay], ring[stay], d[stay], adjacent[stay])
     live = ~gone[ring]
     cx, cy, ring = cx[live], cy[live], ring[live]
+    # two (nearly) parallel edges left next to each other (an edge between them
+    # dropped) have moved lines that meet far away or never: an inset lies inside its
+    # polygon, so a polygon with a corner outside its own box is left to GEOS
+    inside = (cx >= x_lo[ring]) & (cx <= x_hi[ring]) & (cy >= y_lo[ring]) & (cy <= y_hi[ring])
+    ok &= _none(ring, ~inside, m)
+    keep = ok[ring]
+    cx, cy, ring = cx[keep], cy[keep], ring[keep]
     made = np.flatnonzero(ok & ~empty)
     out[np.flatnonzero(ok & empty)] = shapely.Polygon()
     if len(made):

@@ -158,30 +158,73 @@ def weld_open_vertices(
 
     CAD tools write each body of a multibody design, or each patch of a body, on
     its own, so corners that should be one differ in their last bits and the
-    edges between them look open. Only vertices on open edges are compared
-    (a KD-tree over those alone); each group of vertices chained within the
-    tolerance takes the lowest-numbered one's place. The caller drops the faces
-    this makes degenerate.
+    edges between them look open. Only vertices on open edges are compared;
+    each group of vertices chained within the tolerance takes the
+    lowest-numbered one's place. The caller drops the faces this makes
+    degenerate.
     """
     nv = len(vertices)
     ends = np.unique(np.concatenate([open_keys // nv, open_keys % nv]))
     if len(ends) < 2:
         return faces, 0
-    from scipy.sparse import coo_matrix
-    from scipy.sparse.csgraph import connected_components
-    from scipy.spatial import cKDTree
-
-    pairs = cKDTree(vertices[ends]).query_pairs(tolerance, output_type="ndarray")
-    if len(pairs) == 0:
+    a, b = _close_pairs(vertices[ends], tolerance)
+    if len(a) == 0:
         return faces, 0
-    graph = coo_matrix(
-        (np.ones(len(pairs), dtype=np.int8), (pairs[:, 0], pairs[:, 1])),
-        shape=(len(ends), len(ends)),
-    )
-    _, comp = connected_components(graph, directed=False)
-    lowest = np.full(comp.max() + 1, len(ends), dtype=np.int64)
-    np.minimum.at(lowest, comp, np.arange(len(ends)))
+    root = _components(len(ends), a, b)
     target = np.arange(nv, dtype=np.int64)
-    target[ends] = ends[lowest[comp]]
-    merged = int((target[ends] != ends).sum())
+    target[ends] = ends[root]
+    merged = int((root != np.arange(len(ends))).sum())
     return target[faces], merged
+
+
+# neighbours in x order compared per point before the KD-tree takes over (a wall of
+# open edges at one x has many points within the tolerance in x alone)
+_MAX_X_NEIGHBOURS = 32
+
+
+def _close_pairs(points: np.ndarray, tolerance: float) -> tuple[np.ndarray, np.ndarray]:
+    """Index pairs (i < j) of ``points`` (n, 3) within ``tolerance`` of each other.
+
+    Points sorted by x are compared with their next neighbours in that order
+    while any is within the tolerance in x (few: the open edges' ends of a
+    part are far apart); past :data:`_MAX_X_NEIGHBOURS` a KD-tree finds them.
+    """
+    order = np.argsort(points[:, 0], kind="stable")
+    p = points[order]
+    n = len(p)
+    found_a, found_b = [], []
+    active = np.arange(n - 1)
+    for d in range(1, n):
+        active = active[active + d < n]
+        active = active[p[active + d, 0] - p[active, 0] <= tolerance]
+        if len(active) == 0:
+            break
+        if d > _MAX_X_NEIGHBOURS:
+            from scipy.spatial import cKDTree
+
+            pairs = cKDTree(points).query_pairs(tolerance, output_type="ndarray")
+            return pairs[:, 0].astype(np.int64), pairs[:, 1].astype(np.int64)
+        near = np.linalg.norm(p[active + d] - p[active], axis=1) <= tolerance
+        found_a.append(order[active[near]])
+        found_b.append(order[active[near] + d])
+    if not found_a:
+        return np.empty(0, dtype=np.int64), np.empty(0, dtype=np.int64)
+    return np.concatenate(found_a).astype(np.int64), np.concatenate(found_b).astype(np.int64)
+
+
+def _components(n: int, a: np.ndarray, b: np.ndarray) -> np.ndarray:
+    """The lowest node of each node's connected component, for edges ``a``-``b``."""
+    parent = np.arange(n, dtype=np.int64)
+    while True:
+        pa, pb = parent[a], parent[b]
+        differ = pa != pb
+        if not differ.any():
+            return parent
+        a, b, pa, pb = a[differ], b[differ], pa[differ], pb[differ]
+        hi, lo = np.maximum(pa, pb), np.minimum(pa, pb)
+        np.minimum.at(parent, hi, lo)
+        while True:  # pointer jumping to the roots
+            up = parent[parent]
+            if np.array_equal(up, parent):
+                break
+            parent = up
