@@ -3,9 +3,14 @@ given as loose triangles, overlapping bodies; each prints as its designer meant.
 
 from __future__ import annotations
 
+import subprocess
+import sys
+from pathlib import Path
+
 import numpy as np
 import shapely
 import trimesh
+from conftest import DATA, sim_config
 
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
@@ -121,3 +126,45 @@ def test_an_open_sheet_beside_a_box_is_named_and_left_out():
     assert abs(shapely.area(plan.outline(10)) - 400.0) < 1.0
     assert any(w.startswith("body 2 of 2 (an open surface of 4 triangles, 8.0 x 8.0 x 6.0 mm)")
                for w in plan.warnings), plan.warnings
+
+
+def write_triangles(path: Path, triangles: np.ndarray) -> Path:
+    """``triangles`` (n, 3, 3) mm as a binary STL."""
+    tri = np.asarray(triangles, dtype="<f4").reshape(-1, 3, 3)
+    rec = np.zeros(len(tri), dtype=[("n", "<f4", (3,)), ("c", "<f4", (3, 3)), ("a", "<u2")])
+    rec["c"] = tri
+    path.write_bytes(b"\0" * 80 + np.uint32(len(tri)).tobytes() + rec.tobytes())
+    return path
+
+
+def part_and_stray_triangle() -> np.ndarray:
+    """The real parts' crash in small: a sphere and one loose 1 mm triangle beside it."""
+    sphere = trimesh.creation.icosphere(3, radius=10.0)
+    sphere.apply_translation((0.0, 0.0, 10.0))
+    stray = np.array([[[30, 0, 4.5], [31, 0, 4.5], [30.5, 0.5, 6.0]]], dtype=np.float64)
+    return np.concatenate([sphere.triangles, stray])
+
+
+def test_slice_says_what_it_left_out_and_never_prints_a_traceback(tmp_path):
+    model = write_triangles(tmp_path / "stray.stl", part_and_stray_triangle())
+    done = subprocess.run(
+        [sys.executable, "-m", "hostd.cli", "slice", str(model), "-o", str(tmp_path / "s.gcode"),
+         "--quiet"], capture_output=True, text=True, timeout=300, check=False)
+    assert done.returncode == 0, done.stderr
+    assert "Traceback" not in done.stderr
+    assert ("warning: body 2 of 2 (an open surface of 1 triangle, 1.0 x 0.5 x 1.5 mm): "
+            "encloses nothing, left out") in done.stdout
+
+
+def test_the_daemon_prints_the_old_crash_and_fails_only_sheets_with_a_reason(daemon, tmp_path):
+    hostd = daemon(sim_config(time_scale=0.0))
+    hostd.drop(write_triangles(tmp_path / "a.stl", part_and_stray_triangle()), "stray.stl")
+    sheets = [[[0, 0, 0], [10, 0, 0], [10, 0, 5]], [[20, 0, 0], [30, 0, 0], [30, 0, 5]]]
+    hostd.drop(write_triangles(tmp_path / "b.stl", np.array(sheets, dtype=float)), "sheets.stl")
+    hostd.drop((DATA / "cube20_xyz.stl").read_bytes(), "good.stl")
+    done, failed = hostd.jobs / "done", hostd.jobs / "failed"
+    hostd.wait_for(lambda: (done / "good.summary.txt").exists(), 120, "the three jobs")
+    assert "left out" in (done / "stray.summary.txt").read_text()
+    reason = (failed / "sheets.error.txt").read_text()
+    assert "not watertight after repair" in reason, reason
+    assert "internal error" not in hostd.log()
