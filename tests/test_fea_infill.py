@@ -217,6 +217,42 @@ def test_an_unreachable_target_mass_is_refused(tmp_path: Path) -> None:
                       tmp_path / "cache")
 
 
+def _falling_mass(plan: SlicePlan) -> float:
+    """A mass that rises with the density up to 0.4 and falls beyond (as a stress field's
+    lines thin out), g; the part printed solid (linear infill at density 1) 12.9 g."""
+    k = plan.settings.infill_density
+    if plan.settings.infill_field == "linear" and k == 1.0:
+        return 12.9
+    return 1.2 + 14.0 * k if k <= 0.4 else 6.8 - 1.0 * (k - 0.4)
+
+
+@pytest.mark.parametrize("target", [6.5, 6.0, 3.0])
+def test_equal_mass_holds_when_the_mass_falls_as_the_density_rises(tmp_path: Path,
+                                                                   target: float) -> None:
+    from slicer.fields.stress_mass import match_mass
+
+    stl = bar_files(tmp_path)
+    settings = SliceSettings.from_mapping({"infill.density": 0.3, "infill.target_mass_g": target})
+    plan, found = match_mass(SlicePlan.from_file(stl, settings, BED), _falling_mass)
+    assert found is not None
+    assert found.mass_g == pytest.approx(target, rel=0.01)
+    assert _falling_mass(plan) == pytest.approx(found.mass_g)
+
+
+def test_a_target_over_the_heaviest_infill_is_refused_naming_the_solid_part(
+        tmp_path: Path) -> None:
+    from slicer.fields.stress_mass import match_mass
+
+    stl = bar_files(tmp_path)
+    settings = SliceSettings.from_mapping({"infill.density": 0.3, "infill.target_mass_g": 9.0})
+    with pytest.raises(SettingsError) as caught:
+        match_mass(SlicePlan.from_file(stl, settings, BED), _falling_mass)
+    words = str(caught.value)
+    assert "9.00 g is more than this infill weighs at any density" in words
+    assert "the part printed solid weighs 12.90 g" in words
+    assert "at most 6.8" in words
+
+
 def test_the_optimal_density_keeps_the_mass_and_beats_stress_b_on_the_gage() -> None:
     from slicer.fea.field import mesh_arrays
     from slicer.fea.loadcase import read_load_case
