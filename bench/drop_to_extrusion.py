@@ -10,7 +10,8 @@ slicing time on the same model (a batch slicer writes no G-code before it has sl
 everything). Then the idle daemon's CPU use over 60 s and its peak resident memory
 while printing the largest models to the end.
 
-With ``--corpus`` the drops are the shared models and the generated corpus
+With ``--corpus`` the drops are the shared models, the real parts of
+``../shared/models/real/`` (skipped when absent) and the generated corpus
 (``bench/corpus.py``), and each row says whether the first extrusion came at least
 10x sooner than CuraEngine's whole slice where CuraEngine needs 0.5 s or more.
 ``--print-model large_sphere_3m`` prints the 3.03M-triangle memory case.

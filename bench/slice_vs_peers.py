@@ -7,9 +7,11 @@ ratio against PrusaSlicer, and the mean per-layer IoU of the outer wall against
 PrusaSlicer's. Then the scale case: the bunny subdivided twice (~1.1M faces), ours
 against CuraEngine.
 
-With ``--corpus`` it slices the shared models and the generated corpus
-(``bench/corpus.py``) instead, and prints one row per model with every target
-checked (time against the faster peer, filament, outer wall) and the worst ratio.
+With ``--corpus`` it slices the shared models, the real parts of
+``../shared/models/real/`` (CAD exports of printed parts; skipped when absent)
+and the generated corpus (``bench/corpus.py``) instead, and prints one row per
+model with every target checked (time against the faster peer, filament, outer
+wall), why where one is missed, and the worst ratio.
 
 Usage (from the repository root):
     .venv/bin/python bench/slice_vs_peers.py [--repeat 3] [--models bunny,cube20_xyz]
@@ -35,6 +37,8 @@ from bench.peers import CACHE, Peer, available_peers
 
 ROOT = Path(__file__).resolve().parents[1]
 MODELS = ROOT.parent / "shared" / "models"
+# the shared models' folder of real parts: printed parts as their designers exported them
+REAL = "real"
 OUT = ROOT / "bench" / "out"
 
 # hostd slicing settings equal to the peers' (slicer/settings.py keys)
@@ -141,11 +145,20 @@ def model_paths(folder: Path, selected: str) -> list[Path]:
     return chosen
 
 
+def real_parts(shared: Path) -> list[Path]:
+    """The CAD exports of printed parts in ``shared/real`` (read from there, never
+    copied: GPL data); none when the folder is absent."""
+    folder = shared / REAL
+    return sorted(folder.glob("*.stl")) if folder.is_dir() else []
+
+
 def corpus_paths(shared: Path, selected: str) -> list[Path]:
-    """The shared models and the generated corpus (written when missing), smallest first."""
+    """The shared models, the real parts (when their folder is there) and the generated
+    corpus (written when missing), smallest first."""
     from bench.corpus import build
 
-    paths = sorted([*shared.glob("*.stl"), *build()], key=lambda p: (p.stat().st_size, p.name))
+    paths = sorted([*shared.glob("*.stl"), *real_parts(shared), *build()],
+                   key=lambda p: (p.stat().st_size, p.name))
     if not selected:
         return paths
     wanted = {s.strip().removesuffix(".stl") for s in selected.split(",") if s.strip()}
