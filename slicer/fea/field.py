@@ -23,8 +23,9 @@ from slicer.fea.loadcase import (
 from slicer.fea.optimal import ITERATIONS, OBJECTIVE_VERSION, optimal_density
 from slicer.fea.solve import Solution, analyse, fixed_nodes, nodal_loads
 from slicer.fea.voxel import default_cell, mesh_volume, voxelize
+from slicer.fields.stress import SCALE_PERCENTILE
 
-FIELD_VERSION = "1"  # bump when the analysis changes what it writes
+FIELD_VERSION = "2"  # bump when the analysis changes what it writes
 
 
 @dataclass(frozen=True)
@@ -154,6 +155,7 @@ def write_field(path: Path, solution: Solution, values: np.ndarray | None = None
                 points=lattice_points(solution),
                 values=nodal_lattice(solution, values).ravel(),
                 peak=np.float64(values.max()),
+                scale=np.float64(np.percentile(values, SCALE_PERCENTILE)),
                 cell=solution.mesh.grid.cell,
                 elements=np.int64(len(solution.mesh.cells)),
             )

@@ -25,7 +25,8 @@ log = logging.getLogger("slicer.stress")
 
 SLAB_CELL = 2.0  # line widths between the nodes the samples are first interpolated to
 SLAB_NODES = 40_000  # at most this many such nodes per layer
-FLOOR = 0.05  # least modulation, as a fraction of the peak, so unloaded areas keep sparse lines
+FLOOR = 0.05  # least modulation, as a fraction of the scale, so unloaded areas keep sparse lines
+SCALE_PERCENTILE = 99.0  # the stress the field is scaled to: this percentile over the part
 PLANES_KEPT = 8  # lattice planes kept (layers being sliced at once, and a few more)
 AXIS_SAMPLES = 1024  # stations along the long axis where variant B reads the field
 
@@ -34,8 +35,10 @@ AXIS_SAMPLES = 1024  # stations along the long axis where variant B reads the fi
 class StressField(GridField):
     """H = sigma(x, y, z) * H_lin(x, y, z; t) * k, the paper's Eq. 14.
 
-    ``sigma`` is read from ``infill.file`` (see :func:`load_stress`) and scaled to
-    its peak (floored at 5 %), ``H_lin = x sin t + y cos t (-1)^layer`` with
+    ``sigma`` is read from ``infill.file`` (see :func:`load_stress`), scaled to the
+    99th percentile of the stress over the part (:func:`stress_scale`: a peak at a
+    re-entrant corner grows without bound as the mesh is refined, the percentile
+    converges) and kept between 5 % and 1, ``H_lin = x sin t + y cos t (-1)^layer`` with
     ``t = infill.angle``; ``k`` is set by the level placement from
     ``infill.density``. The file's samples are in the model's own frame: their
     lower corner is lined up with the placed model's. Contours crowd where the
@@ -67,7 +70,10 @@ class StressField(GridField):
         from slicer.fields.stress_data import load_stress  # when first sampled
 
         data = load_stress(self.settings.infill_file)
-        self.peak = float(np.max(np.abs(data.values))) or 1.0
+        if self.settings.infill_stress == "optimal":  # a density: scaled to its peak
+            self.peak = float(np.max(np.abs(data.values))) or 1.0
+        else:
+            self.peak = stress_scale(self.settings.infill_file, data.values)
         self.profile = axis_profile(data) if self.settings.infill_stress == "B" else None
         self._data = data
 
@@ -154,7 +160,7 @@ class StressField(GridField):
         if self.settings.infill_stress == "optimal":  # straight lines: line_density spaces them
             return linear
         stress = self.stress(x, y, ctx)  # loads the field first: peak is known after it
-        sigma = np.maximum(np.abs(stress) / self.peak, FLOOR)
+        sigma = np.clip(np.abs(stress) / self.peak, FLOOR, 1.0)
         field: NDArray[np.float64] = (sigma.reshape(x.shape) * linear).reshape(x.shape)
         return field
 
@@ -169,6 +175,17 @@ class StressField(GridField):
         rho = self.stress(xx.ravel(), yy.ravel(), ctx)
         density: NDArray[np.float64] = np.maximum(np.abs(rho) / self.peak, FLOOR)
         return density.reshape(xx.shape)
+
+
+def stress_scale(path: str, values: np.ndarray) -> float:
+    """The stress a field is scaled to: the ``scale`` the analysis wrote in its field
+    file (the :data:`SCALE_PERCENTILE` th percentile of its elements' von Mises stress,
+    all of one volume), else that percentile of the file's values (an imported file)."""
+    if str(path).lower().endswith(".npz"):
+        with np.load(path, allow_pickle=False) as data:
+            if "scale" in data:
+                return float(data["scale"]) or 1.0
+    return float(np.percentile(np.abs(values), SCALE_PERCENTILE)) or 1.0
 
 
 def axis_profile(data: StressData) -> tuple[int, np.ndarray, np.ndarray]:
