@@ -66,6 +66,8 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.paused = False
         self.cancelled = False
         self.stopping = False  # M112 queued or written: no job line goes after it
+        self.resolving = False  # a probe after a refusal is out: no job line until answered
+        self.doubt = False  # an answer taken for an owed one may have been a probe's in flight
         self.started = False
         self.handshaking = False
         self.last_rx = 0.0  # any line received
@@ -76,6 +78,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.last_probe_at = -1.0  # when the last probe was due and sent
         self.over_budget = 0  # lines past the modelled receive buffer since the last answer
         self.reconnected_at = 0.0
+        self.connect_at = 0.0  # when the port was opened (``begin_connect``)
         self._events: list[Event] = []
         self._plain_oks: dict[str, Response] = {}  # parsed once: plain and advanced oks
         self._oks_lost = False  # the port was cut: oks are counted in the window's order
@@ -264,6 +267,15 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             # left alone: renumbering counts one ok per write of it, and one that did not
             # take shows as refused lines, which renumber again
             self._expect_resend_ok = True
+            oldest = self.window.oldest()
+            if garbled and oldest is not None and oldest.number == int(garbled.group(1)) \
+                    and len(self.window) == 1 and self.replay_next is None:
+                # the only line in flight did not run as itself: the printer still needs
+                # it. Replayed now, as a refusal would have it; left to the next line's
+                # refusal, it waited for a probe when it was the only line the window
+                # allowed. (With lines behind it, those are refused by number, and a
+                # replay now would land in a receive buffer nothing drained)
+                self.replay_from(oldest.number)
 
     def _recent_command(self, text: str) -> bool:
         """Whether ``text`` is the command of one of the last lines written (an echo whose
@@ -354,6 +366,8 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.clear_resync()
         self.replay_next = None
         self.force_replay = False
+        self.resolving = False
+        self.doubt = False
         self._late_oks = 0
         self._answers_owed = []
         if self.renumber is not None:
@@ -377,13 +391,15 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
     def begin_connect(self, now: float) -> None:
         """The port is open: wait for ``start`` (the board's reset)."""
         self.state = LinkState.CONNECTING
-        self.last_rx = self.last_answer = now
+        self.last_rx = self.last_answer = self.connect_at = now
 
     def begin_handshake(self, reset_to: int, keep_history: bool, token: int) -> None:
         """``M110 N<reset_to>`` once nothing is in flight; ``token`` is acknowledged when
         the printer took it."""
         self.handshaking = True  # from now on a `start` is a reset to recover from
-        self.renumber = Renumber(self.next_number, reset_to, keep_history, token=token)
+        # numbered as the value it sets: "N1 M110 N0" set the last line to 0 on Marlin and
+        # to 1 on firmware that reads the line's own number, which then refused line 1
+        self.renumber = Renumber(reset_to, reset_to, keep_history, token=token)
 
     def connected(self, now: float) -> None:
         """The handshake is done: ready to stream (or paused, if paused meanwhile)."""

@@ -38,7 +38,11 @@ class CoreFields:
     cancelled: bool
     stopping: bool
     force_replay: bool
+    doubt: bool  # an answer may have been taken for an owed one: probe soon if silent
+    resolving: bool  # a probe asked after a refusal left oks uncertain: no job line until answered
     fenced: bool
+    started: bool
+    connect_at: float
     last_rx: float
     last_answer: float
     last_poll: float

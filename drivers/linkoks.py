@@ -33,12 +33,33 @@ class Acknowledging(CoreFields):
 
     def _on_ok(self, response: Response) -> None:
         probe_answer = bool(response.temperatures)
+        if probe_answer and self.resolving and not self._answers_owed:
+            newest = self._past_held_probe()
+            if newest is not None:
+                # the probe asked after a refusal that left an older probe's answer
+                # uncertain: this answer is taken for it, every line before it done. Had
+                # the older probes' answers come after all (this one among them), as many
+                # are still to come: owed, each acknowledges nothing
+                self.resolving = False
+                self._late_oks = 0
+                self._answers_owed = [newest] * sum(
+                    1 for e in self.window if e.held and e.number is not None
+                    and e.number < newest and _is_probe_line((e.command, True)))
+                done = self.window.ack_upto(newest)
+                if not any(e.number == newest for e in done):
+                    return
+                for entry in done:
+                    self.acknowledged(entry)
+                return
         if probe_answer:
             self._late_oks = 0  # a probe's answer: any late ok came before it
             if self._answers_owed:
                 # the answer of a probe acknowledged with the one before it: the printer
                 # has answered up to that probe now, and no line after it
                 del self._answers_owed[0]
+                # taken for the owed answer, it may have been the probe's in flight (the
+                # older answer was withheld): if nothing follows, ask again soon
+                self.doubt = any(e.probe for e in self.window)
                 return
         elif self._answers_owed:
             self._answers_owed = []  # answers come in order: those owed came (or were lost)
@@ -61,6 +82,7 @@ class Acknowledging(CoreFields):
             done = self._ack_by_count(probe_answer)
         if not done:
             return
+        self.doubt = False
         last = self.next_number - 1
         for entry in done:
             if entry.probe and entry.number == last:
@@ -69,6 +91,29 @@ class Acknowledging(CoreFields):
             self.window.grow()
         for entry in done:
             self.acknowledged(entry)
+
+    def _past_held_probe(self) -> int | None:
+        """The first probe in flight that the printer has not been seen to read, when
+        every line from the count up to it is an ``M105`` and one of them is a probe a
+        refusal named as the printer's last line; else ``None`` (the count decides).
+
+        Such a probe may never be answered (the firmware's ok after the ``Resend`` stood
+        for it): counted for it, the answer of the probe asked next left the count a line
+        behind for good, and the window waited. With nothing but probes between, taking
+        the answer for the newer probe acknowledges no job line early."""
+        held = [e.number for e in self.window if e.held and e.number is not None
+                and _is_probe_line((e.command, True))]
+        if not held:
+            return None
+        later = next((e.number for e in self.window if e.probe and not e.held
+                      and e.number is not None and e.number > held[0]), None)
+        if later is None:
+            return None
+        history = self.history
+        if any(not _is_probe_line(history.get(n)) for n in
+               range(self.last_acked_number + 1, later)):
+            return None
+        return later
 
     def _ack_probe(self) -> list[InFlight]:
         """An ``ok T:`` in the window's order: the oldest ``M105`` in flight, with the

@@ -62,8 +62,10 @@ class Resync(CoreFields):
                 self.stats.implausible_resends += 1
                 return
             far = self.last_acked_number - number > self.window.max_lines + 4
-            if number not in self.history or (far and number == 1):
-                # the printer lost its line number (a reset whose banner was lost)
+            lost = error_line == 0 and number == 1 and not implied
+            if number not in self.history or (far and number == 1) or lost:
+                # the printer lost its line number (a reset whose banner was lost, or a
+                # firmware that prints none: "Last Line: 0" only a reset or M110 gives)
                 self.on_reset()
                 return
             # oks counted for lines the printer refused (a mangled line it answered as an
@@ -72,19 +74,42 @@ class Resync(CoreFields):
             # to the last line acknowledged would skip the lines it never took
             self.last_acked_number = number - 1
             self._answers_owed = [n for n in self._answers_owed if n < number]
+            if not self.stopping:
+                # the lines it names may have been taken after all (the request came late),
+                # and a firmware that drops a repeated line silently answers their copies
+                # with nothing: a probe after the replay says where the printer is
+                self.resolving = True
+                self._ask_probe()
         model = self.model
         if error_line is not None:
             model.holds(error_line)
         # two lines agreeing (the Error's Last Line and the Resend's number, as received)
         confirmed = (not implied and error_line is not None and error_line + 1 == number
                      and response.digits == str(number))
-        if confirmed and error_line is not None and model.explains(error_line):
+        if confirmed and error_line is not None and error_line > self.last_acked_number \
+                and self.window.release(error_line) and not self.stopping:
+            # the printer has read the lines up to its Last Line: they leave its receive
+            # buffer (and the window), but whether their oks come is the firmware's choice
+            # (an emulation answers the refused next line with the only ok the last line
+            # gets); a probe right away tells, instead of a full window waiting out the
+            # silence for one. Until it is answered no job line goes out: with nothing but
+            # the probe after them, its ok T: is the first answer past those lines, and
+            # acknowledges them however many oks the firmware gave them
+            self.resolving = True
+            self._ask_probe()
+        if confirmed and error_line is not None and model.explains(error_line) \
+                and not self._refuses_oldest(number):
             # the printer took lines at or after the replay's start before their copies
             # arrived (the refusal that started it was spurious, or lines still on the wire
             # got through): those copies are refused, each once, and need no answer
             self._resync(number)
             return
-        if number == model.refused and model.echoes > 0:
+        # a line behind a refused one is refused by its number; a checksum error names a
+        # line numbered as asked, so it is the refusal of a copy (taken for an echo, that
+        # copy was never replayed and the window waited for its ok)
+        if number == model.refused and model.echoes > 0 and not (
+                error_before is not None and error_before.error_kind == "checksum"
+                and self._refuses_oldest(number)):
             model.echoes -= 1
             self.stats.duplicate_resends += 1
             if confirmed and error_line is not None:
@@ -92,12 +117,40 @@ class Resync(CoreFields):
             return
         if number >= self.next_number:
             return  # the printer has every line sent: nothing to replay
+        self.replay_from(number)
+
+    def replay_from(self, number: int) -> None:
+        """The printer refused line ``number`` (and drains or refuses those after it):
+        write them again from there, with a narrower window."""
         self.window.shrink()
         # probes from the refused line on are replayed: their copies' answers are counted
         self._answers_owed = [n for n in self._answers_owed if n < number]
         dropped = self.window.drop_from(number)
-        model.replaying(number, len(dropped) - 1, top=self.next_number - 1)
+        self.model.replaying(number, len(dropped) - 1, top=self.next_number - 1)
         self.replay_next = number
+
+    def _refuses_oldest(self, number: int) -> bool:
+        """True when a refusal asking for ``number`` can only be that of the oldest line in
+        flight, a copy of ``number`` itself: no copy of a line the printer holds is still
+        in flight to be refused instead. (A firmware that keeps its receive buffer after
+        an error refuses the lines behind it in turn; taken for the echo of a held copy,
+        that refusal was answered by nothing and the stream waited for a probe.)"""
+        oldest = self.window.oldest()
+        if oldest is None or oldest.number != number:
+            return False
+        if not oldest.copy:
+            # an original: only when no refusal of a copy is still expected either
+            return self.model.echoes == 0 and not any(e.copy for e in self.window)
+        return not any(e.copy and e.number is not None and e.number < number
+                       for e in self.window)
+
+    def _ask_probe(self) -> None:
+        """An ``M105`` as the next line the link adds, unless one is already out or
+        queued: its ``ok T:`` acknowledges every line before it."""
+        if any(c.probe for c in self.control) or any(
+                e.probe for e in self.window if not e.held and not e.copy):
+            return
+        self.queue_control("M105", internal=True, probe=True, front=True)
 
     def _resync(self, number: int) -> None:
         """A refusal whose ``Last Line`` is past the replay's start: the printer took those

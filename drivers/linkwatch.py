@@ -5,10 +5,16 @@ from __future__ import annotations
 import math
 
 from drivers.linkconfig import LONG_COMMANDS
-from drivers.linkevents import Event, LinkState
+from drivers.linkevents import Event, LinkState, Started
 from drivers.linkfields import CoreFields
 from drivers.protocol import frame
 from drivers.responses import Response
+
+# silence after which a probe goes when a line the printer has read may never get its ok
+# (a refusal named it as the last line; some firmware's ok after the Resend stood in for
+# it): the window may then wait for an ok that never comes, so the link asks at once
+# rather than after ``probe_after_s``
+HELD_PROBE_S = 0.1
 
 # commands that wait for a heater and report temperatures while they run
 HEATING = frozenset({"M109", "M190", "M191", "M303"})
@@ -39,7 +45,7 @@ class Watching(CoreFields):
 
     def tick_interval(self) -> float:
         """How often the shell should call :meth:`tick` (seconds)."""
-        tick = min(0.25, self.config.probe_after_s / 4)
+        tick = min(0.25, self.config.probe_after_s / 4, HELD_PROBE_S / 2)
         if self.config.temperature_interval_s > 0:
             tick = min(tick, self.config.temperature_interval_s / 4)
         return tick
@@ -50,10 +56,19 @@ class Watching(CoreFields):
             return self.take_events()
         if self.state == LinkState.RECONNECTING:
             self._watch_reconnect(now)
+        elif self.state == LinkState.CONNECTING and not self.started:
+            self._watch_start(now)
         else:
             self._watch_silence(now)
             self._watch_temperature(now)
         return self.take_events()
+
+    def _watch_start(self, now: float) -> None:
+        """No ``start`` banner within ``start_timeout_s`` of opening the port: a board that
+        did not reset on open (or prints no banner) is taken as ready (``Started``)."""
+        if now - self.connect_at >= self.config.start_timeout_s:
+            self.started = True
+            self._events.append(Started())
 
     def _watch_reconnect(self, now: float) -> None:
         """No ``start`` after reopening: the printer kept its state; continue after the
@@ -81,6 +96,9 @@ class Watching(CoreFields):
         # per interval at most, each only when it fits the receive buffer as modelled
         silence = now - self.last_answer
         interval = self.config.probe_after_s
+        if (self.window.held or self.doubt) and interval > HELD_PROBE_S \
+                and not self.probes_unanswered:  # (one such probe: no storm of them)
+            interval = HELD_PROBE_S
         if silence < interval * (self.probes_unanswered + 1) \
                 or now - self.last_probe_at < interval:
             return

@@ -12,7 +12,10 @@ from drivers.window import InFlight
 
 @dataclass
 class Renumber:
-    """An ``M110`` in progress: written as line ``line``, sets the last line to ``value``."""
+    """An ``M110`` in progress: sets the last line to ``value``, and is written as line
+    ``value`` itself (``N0 M110 N0``), the one form every firmware reads alike: Marlin takes
+    the parameter, some firmware (and OctoPrint's virtual printer) the line's own number.
+    ``line`` is the number the core records it under (the same)."""
 
     line: int
     value: int
@@ -90,7 +93,11 @@ class Writing(CoreFields):
             return self._next_replay_line(now)
         if self.control:
             return self._next_control_line(now)
-        if self.pending and not self.paused and not self.cancelled and not self.stopping:
+        if self.resolving and not any(c.probe for c in self.control) \
+                and not any(e.probe for e in self.window):
+            self.resolving = False  # the probe was answered (or taken back) meanwhile
+        if self.pending and not self.paused and not self.cancelled and not self.stopping \
+                and not self.resolving:
             number = self.next_number
             if number >= self.config.renumber_at:
                 if len(self.window):
@@ -105,7 +112,7 @@ class Writing(CoreFields):
                         self.queue_control("M105", internal=True, probe=True)
                     return self._next_control_line(now)
                 self.stats.renumbers += 1
-                self.renumber = Renumber(number, 0, keep_history=False)
+                self.renumber = Renumber(0, 0, keep_history=False)
                 return self._next_renumber_line(now)
             command, token = self.pending[0]
             framed = self._framed

@@ -13,6 +13,7 @@ FAULT_KINDS = (
     "drop_ok",
     "resend",
     "refuse",
+    "refuse_next",
     "busy",
     "reset",
     "disconnect",
@@ -47,6 +48,10 @@ class SimulatorConfig:
       ``Error:checksum mismatch, Last Line: <that line>``, ``Resend: <the next>`` and (with
       ``ok_after_resend``) ``ok``, as noise on a real board's replies produces; nothing is
       drained, so the lines behind it on the wire are accepted as usual;
+    - ``p_refuse_next``: per accepted numbered line, the refusal an emulation makes of the
+      *next* line, before it was sent: ``Error:checksum mismatch, Last Line: <that line>``,
+      ``Resend: <the next>`` and (with ``ok_after_resend``) ``ok``, which is the only ok
+      the line gets (it still runs, but its own ``ok`` never comes);
     - ``p_busy``: per executed command, a burst of 1-5 ``echo:busy: processing`` lines,
       each after one keepalive interval of simulated time;
     - ``p_reset``: per executed command, a reset before it (queue, receive buffer,
@@ -68,6 +73,14 @@ class SimulatorConfig:
     bytes arrive), ``ok_after_resend`` (False: Marlin 2.0 builds that answer an error with
     ``Resend`` only), ``reset_on_open`` (opening the port resets the board, as DTR does),
     ``boot_delay_s`` (wall time from reset to ``start``; bytes meanwhile are lost),
+    ``drop_duplicates`` (a line numbered as the last one received, or one below it, is
+    dropped silently: no ``ok``, no error), ``discard_after_error`` (False: the receive
+    buffer is kept after a refused line, and each line in it is checked in turn),
+    ``m110_by_line`` (``N<k> M110 N<m>`` sets the last line to the line's own ``k``, not
+    to the parameter ``m``), ``m110_twice`` (``M110`` takes effect when received and again
+    when run: a line taken between the two is refused), ``banner`` (False: no ``start``
+    after a reset), ``previous_lines`` (the last line number an earlier host left, kept
+    when the port opens without a reset, ``reset_on_open`` False),
     ``log_path`` (executed commands, one a line), ``link_path`` (a symlink kept pointing
     at the current pseudo-terminal), ``seed`` (of every fault generator).
     """
@@ -84,6 +97,12 @@ class SimulatorConfig:
     emergency_parser: bool = True
     ok_after_resend: bool = True
     reset_on_open: bool = True
+    drop_duplicates: bool = False
+    discard_after_error: bool = True
+    m110_by_line: bool = False
+    m110_twice: bool = False
+    banner: bool = True
+    previous_lines: int = 0
     boot_delay_s: float = 0.05
     keepalive_s: float = 2.0
     no_timeouts_s: float = 0.0
@@ -97,6 +116,7 @@ class SimulatorConfig:
     p_drop_ok: float = 0.0
     p_resend: float = 0.0
     p_refuse: float = 0.0
+    p_refuse_next: float = 0.0
     p_busy: float = 0.0
     p_reset: float = 0.0
     p_disconnect: float = 0.0
@@ -114,6 +134,7 @@ class SimulatorConfig:
         _check(self.boot_delay_s >= 0.0, "boot_delay_s", "must be >= 0")
         _check(self.keepalive_s > 0.0, "keepalive_s", "must be > 0")
         _check(self.no_timeouts_s >= 0.0, "no_timeouts_s", "must be >= 0 (0 = never 'wait')")
+        _check(self.previous_lines >= 0, "previous_lines", "must be >= 0")
         _check(self.reconnect_delay_s >= 0.0, "reconnect_delay_s", "must be >= 0")
         for kind in FAULT_KINDS:
             p = getattr(self, f"p_{kind}")
@@ -138,6 +159,30 @@ class SimulatorConfig:
     def keys(cls) -> tuple[str, ...]:
         """Names of every setting, for callers that build a config from a mapping."""
         return tuple(f.name for f in fields(cls))
+
+
+# Firmware dialects: the settings that make each, and the seeded fault kind that shows it
+# (a host that mishandles the dialect stalls or loses a line under that fault)
+DIALECTS: dict[str, tuple[dict[str, object], str]] = {
+    "marlin": ({}, "refuse"),
+    "next_line": ({}, "refuse_next"),
+    "silent_duplicates": ({"drop_duplicates": True}, "refuse"),
+    "keep_buffer": ({"discard_after_error": False}, "corrupt_rx"),
+    "m110_by_line": ({"m110_by_line": True}, "reset"),
+    "m110_twice": ({"m110_twice": True}, "reset"),
+    "no_banner": ({"banner": False}, "corrupt_tx"),
+    "no_reset_on_open": ({"reset_on_open": False, "previous_lines": 137}, "refuse"),
+}
+
+
+def dialect(name: str, p: float = 0.0, **settings: object) -> SimulatorConfig:
+    """A printer of dialect ``name`` (:data:`DIALECTS`) with its fault at probability ``p``
+    and any other ``settings``."""
+    overrides, fault = DIALECTS[name]
+    merged: dict[str, object] = {**overrides, **settings}
+    if p:
+        merged[f"p_{fault}"] = p
+    return SimulatorConfig(**merged)  # type: ignore[arg-type]
 
 
 def _check(ok: bool, key: str, reason: str) -> None:

@@ -20,7 +20,13 @@ from drivers.heater import BED, HOTEND, Heater, format_temperatures
 from drivers.planner import MarlinPlanner, Move, move_block
 from drivers.simclock import SimClock
 from drivers.simconfig import SimulatorConfig
-from drivers.simlines import check_line, spurious_replies
+from drivers.simlines import (
+    RESEND_OK,
+    check_line,
+    m110_value,
+    silently_dropped,
+    spurious_replies,
+)
 from drivers.simmotion import Motion
 
 ERR_KILLED = "Error:Printer halted. kill() called!"
@@ -59,7 +65,7 @@ class Firmware:
         self.keepalive_s = config.keepalive_s
         self.autoreport_s = 0.0
         self.autoreport_changed = threading.Event()
-        self.last_n = 0
+        self.last_n = config.previous_lines  # an earlier host's, until a reset
         self.stats: Counter[str] = Counter()
         # simulated seconds by kind: motion, dwell, home
         self.times: defaultdict[str, float] = defaultdict(float)
@@ -69,6 +75,7 @@ class Firmware:
         self._partial = bytearray()
         self._eline = bytearray()
         self._queue: deque[tuple[str, int | None]] = deque()  # command, its line number
+        self._no_ok: set[int | None] = set()  # lines whose own ok a refusal replaced
         self._interrupt = threading.Event()
         self._stopping = False
         self._reset_pending = False
@@ -199,30 +206,37 @@ class Firmware:
         self.stats["lines"] += 1
         if self.faults.fires("corrupt_rx"):
             raw = self.faults.flip_bit("corrupt_rx", raw)
-        check = check_line(raw, self.last_n)
+        check = check_line(raw, self.last_n, self.config.m110_by_line)
         if check.error:
+            if self.config.drop_duplicates and silently_dropped(check, self.last_n):
+                self.stats["duplicates_dropped"] += 1
+                return
             self._line_error(check.error)
             return
         self.last_n = check.last_n
         if not check.command:
             return
         self._queue.append((check.command, check.number))
-        replies, refused = spurious_replies(
+        replies, withheld = spurious_replies(
             self.faults.fires, check.command, check.number, self.last_n
         )
+        if withheld:
+            self._no_ok.add(check.number)
         for reply in replies:
-            self.emit(reply)
-        if refused and self.config.ok_after_resend:
-            self.send_ok()
+            if reply != RESEND_OK:
+                self.emit(reply)
+            elif self.config.ok_after_resend:
+                self.send_ok()
 
     def _line_error(self, message: str) -> None:
         """Marlin's ``gcode_line_error``: report, drain the receive buffer, ask for a resend."""
         self.stats["errors"] += 1
         self.stats[message.split(",")[0]] += 1
         self.emit(f"Error:{message}{self.last_n}")
-        with self._lock:
-            self._rx.clear()
-            self._partial.clear()
+        if self.config.discard_after_error:
+            with self._lock:
+                self._rx.clear()
+                self._partial.clear()
         self.emit(f"Resend: {self.last_n + 1}")
         if self.config.ok_after_resend:
             self.send_ok()
@@ -245,8 +259,13 @@ class Firmware:
             for _ in range(self.faults.randint("busy", 1, 5)):
                 self.emit(BUSY)
                 self.wait_sim(self.keepalive_s, keepalive=False)
-        if simcommands.execute(self, command):
+        if self.config.m110_twice and "M110" in command:
+            with self._lock:  # taken when received, and again now that it runs
+                self.last_n = number if self.config.m110_by_line and number is not None \
+                    else m110_value(command, self.last_n)
+        if simcommands.execute(self, command) and number not in self._no_ok:
             self.send_ok(line=number)  # the command still holds its queue slot, as in Marlin
+        self._no_ok.discard(number)
         self._queue.popleft()
 
     # --- services for the command handlers ------------------------------------------
@@ -411,6 +430,7 @@ class Firmware:
             self._rx.clear()
             self._partial.clear()
             self._queue.clear()
+            self._no_ok.clear()
             self.last_n = 0
         self._power_off()
         self.motion.reset()
@@ -422,5 +442,6 @@ class Firmware:
             self._interrupt.wait(boot)
             if self._stopping:
                 raise Abort
-        for line in simcommands.banner():
-            self.emit(line)
+        if self.config.banner:
+            for line in simcommands.banner():
+                self.emit(line)

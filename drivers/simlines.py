@@ -14,6 +14,8 @@ ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
 ERR_CHECKSUM = "checksum mismatch, Last Line: "
 ERR_NO_CHECKSUM = "No Checksum with line number, Last Line: "
 
+RESEND_OK = ""  # in spurious_replies: the ok after a Resend (where the firmware sends one)
+
 _LEADING_N = re.compile(r"^N[-+]?\d*\s*")
 _STRTOL = re.compile(r"\s*([-+]?\d+)")
 
@@ -39,14 +41,15 @@ def strtol(text: str) -> int:
     return int(match.group(1)) if match else 0
 
 
-def check_line(raw: bytes, last_n: int) -> LineCheck:
+def check_line(raw: bytes, last_n: int, m110_by_line: bool = False) -> LineCheck:
     """Check one line (without its terminator) as Marlin does, given the last line number.
 
     Leading blanks are skipped and a ``;`` comment dropped. Only lines starting with ``N``
     are checked: first the number (must be ``last_n + 1`` unless the line holds ``M110``),
     then the checksum (XOR of every byte before the last ``*``). ``M110 N<m>`` sets the
     last line to ``m``, numbered or not; without a parameter a numbered M110 sets it to
-    its own number.
+    its own number; with ``m110_by_line`` (an emulation's reading) a numbered M110 sets it
+    to its own number whatever the parameter says.
     """
     if raw[:1] == b"N" and b";" not in raw:
         quick = _fast_check(raw, last_n)  # the usual line: numbered, no comment, no blanks
@@ -76,11 +79,22 @@ def check_line(raw: bytes, last_n: int) -> LineCheck:
             command = _LEADING_N.sub("", text[:star]).strip()
     else:
         command = text.split("*", 1)[0].strip()
-    if is_m110:
-        param = command.find("N", command.find("M110") + 4)
-        if param >= 0:
-            last_n = strtol(command[param + 1 :])
+    if is_m110 and not (m110_by_line and number is not None):
+        last_n = m110_value(command, last_n)
     return LineCheck("", command, number, last_n)
+
+
+def m110_value(command: str, last_n: int) -> int:
+    """The last line number ``M110 N<m>`` sets (``last_n`` when it has no parameter)."""
+    param = command.find("N", command.find("M110") + 4)
+    return strtol(command[param + 1 :]) if param >= 0 else last_n
+
+
+def silently_dropped(check: LineCheck, last_n: int) -> bool:
+    """Whether a firmware that drops duplicates silently ignores this refused line: one
+    numbered as the last line received, or one below it (no ok, no error)."""
+    return (check.error == ERR_LINE_NO and check.number is not None
+            and last_n - 1 <= check.number <= last_n)
 
 
 def _fast_check(raw: bytes, last_n: int) -> LineCheck | None:
@@ -110,17 +124,21 @@ def spurious_replies(
     ``fires(kind)`` draws the fault ``resend`` (a request for the line that just
     arrived; its own ok follows when it runs, so every received line is still
     answered by exactly one ok) and then ``refuse`` (Marlin's refusal of an intact
-    line, noise on a real board; the lines behind it are accepted as usual).
-    Returns the lines to emit and whether the refusal is followed by its ``ok``
-    where the firmware sends one after a resend. Renumbering (``M110``) and
-    unnumbered lines draw nothing.
+    line, noise on a real board; the lines behind it are accepted as usual), then
+    ``refuse_next`` (an emulation's refusal of the next line, not yet sent: the same
+    lines, but their ``ok`` is the only one this line gets).
+    Returns the lines to emit, :data:`RESEND_OK` where the ``ok`` after a resend goes
+    (on a firmware that sends one), and whether the line's own ``ok`` is withheld.
+    Renumbering (``M110``) and unnumbered lines draw nothing.
     """
     if number is None or "M110" in command:
         return [], False
     lines: list[str] = []
     if fires("resend"):
         lines.append(f"Resend: {last_n}")
-    refused = fires("refuse")
-    if refused:
-        lines += [f"Error:{ERR_CHECKSUM}{last_n}", f"Resend: {last_n + 1}"]
-    return lines, refused
+    if fires("refuse"):
+        lines += [f"Error:{ERR_CHECKSUM}{last_n}", f"Resend: {last_n + 1}", RESEND_OK]
+    withheld = fires("refuse_next")
+    if withheld:
+        lines += [f"Error:{ERR_CHECKSUM}{last_n}", f"Resend: {last_n + 1}", RESEND_OK]
+    return lines, withheld

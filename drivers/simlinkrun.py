@@ -50,7 +50,8 @@ class LinkRun:
     ``executed``: job commands the printer executed, in order (link's own lines removed);
     ``acked``: job commands acknowledged to the caller, in order; ``seconds``: virtual
     time from the first job line to the last acknowledgement; ``bytes_written``: every
-    byte the host wrote.
+    byte the host wrote; ``max_gap``: the longest virtual time between two writes of the
+    host while streaming (a stall shows here).
     """
 
     executed: list[str]
@@ -59,6 +60,7 @@ class LinkRun:
     bytes_written: int
     printer: VirtualPrinter
     stats: StreamStats = field(default_factory=StreamStats)
+    max_gap: float = 0.0
 
     @property
     def rate(self) -> float:
@@ -103,6 +105,7 @@ def run_core(
     acked: list[str] = []
     written = [0]
     phase: _Phase = {"next": 0, "streaming": False, "start": 0.0, "end": 0.0}
+    gaps = [0.0, 0.0]  # the last write while streaming, the longest gap between two
     handshake, identify = 1, 2
 
     def handle(events: list[Event]) -> None:
@@ -140,6 +143,10 @@ def run_core(
         while (data := next_bytes(now)) is not None:
             written[0] += len(data)
             write(data)
+            if phase["streaming"]:
+                if now - gaps[0] > gaps[1] and gaps[0] > 0.0:
+                    gaps[1] = now - gaps[0]
+                gaps[0] = now
         if core._events:
             handle(core.take_events())
 
@@ -182,23 +189,43 @@ def run_core(
         raise NoConvergence(f"not done after {max_seconds:g} virtual seconds")
     phase["end"] = clock.now
     return LinkRun(job_commands(printer.executed), acked, phase["end"] - phase["start"],
-                   written[0], printer, core.stats)
+                   written[0], printer, core.stats, gaps[1])
 
 
 def run_send_and_wait(lines: list[str], sim: SimulatorConfig, *, exec_s: float = 0.0,
-                      max_seconds: float = 1e7) -> LinkRun:
+                      max_seconds: float = 1e7, start_timeout_s: float = 2.0) -> LinkRun:
     """A careful one-line-at-a-time host (as OctoPrint and Printrun stream): write a line,
     wait for its ``ok``; replay the line in flight when the printer refuses it (an
-    ``Error`` naming the line before it), ignore other requests and the ``ok`` after them.
+    ``Error`` naming the line before it), skip the ``ok`` after a request, ignore other
+    requests. Told the firmware's dialect, it takes the ``ok`` after a request for the
+    line after the one in flight for that line's own where the firmware withholds it
+    (``p_refuse_next``), as OctoPrint does with every such request. It waits
+    ``start_timeout_s`` for a ``start`` banner that may not come, and after a reset (a
+    banner mid-stream, or a refusal naming line 0) sets the numbering back with
+    ``N<k> M110 N<k>`` and writes the line in flight again.
     """
     clock = Clock()
     state: _SendAndWait = {"n": 0, "skip": 0, "error": None, "start": 0.0, "done": False}
     written = [0]
+    renumbering = [False]
+    withheld = sim.p_refuse_next > 0
 
     def send(number: int) -> None:
-        data = frame(number, "M110 N0" if number == 0 else lines[number - 1])
+        data = frame(number, lines[number - 1])
         written[0] += len(data)
         printer.write(data)
+
+    def renumber() -> None:
+        value = max(0, state["n"] - 1)
+        data = frame(value, f"M110 N{value}")
+        written[0] += len(data)
+        renumbering[0] = True
+        state["skip"] = 0
+        printer.write(data)
+
+    def kick() -> None:
+        if state["n"] == 0 and not renumbering[0]:
+            renumber()  # no banner: the board did not reset on open
 
     def on_line(text: str) -> None:
         response = recover(parse_response(text))
@@ -207,19 +234,31 @@ def run_send_and_wait(lines: list[str], sim: SimulatorConfig, *, exec_s: float =
         if response.kind == "error" and response.line is not None:
             state["error"] = response
         elif response.kind == "resend":
-            if sim.ok_after_resend and error is not None:
+            if renumbering[0]:
+                return
+            if error is not None and error.line == 0 and n > 1 and response.line == 1:
+                renumber()  # the printer lost its numbering: a reset without a banner
+                return
+            if error is not None and sim.ok_after_resend and (
+                    error.line is None or error.line < n or not withheld):
                 state["skip"] += 1
             if error is not None and error.line is not None and error.line < n:
                 state["n"] = error.line + 1  # the line in flight (or one before) was refused
                 send(state["n"])
-        elif response.kind == "start" and n == 0:
-            send(0)
+        elif response.kind == "start":
+            if n == 0 or not state["done"]:
+                renumber()
         elif response.kind == "ok":
+            if renumbering[0]:
+                renumbering[0] = False
+                if n == 0:
+                    state["start"] = clock.now
+                    state["n"] = n = 1
+                send(n)
+                return
             if state["skip"]:
                 state["skip"] -= 1
                 return
-            if n == 0:
-                state["start"] = clock.now
             if n >= len(lines):
                 state["done"] = True
                 return
@@ -228,6 +267,7 @@ def run_send_and_wait(lines: list[str], sim: SimulatorConfig, *, exec_s: float =
 
     printer = VirtualPrinter(sim, clock, on_line, exec_s=exec_s)
     printer.power_on()
+    clock.at(start_timeout_s, kick)
     while not state["done"]:
         if not clock.step() or clock.now > max_seconds:
             raise NoConvergence("the send-and-wait host stalled")

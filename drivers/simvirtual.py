@@ -18,7 +18,13 @@ from collections.abc import Callable
 from drivers.faults import FaultInjector
 from drivers.simcommands import FIRMWARE_NAME
 from drivers.simconfig import SimulatorConfig
-from drivers.simlines import check_line, spurious_replies
+from drivers.simlines import (
+    RESEND_OK,
+    check_line,
+    m110_value,
+    silently_dropped,
+    spurious_replies,
+)
 
 BUSY = "echo:busy: processing"
 TEMPERATURES = " T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"
@@ -150,8 +156,9 @@ class VirtualPrinter:
         # commands run without a line number: from a host that numbers every line, the
         # rest of a line whose first bytes were lost while the board booted after a reset
         self.unnumbered: list[str] = []
-        self.last_n = 0
+        self.last_n = config.previous_lines  # an earlier host's, until a reset
         self.errors = 0
+        self.duplicates_dropped = 0
         self.resets = 0
         # bytes that arrived while the receive buffer was full (lost, as a UART loses them),
         # and how many arrivals lost some: a host that respects the buffer never makes any
@@ -161,6 +168,7 @@ class VirtualPrinter:
         self._partial = bytearray()
         self._host_partial = bytearray()
         self._queue: deque[tuple[str, int | None]] = deque()
+        self._no_ok: set[int | None] = set()  # lines whose own ok a refusal replaced
         self._running = False
         self._booting_until = 0.0
         self._boot_id = 0
@@ -172,8 +180,10 @@ class VirtualPrinter:
         self.to_printer.send(self.split(data) if self.split else [data])
 
     def power_on(self) -> None:
-        """The board boots: ``start`` after the boot delay."""
-        self._reset()
+        """The port opens: the board boots (``start`` after the boot delay), or, without
+        ``reset_on_open``, goes on counting an earlier host's lines."""
+        if self.config.reset_on_open:
+            self._reset()
 
     # -- the UART --------------------------------------------------------------------------
 
@@ -248,12 +258,17 @@ class VirtualPrinter:
             left["corrupt_rx"] -= 1
         elif self.faults.fire("corrupt_rx"):
             raw = self.faults.flip_bit("corrupt_rx", raw)
-        check = check_line(raw, self.last_n)
+        config = self.config
+        check = check_line(raw, self.last_n, config.m110_by_line)
         if check.error:
+            if config.drop_duplicates and silently_dropped(check, self.last_n):
+                self.duplicates_dropped += 1
+                return
             self.errors += 1
             self.emit(f"Error:{check.error}{self.last_n}")
-            self._rx.clear()
-            self._partial.clear()
+            if config.discard_after_error:
+                self._rx.clear()
+                self._partial.clear()
             self.emit(f"Resend: {self.last_n + 1}")
             if self.config.ok_after_resend:
                 self._ok()
@@ -263,20 +278,26 @@ class VirtualPrinter:
             return
         self._queue.append((check.command, check.number))
         left = self._left
-        if left["resend"] and left["refuse"] and check.number is not None:
-            left["resend"] -= 1  # neither noise fires after this line: the draws counted
+        if left["resend"] and left["refuse"] and left["refuse_next"] \
+                and check.number is not None:
+            left["resend"] -= 1  # no noise fires after this line: the draws counted
             left["refuse"] -= 1
+            left["refuse_next"] -= 1
             if "M110" in check.command:  # a renumbering draws nothing: take them back
                 left["resend"] += 1
                 left["refuse"] += 1
+                left["refuse_next"] += 1
             return
-        replies, refused = spurious_replies(
+        replies, withheld = spurious_replies(
             self._fires, check.command, check.number, self.last_n
         )
+        if withheld:
+            self._no_ok.add(check.number)
         for reply in replies:
-            self.emit(reply)
-        if refused and self.config.ok_after_resend:
-            self._ok()
+            if reply != RESEND_OK:
+                self.emit(reply)
+            elif config.ok_after_resend:
+                self._ok()
 
     def _start_next(self) -> None:
         left = self._left
@@ -301,6 +322,15 @@ class VirtualPrinter:
             return  # a reset cut the command short
         command, number = self._queue.popleft()
         self._running = False
+        if self.config.m110_twice and "M110" in command:
+            # taken when received, and again now that it runs
+            self.last_n = number if self.config.m110_by_line and number is not None \
+                else m110_value(command, self.last_n)
+        if self._no_ok and number in self._no_ok:
+            self._no_ok.discard(number)
+            self.executed.append(command)  # it runs; a refusal's ok stood for its own
+            self._serve()
+            return
         code = command.split(" ", 1)[0]
         known = _KNOWN.get(code)
         if known is None:
@@ -339,10 +369,12 @@ class VirtualPrinter:
         self._rx.clear()
         self._partial.clear()
         self._queue.clear()
+        self._no_ok.clear()
         self._running = False
         self.last_n = 0
         self._booting_until = self.clock.now + self.config.boot_delay_s
-        self.clock.at(self._booting_until, self.emit, "start")
+        if self.config.banner:
+            self.clock.at(self._booting_until, self.emit, "start")
 
 
 def _known(code: str) -> bool:

@@ -25,6 +25,7 @@ class InFlight:
     probe: bool = False
     token: int | None = field(default=None, repr=False)
     copy: bool = False  # written again by a replay
+    held: bool = False  # read by the printer (a refusal named it its last line), ok to come
 
 
 class SendWindow:
@@ -45,12 +46,18 @@ class SendWindow:
         self._credit = 0
         self._entries: deque[InFlight] = deque()
         self._bytes = 0
+        self._held = 0  # entries the printer has read, whose ok may never come
 
     def __len__(self) -> int:
         return len(self._entries)
 
     def __iter__(self) -> Iterator[InFlight]:
         return iter(self._entries)
+
+    @property
+    def held(self) -> int:
+        """Lines in flight the printer has read (:meth:`release`), their oks uncertain."""
+        return self._held
 
     @property
     def bytes_in_flight(self) -> int:
@@ -63,7 +70,7 @@ class SendWindow:
         if not entries:
             return True
         limit = self.limit if self.limit < self.max_lines else self.max_lines
-        return self._bytes + nbytes <= self.max_bytes and len(entries) < limit
+        return self._bytes + nbytes <= self.max_bytes and len(entries) - self._held < limit
 
     def full_for(self, nbytes: int) -> bool:
         """True if a line of ``nbytes`` must wait (the opposite of :meth:`has_room`)."""
@@ -71,7 +78,7 @@ class SendWindow:
         if not entries:
             return False
         limit = self.limit if self.limit < self.max_lines else self.max_lines
-        return self._bytes + nbytes > self.max_bytes or len(entries) >= limit
+        return self._bytes + nbytes > self.max_bytes or len(entries) - self._held >= limit
 
     def shrink(self) -> None:
         """A refusal: halve the line limit (at least one line stays allowed)."""
@@ -127,6 +134,8 @@ class SendWindow:
             else:
                 entry = entries.popleft()  # the usual case: the oldest line, nothing else
                 self._bytes -= entry.nbytes
+                if entry.held:
+                    self._held -= 1
                 return [entry]
         # an unnumbered line (written out of band) is done once a line after it is
         last = max((k for k, e in enumerate(entries)
@@ -139,6 +148,7 @@ class SendWindow:
         if done:
             self._entries = kept
             self._bytes -= sum(e.nbytes for e in done)
+            self._held -= sum(e.held for e in done)
         return done
 
     def ack_probe(self) -> list[InFlight]:
@@ -173,6 +183,7 @@ class SendWindow:
                 kept.append(entry)
         self._entries = kept
         self._bytes = sum(e.nbytes for e in kept)
+        self._held = sum(e.held for e in kept)
         return dropped
 
     def drop_copy(self, last_line: int) -> InFlight | None:
@@ -182,14 +193,31 @@ class SendWindow:
             if entry.copy and entry.number is not None and entry.number <= last_line:
                 self._entries.remove(entry)
                 self._bytes -= entry.nbytes
+                self._held -= entry.held
                 return entry
         return None
+
+    def release(self, last_line: int) -> list[InFlight]:
+        """The printer has read line ``last_line`` (a refusal named it as its last line):
+        it leaves its receive buffer and stops counting against the window, though its ok
+        may still come (some firmware sends none for a line whose refusal of the next
+        stood in for it; the lines before it get theirs either way). Returns it, if it
+        was in flight and not released before."""
+        for entry in self._entries:
+            if entry.number == last_line and not entry.held:
+                entry.held = True
+                self._bytes -= entry.nbytes
+                entry.nbytes = 0
+                self._held += 1
+                return [entry]
+        return []
 
     def clear(self) -> list[InFlight]:
         """Forget every line (the printer reset or the link was lost)."""
         dropped = list(self._entries)
         self._entries.clear()
         self._bytes = 0
+        self._held = 0
         return dropped
 
     def numbers(self) -> list[int]:
@@ -199,6 +227,8 @@ class SendWindow:
     def _pop(self) -> InFlight:
         entry = self._entries.popleft()
         self._bytes -= entry.nbytes
+        if entry.held:
+            self._held -= 1
         return entry
 
 

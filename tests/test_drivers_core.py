@@ -89,7 +89,9 @@ def test_a_refusal_of_a_line_the_printer_took_is_answered_once_and_never_feeds_i
     # from the first of those refusals on, no line the printer holds is written again:
     # each refusal is answered by nothing, and the stream goes on where the printer is
     assert [n for n in later if n <= held] == []
-    assert core.stats.lines_resent == len(copies)
+    # (the probe asked after the refusal, 346's ok being uncertain, is line held + 1 and
+    # may be drained with the copies: its copy is the one more line written again)
+    assert len(copies) <= core.stats.lines_resent <= len(copies) + 1
     assert (later or [n for n in early if n > held])[0] == held + 1
 
 

@@ -1,0 +1,125 @@
+"""Firmware the link was not written against, on the virtual clock: each dialect's refusals
+answered from what the printer said, never by waiting out a silence.
+
+The scripted tests feed the core a firmware's answers line by line with no tick (a tick is
+the only way time alone makes the link act): the link must work out the next line from the
+answers alone. The runs stream to the virtual Marlin in each dialect of
+``drivers.simconfig.DIALECTS`` with its seeded fault, at the default ``probe_after_s`` (5 s),
+so a stall shows as a gap between writes.
+"""
+
+from __future__ import annotations
+
+from linkcores import connected_core
+
+from drivers.linkconfig import StreamerConfig
+from drivers.linkcore import LinkCore
+from drivers.linkevents import Acked
+from drivers.protocol import frame
+from drivers.simlines import ERR_CHECKSUM, ERR_LINE_NO
+
+# the link's defaults (5 s before a probe after silence), without temperature polls
+LINK = StreamerConfig(temperature_interval_s=0, resync_quiet_s=0.01)
+PROBE_ANSWER = "ok T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"
+
+
+def _writes(core: LinkCore, now: float) -> list[tuple[int, str]]:
+    """Every line the core writes now: (number, command)."""
+    out = []
+    while (data := core.next_bytes(now)) is not None:
+        head, rest = data.decode().split(" ", 1)
+        out.append((int(head[1:]), rest.rsplit("*", 1)[0]))
+    return out
+
+
+def _jobs(core: LinkCore, count: int) -> None:
+    for i in range(count):
+        core.queue_job(f"G1 X{i}.5 Y{i}", 10 + i)
+
+
+def test_a_request_for_the_next_line_not_yet_sent_goes_on_without_a_silence():
+    # an emulation (OctoPrint's virtual printer) refuses the next line before it is sent:
+    # it takes line L, says "checksum mismatch, Last Line: L", "Resend: L+1", "ok", and
+    # that ok is the only one L gets. Each such L stayed in the window for good, until a
+    # full window waited 5 s for a probe (27 lines/s where a send-and-wait host did 372)
+    core = connected_core(LINK)
+    _jobs(core, 40)
+    t = 0.01
+    taken: list[int] = []  # lines the printer took, in order
+    for round_ in range(6):
+        written = _writes(core, t)
+        assert written, f"nothing written in round {round_}: the link waits for a silence"
+        for number, command in written:
+            t += 0.001
+            taken.append(number)
+            if command == "M105":
+                core.feed(PROBE_ANSWER, t)
+            elif number == written[-1][0] and command != "M105":
+                # the last line written is taken, and the next one asked for
+                core.feed(f"Error:{ERR_CHECKSUM}{number}", t)
+                core.feed(f"Resend: {number + 1}", t)
+                core.feed("ok", t)
+            else:
+                core.feed("ok", t)
+    # every line the printer took is acknowledged: no ok was waited for in vain
+    for _ in range(3):
+        for number, command in _writes(core, t):
+            t += 0.001
+            taken.append(number)
+            core.feed(PROBE_ANSWER if command == "M105" else "ok", t)
+    assert taken == sorted(set(taken))  # each line once, in order
+    assert core.last_acked_number == taken[-1]
+    assert len(core.window) == 0
+    assert core.stats.probes == 0  # no probe after silence: none was needed
+
+
+def test_a_copy_of_a_line_the_printer_took_dropped_without_an_ok_ends_no_stream():
+    # Marlin drops a line numbered as the last one it took (or one below) silently: no
+    # ok, no error. Lines 1-3 were taken and acknowledged; a refusal naming 1 as the
+    # last line comes late (noise made it, or it was on its way): the link takes 2 and 3
+    # back and replays them, and the printer answers their copies with nothing. The
+    # window then waited for those oks until a probe after 5 s of silence
+    core = connected_core(LINK)
+    _jobs(core, 10)
+    t = 0.01
+    assert [n for n, _ in _writes(core, t)] == [1, 2, 3, 4]
+    acked = [e.number for c in ("ok",) * 3 for e in core.feed(c, t) if isinstance(e, Acked)]
+    assert acked == [1, 2, 3]
+    t += 0.001
+    core.feed(f"Error:{ERR_CHECKSUM}1", t)  # late: the printer has 4 by now
+    core.feed("Resend: 2", t)
+    core.feed("ok", t)
+    core.feed("ok", t)  # line 4's
+    last_n = 4
+    for _ in range(8):
+        written = _writes(core, t)
+        for number, command in written:
+            t += 0.001
+            if last_n - 1 <= number <= last_n:
+                continue  # a duplicate: dropped without a word
+            if number != last_n + 1:
+                core.feed(f"Error:{ERR_LINE_NO}{last_n}", t)
+                core.feed(f"Resend: {last_n + 1}", t)
+                core.feed("ok", t)
+                break
+            last_n = number
+            core.feed(PROBE_ANSWER if command == "M105" else "ok", t)
+    # every job line went through on the printer's answers alone, no tick
+    assert not core.pending
+    assert core.last_acked_number == last_n == core.next_number - 1
+    assert len(core.window) == 0
+
+
+def test_the_handshake_numbers_the_m110_as_the_value_it_sets():
+    # "N1 M110 N0": Marlin takes the parameter (last line 0), an emulation the line's own
+    # number (last line 1); the next line, N1, was then refused by the emulation. Numbered
+    # as the value it sets, both readings agree
+    core = LinkCore(LINK)
+    core.begin_connect(0.0)
+    core.feed("start", 0.0)
+    core.begin_handshake(0, keep_history=False, token=1)
+    assert core.next_bytes(0.0) == frame(0, "M110 N0")
+    assert core.next_bytes(0.0) is None  # nothing after it until its ok
+    core.feed("ok", 0.001)
+    core.queue_control("M115", internal=True, token=2)
+    assert core.next_bytes(0.001) == frame(1, "M115")
