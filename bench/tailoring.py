@@ -11,8 +11,12 @@ Measures, each in a fresh process:
 Targets: dogbone analysis < 10 s, whole example < 60 s, bunny peak RSS < 500 MB,
 stress job's first extrusion < 1 s after the drop settles.
 
+With --validate, instead: the solver and the road-aware predictions against closed
+forms, CalculiX and the roads resolved in the mesh (bench/tailoring_validate.py).
+
 Usage (from the repository root):
     .venv/bin/python bench/tailoring.py [--skip-daemon] [--json OUT.json]
+    .venv/bin/python bench/tailoring.py --validate [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -181,7 +185,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--only", choices=("convergence", "analysis", "tailor", "drop"),
                    help="run one part only")
     p.add_argument("--json", type=Path, metavar="OUT", help="also write the figures as JSON")
+    p.add_argument("--validate", action="store_true",
+                   help="compare with closed forms, CalculiX and resolved roads, print errors")
     args = p.parse_args(argv)
+    if args.validate:
+        from bench.tailoring_validate import validate
+
+        figures = validate()
+        if args.json:
+            args.json.write_text(json.dumps(figures, indent=2))
+        return 0
     if args.child:
         print(json.dumps(child_analysis(args.child[0], args.child[1], float(args.child[2]))))
         return 0
