@@ -267,8 +267,12 @@ def run(daemons: int, jobs: int, time_scale: float, faults: bool) -> dict[str, o
                  "the held job reported interrupted")
             asyncio.run(requeue(servers[1:], job))
         alive = servers[1:] if faults else servers
-        wait(lambda: all(s[0] in ("printed", "failed")
-                         for s in asyncio.run(states(alive)).values()), 1800, "every job")
+        def finished() -> bool:
+            now = asyncio.run(states(alive))
+            return len(now) == len(ids) and all(s[0] in ("printed", "failed")
+                                                for s in now.values())
+
+        wait(finished, 1800, "every job")
         total_s = time.monotonic() - started
         final = asyncio.run(states(alive))
     finally:

@@ -107,6 +107,8 @@ def _tui_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--certfile", metavar="FILE",
                    help="with --tls: this client's certificate (PEM), with --keyfile")
     p.add_argument("--keyfile", metavar="FILE", help="with --tls: the key of --certfile (PEM)")
+    p.add_argument("--farm", metavar="URL,...",
+                   help="with --mqtt: the farm queue on these NATS servers beside the printers")
     p.add_argument("--redraw-s", metavar="S", default=None,
                    help="for a slow link: draw the layer picture and the event log (and the "
                         "fleet table) at most once every S seconds (default: "

@@ -71,7 +71,7 @@ class Printers:
         self.started: dict[str, DaemonProcess] = {}
 
     def start(self, printer: str, material: str = "PLA", bed: str = "220, 220, 250",
-              time_scale: float = 0.0) -> DaemonProcess:
+              time_scale: float = 0.0, extra: str = "") -> DaemonProcess:
         urls = ", ".join(f'"{url}"' for url in servers(self.cluster))
         folder = self.root / printer
         folder.mkdir(exist_ok=True)
@@ -79,7 +79,8 @@ class Printers:
             "[jobs]\nsettle_s = 0.2\n"
             f"[simulator]\ntime_scale = {time_scale}\nbaud = 0\n"
             f'[printer]\nid = "{printer}"\nmaterial = "{material}"\nbed = [{bed}]\n'
-            f"[farm]\nenabled = true\nservers = [{urls}]\nack_wait_s = {ACK_WAIT_S}\n"))
+            f"[farm]\nenabled = true\nservers = [{urls}]\nack_wait_s = {ACK_WAIT_S}\n"
+            + extra))
         self.started[printer] = daemon
         daemon.start()
         daemon.wait_for(lambda: "farm: connected" in daemon.run_log(), 30, "the farm link")
@@ -401,3 +402,45 @@ def test_a_holder_cut_off_longer_than_the_ack_wait_still_prints_it_alone(
     assert done_here(holder) == [job]
     assert_printed_once(holder, [job])
     assert done_here(other) == []
+
+
+def test_the_fleet_view_shows_the_farm_queue_beside_the_printers(printers: Printers) -> None:
+    from waiting import until
+
+    from hostd.farm.feed import FarmFeed
+    from tui.fleet import FleetApp
+    from tui.fleet_farm import FarmPanel
+    from tui.fleet_table import FleetTable
+    from tui.sources import MqttSource
+
+    cluster = printers.cluster
+    node = cluster.nodes[2]
+    printers.start("view1", time_scale=0.02,
+                   extra=f"[mqtt]\nenabled = true\nhost = \"{HOST}\"\nport = {node.mqtt_port}\n")
+    [waits] = submit(cluster, DATA / "cube20_xyz.stl", "--needs", "material=ABS")
+    [prints] = submit(cluster, DATA / "dogbone_100x30x5.stl")
+    feed = FarmFeed(FarmConfig(servers=tuple(servers(cluster))))
+
+    def panel(app: FleetApp) -> str:
+        return str(app.screen.query_one(FarmPanel).render())
+
+    def job_cell(app: FleetApp) -> str:
+        table = app.screen.query_one("#fleet", FleetTable)
+        return table.row_at(0)[2] if table.row_count else ""
+
+    async def scenario() -> None:
+        app = FleetApp(MqttSource(HOST, node.mqtt_port), refresh_s=0.05, farm=feed)
+        async with app.run_test(size=(120, 30)):
+            await until(lambda: prints[:10] in job_cell(app), timeout=60,
+                        what=lambda: job_cell(app))  # the printer's row names the farm job
+            await until(lambda: f"{prints}  dogbone_100x30x5.stl on view1" in panel(app),
+                        timeout=30, what=lambda: panel(app))
+            text = panel(app)
+            assert f"{waits}  cube20_xyz.stl: needs ABS: no printer has it loaded" in text
+            assert text.index(prints) < text.index(waits)  # who prints what, then what waits
+            assert "printing 1" in text
+            assert "waiting 1" in text
+        assert feed.queue is not None
+        await feed.queue.close()
+
+    asyncio.run(scenario())

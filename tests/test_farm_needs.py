@@ -107,3 +107,27 @@ def test_the_material_is_changed_at_run_time_with_the_config(tmp_path) -> None:
                              text=True, timeout=30, cwd=tmp_path)
     assert refused.returncode == 2
     assert "material needs --config" in refused.stderr
+
+
+def test_the_fleet_views_farm_lines_put_failures_first_and_leave_printed_jobs_out() -> None:
+    from tui.fleet_farm import farm_lines, farm_summary
+
+    rows = [{"id": f"fj-{i:010x}", "state": state, "printer": printer, "reason": reason,
+             "name": "a.stl"}
+            for i, (state, printer, reason) in enumerate([
+                ("waiting", None, "needs ABS: no printer has it loaded"),
+                ("printed", "p1", None),
+                ("taken", "p2", None),
+                ("failed", "p3", "not watertight [after repair]"),
+                ("interrupted", "p4", "interrupted on p4 after layer 3"),
+                ("waiting", None, "waiting for a free printer that fits (p1)"),
+            ])]
+    lines = farm_lines(rows, limit=4)
+    states = [line.split("]", 1)[1].split("[/]")[0].strip() for line in lines[:4]]
+    assert states == ["failed", "interrupted", "printing", "waiting"]
+    assert "fj-0000000003  a.stl on p3: not watertight \\[after repair]" in lines[0]
+    assert lines[4] == "[dim]... and 1 more[/]"
+    assert all("fj-0000000001" not in line for line in lines)  # printed: counted only
+    summary = farm_summary(rows)
+    for part in ("failed[/] 1", "printing[/] 1", "waiting[/] 2", "printed[/] 1"):
+        assert part in summary

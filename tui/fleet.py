@@ -14,6 +14,7 @@ from textual.widgets import Footer, Input, Static
 from hostd.api import Snapshot
 from tui import partial_output
 from tui.app import redraw_seconds
+from tui.fleet_farm import FarmPanel, FarmRows
 from tui.fleet_model import COUNTED, FleetModel, PrinterEntry, matches, row_cells
 from tui.fleet_table import FleetTable, header_text
 from tui.printer_screen import PrinterScreen
@@ -66,9 +67,10 @@ class FleetScreen(Screen[None]):
     ]
 
     def __init__(self, source: FleetSource, *, refresh_s: float = 0.25,
-                 redraw_s: float = 0.0) -> None:
+                 redraw_s: float = 0.0, farm: FarmRows | None = None) -> None:
         super().__init__()
         self.source = source
+        self.farm = farm  # the farm queue's rows, shown under the table when given
         self.model = FleetModel()
         self.query_text = ""
         self.refresh_s = max(refresh_s, redraw_s)
@@ -86,6 +88,8 @@ class FleetScreen(Screen[None]):
                     id="filter")
         yield Static("", id="columns")
         yield FleetTable(id="fleet")
+        if self.farm is not None:
+            yield FarmPanel(self.farm, id="farm")
         yield Static("", id="note")
         yield Footer()
 
@@ -259,16 +263,18 @@ class FleetApp(App[None]):
     ENABLE_COMMAND_PALETTE = False  # its ctrl+p key would crowd the footer out
 
     def __init__(self, source: FleetSource, *, refresh_s: float = 0.25,
-                 redraw_s: float | None = None) -> None:
+                 redraw_s: float | None = None, farm: FarmRows | None = None) -> None:
         super().__init__()
         partial_output.install()
         self.source = source
+        self.farm = farm
         self.refresh_s = refresh_s
         self.redraw_s = redraw_seconds() if redraw_s is None else redraw_s
 
     def fleet_screen(self) -> FleetScreen:
         """The fleet screen this app opens on."""
-        return FleetScreen(self.source, refresh_s=self.refresh_s, redraw_s=self.redraw_s)
+        return FleetScreen(self.source, refresh_s=self.refresh_s, redraw_s=self.redraw_s,
+                           farm=self.farm)
 
     def on_mount(self) -> None:
         self.push_screen(self.fleet_screen())

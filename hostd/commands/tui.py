@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import argparse
 import os
+from typing import Any
 
 from hostd.cli import UsageError
 from hostd.commands.target import socket_path
@@ -38,11 +39,24 @@ def run(args: argparse.Namespace) -> int:
         except ValueError as exc:
             raise UsageError(f"--tls: {exc}") from exc
         FleetApp(MqttSource(brokers, username=args.username, password=password, tls=tls),
-                 redraw_s=redraw_s).run()
+                 redraw_s=redraw_s, farm=_farm_feed(args.farm)).run()
         return 0
+    if args.farm:
+        raise UsageError("--farm goes with --mqtt HOST[:PORT] (the fleet view)")
     if mqtt_only:
         raise UsageError("--username, --password, --tls and its files go with --mqtt HOST[:PORT]")
     from tui.app import Dashboard
 
     Dashboard(SocketSource(str(socket_path(args))), redraw_s=redraw_s).run()
     return 0
+
+
+def _farm_feed(servers: str | None) -> Any:
+    """The farm queue's rows for the fleet view (``--farm URL,...``), or None."""
+    if not servers:
+        return None
+    from hostd.config import FarmConfig
+    from hostd.farm.feed import FarmFeed
+
+    urls = tuple(url.strip() for url in servers.split(",") if url.strip())
+    return FarmFeed(FarmConfig(servers=urls))

@@ -130,6 +130,9 @@ class FarmAgent:
             except FarmError as exc:
                 log.error("farm: %s; starting over", exc)
                 await asyncio.sleep(1.0)
+            except Exception:  # a fault of the farm's must not stop the daemon's printing
+                log.exception("farm: internal error; starting over in 5 s")
+                await asyncio.sleep(5.0)
             finally:
                 self.queue = None
                 with contextlib.suppress(Exception):

@@ -168,9 +168,10 @@ class FarmQueue:
         return cls(client, js, jobs, printers, models)
 
     async def close(self) -> None:
-        """Flush and close the connection."""
+        """Flush and close the connection (closed at once when it cannot flush in 2 s)."""
         try:
-            await self.client.drain()
+            async with asyncio.timeout(2.0):  # a cluster out of reach does not hold a stop
+                await self.client.drain()
         except (TimeoutError, nats.errors.Error):
             await self.client.close()
 
@@ -279,21 +280,33 @@ class FarmQueue:
                 delay = min(delay * 2, 2.0)
 
     async def entries(self) -> list[tuple[Entry, int]]:
-        """Every job's entry and revision, oldest submission first."""
-        async def keys() -> list[str]:
-            try:
-                return list(await self.jobs.keys())
-            except nats.js.errors.NoKeysError:
-                return []
+        """Every job's entry and revision, oldest submission first.
 
+        The keys come from the bucket's stream (its subjects, answered by the stream's
+        leader): the client's ``keys()``, a watcher that stops when the server says
+        nothing is pending, came back short while the bucket was being written.
+        """
         found = []
-        for key in await retrying(keys, "listing the jobs"):
-            try:
-                found.append(await self.entry(key))
-            except FarmError:
-                continue  # deleted meanwhile
+        keys = await self._keys(JOBS_BUCKET)
+        for start in range(0, len(keys), 64):
+            batch = await asyncio.gather(*(self._entry_or_none(key)
+                                           for key in keys[start:start + 64]))
+            found += [item for item in batch if item is not None]
         found.sort(key=lambda item: (item[0].submitted, item[0].id))
         return found
+
+    async def _entry_or_none(self, key: str) -> tuple[Entry, int] | None:
+        try:
+            return await self.entry(key)
+        except FarmError:
+            return None  # deleted
+
+    async def _keys(self, bucket: str) -> list[str]:
+        """The keys of a bucket, from its stream's subjects."""
+        prefix = f"$KV.{bucket}."
+        info = await retrying(partial(self.js.stream_info, f"KV_{bucket}",
+                                      subjects_filter=f"{prefix}>"), f"listing {bucket}")
+        return sorted(subject[len(prefix):] for subject in (info.state.subjects or {}))
 
     async def listing(self) -> list[Listed]:
         """The queue as ``hostd farm list`` shows it: failures first, then held, waiting
@@ -355,15 +368,9 @@ class FarmQueue:
 
     async def stations(self) -> list[Station]:
         """The printers declared within the last :data:`STATION_FRESH_S` seconds."""
-        async def keys() -> list[str]:
-            try:
-                return list(await self.printers.keys())
-            except nats.js.errors.NoKeysError:
-                return []
-
         found = []
         now = time.time()
-        for key in await retrying(keys, "listing the printers"):
+        for key in await self._keys(PRINTERS_BUCKET):
             try:
                 value = await retrying(partial(self.printers.get, key), "a printer")
             except nats.js.errors.KeyNotFoundError:
