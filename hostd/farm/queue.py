@@ -142,10 +142,19 @@ class FarmQueue:
         """Connect to ``config.servers`` and make sure the stream, buckets and store exist
         (created with three replicas when missing). ``ack_wait_s``: the consumer's
         acknowledgement wait when this creates it (``config.ack_wait_s`` by default)."""
+        seen: list[BaseException] = []
+
+        async def remember(error: Exception) -> None:
+            seen[:] = [error]  # the last one only
+            log.debug("farm connection: %r", error)
+
+        # each server is tried a few times at first (a wrong password or a cluster that is
+        # down is reported instead of waited on for ever); once connected, the client
+        # reconnects without limit
         options: dict[str, Any] = {
             "servers": list(config.servers), "name": name, "connect_timeout": 2,
-            "reconnect_time_wait": 0.5, "max_reconnect_attempts": -1,
-            "allow_reconnect": True,
+            "reconnect_time_wait": 0.5, "max_reconnect_attempts": 2,
+            "allow_reconnect": True, "error_cb": remember,
         }
         if config.user:
             options["user"] = config.user
@@ -155,9 +164,11 @@ class FarmQueue:
             options["tls"] = context
         try:
             client = await nats.connect(**options)
-        except (OSError, nats.errors.Error) as exc:
+        except (TimeoutError, OSError, nats.errors.Error) as exc:
+            cause = seen[-1] if seen else exc
             raise FarmError(f"cannot reach the farm's servers {', '.join(config.servers)}: "
-                            f"{exc!r}") from exc
+                            f"{cause}") from exc
+        client.options["max_reconnect_attempts"] = -1
         try:
             js = client.jetstream(timeout=5)
             jobs, printers, models = await retrying(
