@@ -212,3 +212,65 @@ def validate() -> dict:
         print(f"  {r['coupon']:30s} {r['resolved_mpa']:9.0f} {r['homogenised_mpa']:11.0f} "
               f"{ours:+6.1f}% {r['fill_rule_mpa']:10.0f} {rule:+6.0f}%")
     return figures
+
+
+def dogbone_gage(out: Path, size: float = 0.125) -> list[dict]:
+    """The dogbone's gage (x 40..60, the 10 mm narrow section, whole thickness) cut out of
+    each print of ``out`` (``hostd tailor examples/dogbone -o OUT``), held at x = 40,
+    pulled at x = 60, read over its middle third: its roads resolved on ``size`` mm boxes (one
+    per layer in z) against the road-aware 0.5 mm boxes and the fill rule."""
+    import tomllib
+
+    from slicer.fea.coupon import Coupon, coupon_case, gage_modulus
+    from slicer.fea.hexmesh import hex_mesh
+    from slicer.fea.printed import fill_fractions, modulus_scale, read_roads
+    from slicer.fea.roadstiff import box_elasticity
+    from slicer.fea.solve import analyse
+    from slicer.fea.voxel import VoxelGrid
+    from slicer.mesh import read_stl
+    from slicer.plan import SlicePlan
+    from slicer.settings import SliceSettings
+
+    folder = Path(__file__).resolve().parents[1] / "examples" / "dogbone"
+    vertices, _ = read_stl(folder / "dogbone.stl")
+    settings = SliceSettings.from_mapping(tomllib.loads((folder / "dogbone.toml").read_text()))
+    bounds = SlicePlan.from_file(folder / "dogbone.stl", settings, (220.0, 220.0, 250.0)).bounds
+    shift = np.array([vertices[:, 0].min() - bounds[0], vertices[:, 1].min() - bounds[1],
+                      vertices[:, 2].min()])
+    shift = shift - np.array([40.0, 10.0, 0.0])  # the piece's own frame: x 0..20, y 0..10
+    # the piece as a coupon whose "tabs" are the 5 mm outside the extensometer's 10 mm
+    piece = Coupon(length=20.0, width=10.0, layers=25, height=0.2, tab=0.0)
+    case = coupon_case(piece, E, NU)
+
+    def grid(cell_xy: float, cell_z: float) -> VoxelGrid:
+        extent = np.array([20.0, 10.0, 5.0])
+        shape = np.rint(extent / np.array([cell_xy, cell_xy, cell_z])).astype(int)
+        return VoxelGrid(np.zeros(3), extent / shape, np.ones(tuple(shape), dtype=bool))
+
+    rows = []
+    for name in ("linear", "stress-a", "stress-b", "stress-optimal"):
+        path = out / f"{name}.gcode"
+        if not path.is_file():
+            continue
+        roads = read_roads(path.read_text(encoding="ascii").splitlines(),
+                           settings.filament_diameter)
+        row = {"print": name}
+        for label, cells, how in (("resolved", (size, 0.2), "scale"),
+                                  ("homogenised", (0.5, 0.5), "roads"),
+                                  ("fill_rule", (0.5, 0.5), "scale")):
+            g = grid(*cells)
+            mesh = hex_mesh(g)
+            if how == "roads":
+                solution = analyse(mesh, case, elasticity=box_elasticity(
+                    roads, g, shift, NU, mesh.cells))
+            else:
+                fractions = fill_fractions(roads, g, shift)
+                solution = analyse(mesh, case, modulus_scale(fractions, mesh.cells))
+            row[f"{label}_mpa"] = gage_modulus(mesh.points, solution.displacement, piece, 100.0)
+        rows.append(row)
+        print(f"  {name:15s} resolved {row['resolved_mpa']:6.0f}  road-aware "
+              f"{row['homogenised_mpa']:6.0f} "
+              f"({100 * (row['homogenised_mpa'] / row['resolved_mpa'] - 1):+.1f} %)  fill rule "
+              f"{row['fill_rule_mpa']:6.0f} "
+              f"({100 * (row['fill_rule_mpa'] / row['resolved_mpa'] - 1):+.0f} %)", flush=True)
+    return rows

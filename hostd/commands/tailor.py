@@ -182,7 +182,7 @@ def _table(predictions: list[Prediction], test: TensionTest, objective: str | No
         if p.moduli:
             values = " / ".join(f"{m / 1000:.3f}" for m in p.moduli)
             parts.append(f"modulus at {spans} mm {values} GPa")
-        parts.append(f"stiffness {p.stiffness:.0f} N/mm")
+        parts.append(f"stiffness {p.stiffness:.4g} N/mm")
         if p.name not in ("Solid", "Linear"):
             gains = [f"{100.0 * (m / b - 1.0):+.0f} %" for m, b in zip(p.moduli, base.moduli,
                                                                       strict=True)]

@@ -28,7 +28,9 @@ from slicer.fea.voxel import VoxelGrid
 class Coupon:
     """A coupon ``length`` x ``width`` mm of ``layers`` layers of ``height`` mm, roads
     ``road`` mm wide at ``fill`` of each layer at +-``angle`` degrees to x (alternating),
-    solid tabs of ``tab`` mm at each end, ``wall`` True for one perimeter road."""
+    solid tabs of ``tab`` mm at each end, ``wall`` True for one perimeter road (the
+    roads inside overlap it by ``overlap`` of a road's width, as the slicer's
+    ``infill.overlap``)."""
 
     length: float = 16.0
     width: float = 6.0
@@ -39,6 +41,7 @@ class Coupon:
     angle: float = 45.0
     tab: float = 3.0
     wall: bool = False
+    overlap: float = 0.15
 
     @property
     def thickness(self) -> float:
@@ -78,7 +81,7 @@ def coupon_roads(coupon: Coupon) -> Roads:
     """The roads of ``coupon`` (model frame: x 0..length, y 0..width, z 0..thickness)."""
     c = coupon
     half = c.road / 2.0
-    inner_lo = np.array([half, half]) + (c.road if c.wall else 0.0)
+    inner_lo = np.array([half, half]) + (c.road * (1.0 - c.overlap) if c.wall else 0.0)
     inner_hi = np.array([c.length, c.width]) - inner_lo
     parts, tops = [], []
     for layer in range(c.layers):

@@ -8,7 +8,6 @@ from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import NDArray
-from PIL import Image, ImageDraw
 
 from slicer.fea.gage import extensometer
 from slicer.fea.voxel import VoxelGrid
@@ -92,7 +91,7 @@ def fill_fractions(roads: Roads, grid: VoxelGrid, shift: np.ndarray) -> np.ndarr
     """The fraction of each box of ``grid`` that the roads fill: (nx, ny, nz) float64 0..1.
 
     ``shift`` (3,) mm takes bed coordinates to the model frame of ``grid``. Each
-    layer's roads are drawn (round-ended, at their widths) on a raster of about
+    layer's roads are painted (round-ended, at their widths) on a raster of about
     :data:`PIXEL_MM` that divides the boxes exactly; overlapping roads count once.
     The raster is averaged over each box's footprint, then the layers over each
     box's height by how much of it they span.
@@ -106,13 +105,12 @@ def fill_fractions(roads: Roads, grid: VoxelGrid, shift: np.ndarray) -> np.ndarr
     for top in tops:
         pick = np.abs(roads.top - top) < 1e-6
         height = float(np.median(roads.height[pick]))
-        image = Image.new("1", (nx * sub[0], ny * sub[1]), 0)
-        draw = ImageDraw.Draw(image)
+        canvas = np.zeros((nx * sub[0], ny * sub[1]), dtype=bool)
         ends = roads.ends[pick] + shift[:2] - grid.origin[:2]
         scale = float(np.mean(pixel))  # pixels are square within a few per cent
-        for (a, b), width in zip(ends / pixel, roads.width[pick] / scale, strict=True):
-            draw_road(draw, a, b, width, 1)
-        covered = np.asarray(image, dtype=float).T  # (x pixels, y pixels)
+        paint_roads(canvas, ends / pixel, roads.width[pick] / scale,
+                    np.ones(int(pick.sum()), dtype=bool))
+        covered = canvas.astype(float)  # (x pixels, y pixels)
         blocks = covered.reshape(nx, sub[0], ny, sub[1]).mean(axis=(1, 3))
         z0, z1 = top + shift[2] - height, top + shift[2]
         overlap = np.clip(np.minimum(z1, bottoms + grid.cell[2]) - np.maximum(z0, bottoms), 0,
@@ -121,20 +119,32 @@ def fill_fractions(roads: Roads, grid: VoxelGrid, shift: np.ndarray) -> np.ndarr
     return np.clip(fractions, 0.0, 1.0)
 
 
-def draw_road(draw: ImageDraw.ImageDraw, a: np.ndarray, b: np.ndarray, width: float,
-              mark: int) -> None:
-    """Draw one road from ``a`` to ``b`` (2,) pixels, ``width`` pixels wide with round
-    ends, as ``mark``: a rectangle of the exact width (a thick line's width is not
-    kept at every angle) and a disc at each end."""
-    r = width / 2.0
-    delta = np.asarray(b, dtype=float) - np.asarray(a, dtype=float)
-    length = float(np.hypot(*delta))
-    if length > 1e-9:
-        side = np.array([-delta[1], delta[0]]) / length * r
-        corners = [tuple(a + side), tuple(b + side), tuple(b - side), tuple(a - side)]
-        draw.polygon(corners, fill=mark)
-    for cx, cy in (a, b):
-        draw.ellipse((cx - r, cy - r, cx + r, cy + r), fill=mark)
+def paint_roads(canvas: np.ndarray, ends: np.ndarray, widths: np.ndarray,
+                marks: np.ndarray) -> None:
+    """Mark on ``canvas`` (x pixels, y pixels) every pixel whose centre lies within half a
+    width of a road: ``ends`` (n, 2, 2) in pixels (pixel i spans i..i+1), ``widths``
+    (n,) pixels, ``marks`` (n,) the value each road writes (a later road wins). Round
+    ends, and the exact width at every angle (a drawing library's thick lines and
+    polygons gain or lose up to a pixel's width depending on the angle)."""
+    nx, ny = canvas.shape
+    for (a, b), width, mark in zip(ends, widths, marks, strict=True):
+        r = 0.5 * float(width)
+        lo = np.floor(np.minimum(a, b) - r).astype(int)
+        hi = np.ceil(np.maximum(a, b) + r).astype(int)
+        x0, y0 = max(lo[0], 0), max(lo[1], 0)
+        x1, y1 = min(hi[0], nx), min(hi[1], ny)
+        if x0 >= x1 or y0 >= y1:
+            continue
+        px = np.arange(x0, x1) + 0.5 - a[0]
+        py = np.arange(y0, y1) + 0.5 - a[1]
+        d = b - a
+        length2 = float(d @ d)
+        t = np.zeros((len(px), len(py)))
+        if length2 > 1e-18:
+            t = np.clip((px[:, None] * d[0] + py[None, :] * d[1]) / length2, 0.0, 1.0)
+        gap2 = (px[:, None] - t * d[0]) ** 2 + (py[None, :] - t * d[1]) ** 2
+        window = canvas[x0:x1, y0:y1]
+        window[gap2 <= r * r] = mark
 
 
 def modulus_scale(fractions: np.ndarray, cells: np.ndarray) -> np.ndarray:

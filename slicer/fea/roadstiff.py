@@ -14,11 +14,10 @@ from __future__ import annotations
 
 import numpy as np
 from numpy.typing import NDArray
-from PIL import Image, ImageDraw
 from scipy import ndimage
 
 from slicer.fea.anisotropic import isotropic, trig
-from slicer.fea.printed import PIXEL_MM, VOID, Roads, draw_road
+from slicer.fea.printed import PIXEL_MM, VOID, Roads, paint_roads
 from slicer.fea.roadcell import FILLS, layer_table
 from slicer.fea.voxel import VoxelGrid
 
@@ -41,14 +40,10 @@ def layer_bins(roads: Roads, pick: np.ndarray, grid: VoxelGrid, shift: np.ndarra
     nx, ny = grid.solid.shape[:2]
     sub = np.maximum(np.ceil(grid.cell[:2] / PIXEL_MM).astype(int), 1)
     pixel = grid.cell[:2] / sub
-    image = Image.new("L", (nx * sub[0], ny * sub[1]), 0)
-    draw = ImageDraw.Draw(image)
+    marks = np.zeros((nx * sub[0], ny * sub[1]), dtype=np.int64)  # (x pixels, y pixels)
     ends = roads.ends[pick] + shift[:2] - grid.origin[:2]
     scale = float(np.mean(pixel))
-    for (a, b), width, mark in zip(ends / pixel, roads.width[pick] / scale, bins[pick] + 1,
-                                   strict=True):
-        draw_road(draw, a, b, width, int(mark))
-    marks = np.asarray(image, dtype=np.int64).T  # (x pixels, y pixels)
+    paint_roads(marks, ends / pixel, roads.width[pick] / scale, bins[pick] + 1)
     bx = np.arange(nx * sub[0]) // sub[0]
     by = np.arange(ny * sub[1]) // sub[1]
     block = (bx[:, None] * ny + by[None, :]) * (BINS + 1) + marks
