@@ -49,7 +49,7 @@ from hostd.farm.records import HELD, Entry, read_offer
 from hostd.intake import Intake
 from hostd.jobfolder import move
 from hostd.joblife import JobLife
-from hostd.jobstate import ACTIVE_STATES, FINAL_STATES, JobState, Queued
+from hostd.jobstate import FINAL_STATES, JobState, Queued
 from hostd.jobstore import Job, JobStore
 from hostd.status import StatusHub
 
@@ -186,6 +186,9 @@ class FarmAgent:
             except FarmError as exc:
                 log.warning("farm: %s", exc)
                 await asyncio.sleep(1.0)
+                # a take whose answer never came may have been applied: adopt it
+                with contextlib.suppress(FarmError):
+                    await self._reconcile(queue)
 
     async def _pause(self, seconds: float) -> None:
         self._wake.clear()
@@ -379,7 +382,7 @@ class FarmAgent:
                             entry.id, local.id, local.id, entry.id)
         # local farm jobs not (or no longer) held here: given back while this was away
         for job_id, job in farm_jobs.items():
-            if job.state in (JobState.QUEUED, JobState.INTERRUPTED, *ACTIVE_STATES):
+            if job.state in (JobState.QUEUED, JobState.INTERRUPTED):  # never one printing
                 found: Entry | None = None
                 with contextlib.suppress(FarmError):
                     found, _revision = await queue.entry(job_id)
