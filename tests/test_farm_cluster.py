@@ -260,7 +260,7 @@ def test_bad_models_are_refused_at_submit_or_failed_once(printers: Printers,
 
 def test_a_killed_holder_keeps_the_job_until_it_is_given_back(printers: Printers) -> None:
     cluster = printers.cluster
-    holder = printers.start("k1", time_scale=0.02)
+    holder = printers.start("k1", time_scale=0.01)
     [job] = submit(cluster, DATA / "dogbone_100x30x5.stl")
     holder.wait_for(lambda: entry(cluster, job).layer >= 1, 60, "two layers printed")
     holder.kill9()
@@ -377,7 +377,7 @@ def test_a_holder_cut_off_longer_than_the_ack_wait_still_prints_it_alone(
     try:
         # the holder reaches the cluster only through the relay (a server list of one:
         # nodes the cluster announces are learnt once connected, so it stays on it)
-        holder = printers.start("cut1", time_scale=0.02)
+        holder = printers.start("cut1", time_scale=0.01)
         text = holder.config.read_text()
         holder.config.write_text(text[:text.index("servers =")]
                                  + f'servers = ["nats://{HOST}:{relay.port}"]\n'
