@@ -16,7 +16,7 @@ forms, CalculiX and the roads resolved in the mesh (bench/tailoring_validate.py)
 
 Usage (from the repository root):
     .venv/bin/python bench/tailoring.py [--skip-daemon] [--json OUT.json]
-    .venv/bin/python bench/tailoring.py --validate [--json OUT.json]
+    .venv/bin/python bench/tailoring.py --validate [--gcodes OUT] [--json OUT.json]
 """
 
 from __future__ import annotations
@@ -187,11 +187,13 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--json", type=Path, metavar="OUT", help="also write the figures as JSON")
     p.add_argument("--validate", action="store_true",
                    help="compare with closed forms, CalculiX and resolved roads, print errors")
+    p.add_argument("--gcodes", type=Path, metavar="DIR",
+                   help="with --validate: also the gages of hostd tailor's prints in DIR")
     args = p.parse_args(argv)
     if args.validate:
         from bench.tailoring_validate import validate
 
-        figures = validate()
+        figures = validate(args.gcodes)
         if args.json:
             args.json.write_text(json.dumps(figures, indent=2))
         return 0
