@@ -81,8 +81,11 @@ class SimulatorConfig:
     when run: a line taken between the two is refused), ``banner`` (False: no ``start``
     after a reset), ``previous_lines`` (the last line number an earlier host left, kept
     when the port opens without a reset, ``reset_on_open`` False),
-    ``log_path`` (executed commands, one a line), ``link_path`` (a symlink kept pointing
-    at the current pseudo-terminal), ``seed`` (of every fault generator).
+    ``log_path`` (executed commands, one a line), ``keep_executed`` (False: the executed
+    commands are not kept in ``SimulatedPrinter.executed``, a list that grows by every
+    line printed; a long-running host reads them from ``log_path`` instead),
+    ``link_path`` (a symlink kept pointing at the current pseudo-terminal), ``seed`` (of
+    every fault generator).
     """
 
     time_scale: float = 1.0
@@ -108,6 +111,7 @@ class SimulatorConfig:
     no_timeouts_s: float = 0.0
     ambient_c: float = 20.0
     log_path: str | None = None
+    keep_executed: bool = True
     link_path: str | None = None
     reconnect_delay_s: float = 0.2
     seed: int = 0

@@ -57,8 +57,9 @@ class SimulatedPrinter:
     """A Marlin-like printer served on a pseudo-terminal from background threads.
 
     ``start()`` returns the device path a host opens; ``executed`` lists every executed
-    command (without line number and checksum) in order, and ``log_path`` gets the same,
-    one line each, flushed per line. Usable as a context manager.
+    command (without line number and checksum) in order (unless ``keep_executed`` is
+    off), and ``log_path`` gets the same, one line each, flushed per line. Usable as a
+    context manager.
 
     How it behaves, in brief (details in ``drivers.simfirmware``):
 
@@ -217,7 +218,8 @@ class SimulatedPrinter:
         self._firmware.port_opened()
 
     def _on_executed(self, command: str) -> None:
-        self.executed.append(command)
+        if self.config.keep_executed:
+            self.executed.append(command)
         if self._log is not None:
             self._log.write(command + "\n")
             self._log.flush()

@@ -33,7 +33,7 @@ async def printer_link(
 
     ``port = "sim"`` starts the simulated printer in-process on a pseudo-terminal,
     at ``[simulator]`` speed, logging every executed line to
-    ``<state>/simulator-executed.log``.
+    ``<state>/simulator-executed.log`` (and keeping none in memory).
     """
     simulator: SimulatedPrinter | None = None
     port = config.printer.port
@@ -46,6 +46,7 @@ async def printer_link(
                 baud=config.simulator.baud,
                 acceleration=config.simulator.acceleration,
                 log_path=str(config.state.folder / SIM_LOG),
+                keep_executed=False,  # in the log: a list in memory grew by every line
             )
         )
         port = simulator.start()

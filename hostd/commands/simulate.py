@@ -37,6 +37,7 @@ def run(args: argparse.Namespace) -> int:
             baud=args.baud,
             latency_s=getattr(args, "latency_ms", 0.0) / 1000.0,
             log_path=args.log,
+            keep_executed=False,  # served until stopped: the log, not memory, keeps them
             advanced_ok=args.advanced_ok,
             seed=getattr(args, "seed", 0),
             link_path=getattr(args, "link", None),
