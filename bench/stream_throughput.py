@@ -42,6 +42,7 @@ import subprocess
 import sys
 import time
 from dataclasses import dataclass, replace
+from pathlib import Path
 
 from drivers.protocol import frame, parse_response
 from drivers.streamer import Streamer, StreamerConfig
@@ -241,6 +242,168 @@ def fault_suite_rate(count: int) -> str:
             f"exactly once: {exact}")
 
 
+# -- an emulation nobody here wrote: OctoPrint's virtual printer ------------------------------
+
+OCTOPRINT = "octoprint==1.11.8"
+CACHE = Path(__file__).resolve().parent / ".cache"
+
+
+def octoprint_python() -> str:
+    """The Python of a virtual environment of its own with OctoPrint (AGPL: a benchmark
+    tool's peer, never a dependency of the package), created under ``bench/.cache/``."""
+    venv = CACHE / "octoprint-venv"
+    python = venv / "bin" / "python"
+    if not python.exists():
+        subprocess.run([sys.executable, "-m", "venv", str(venv)], check=True)
+    probe = subprocess.run([str(python), "-c", "import octoprint"], capture_output=True)
+    if probe.returncode != 0:
+        subprocess.run([str(python), "-m", "pip", "install", "-q", OCTOPRINT], check=True)
+    return str(python)
+
+
+class PeerProcess:
+    """``bench/octoprint_peer.py`` (OctoPrint's virtual printer on a pseudo-terminal) in a
+    process of its own; ``moves()`` reads the moves it queued once it has stopped."""
+
+    def __init__(self, python: str, resend_ratio: int) -> None:
+        self.log = CACHE / f"octoprint-moves-{os.getpid()}.txt"
+        self.proc = subprocess.Popen(
+            [python, str(Path(__file__).resolve().parent / "octoprint_peer.py"),
+             "--resend-ratio", str(resend_ratio), "--log", str(self.log)],
+            stdin=subprocess.PIPE, stdout=subprocess.PIPE, stderr=subprocess.DEVNULL,
+            text=True,
+        )
+        assert self.proc.stdout is not None
+        self.path = self.proc.stdout.readline().strip()
+        if not self.path:
+            raise RuntimeError("the OctoPrint peer printed no device path")
+
+    def stop(self) -> list[str]:
+        """Stop the emulation; the moves it queued, in order."""
+        assert self.proc.stdin is not None
+        self.proc.stdin.close()
+        try:
+            self.proc.wait(10)
+        except subprocess.TimeoutExpired:
+            self.proc.kill()
+            self.proc.wait()
+        moves = self.log.read_text(encoding="utf-8").splitlines() if self.log.exists() else []
+        self.log.unlink(missing_ok=True)
+        return moves
+
+
+@dataclass(frozen=True)
+class PeerRun:
+    """One stream to the emulation: the measured run, the longest gap between two writes
+    while streaming, and the moves the emulation queued."""
+
+    run: Run
+    max_gap_s: float
+    moves: list[str]
+
+
+async def windowed_peer(path: str, lines: list[str]) -> tuple[Run, float]:
+    """The project's link, at its defaults (5 s before a probe after silence)."""
+    config = StreamerConfig(temperature_interval_s=0)
+    stamps: list[float] = []
+    transport = await open_transport(path, 250000)
+    write = transport.write
+
+    async def timed(data: bytes) -> None:
+        stamps.append(time.perf_counter())
+        await write(data)
+
+    transport.write = timed  # type: ignore[method-assign]
+    async with Streamer(transport, config) as link:
+        await link.connect()
+        first = len(stamps)
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        for line in lines:
+            await link.send(line)
+        await link.drain()
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    gaps = [b - a for a, b in zip(stamps[first:], stamps[first + 1:], strict=False)]
+    return Run(len(lines), wall, cpu, 0), max(gaps, default=0.0)
+
+
+async def send_and_wait_peer(path: str, lines: list[str]) -> tuple[Run, float]:
+    """One line, then its ok, as OctoPrint streams: a request for a line already sent
+    replays from it (the ok after the request skipped); one for the next line, not yet
+    sent, is ignored and its ok taken for the line's."""
+    transport = await open_transport(path, 250000)
+    try:
+        await _settle(transport)
+        await transport.write(frame(0, "M110 N0"))
+        while parse_response(await transport.readline()).kind != "ok":
+            pass
+        cpu0, t0 = time.process_time(), time.perf_counter()
+        n = 1
+        while n <= len(lines):
+            await transport.write(frame(n, lines[n - 1]))
+            replay: int | None = None
+            while True:
+                response = parse_response(await transport.readline())
+                if response.kind == "resend" and response.line is not None \
+                        and response.line <= n:
+                    replay = response.line
+                elif response.kind == "ok":
+                    break
+            n = replay if replay is not None else n + 1
+        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+    finally:
+        await transport.close()
+    return Run(len(lines), wall, cpu, 0), 0.0
+
+
+def peer_table(count: int, ratios: list[int]) -> list[str]:
+    """Rows of the project's link vs a send-and-wait host on OctoPrint's virtual printer,
+    clean and at each resend ratio, a fresh emulation per stream."""
+    python = octoprint_python()
+    moves = curved_perimeter(count)
+    # absolute positions: the emulation starts relative, and sleeps a tenth of each move's
+    # time (0.3 mm segments read as 140 mm moves took 70 ms each)
+    lines = ["G90", *moves]
+    rows = [f"{'resend %':>8} {'hostd l/s':>9} {'% clean':>8} {'s&w l/s':>8} "
+            f"{'hostd/s&w':>9} {'max gap':>8} {'hostd us/l':>10} {'s&w us/l':>9} "
+            f"{'CPU ratio':>9} {'hostd run':>13} {'s&w run':>13}"]
+    clean = None
+    for ratio in ratios:
+        runs = []
+        for host in (windowed_peer, send_and_wait_peer):
+            peer = PeerProcess(python, ratio)
+            try:
+                run, gap = asyncio.run(host(peer.path, lines))
+            finally:
+                moves = peer.stop()
+            runs.append(PeerRun(run, gap, moves))
+            print(f"measured {host.__name__} at {ratio} %", file=sys.stderr)
+        ours, wait = runs
+        clean = clean or ours.run.rate
+        rows.append(
+            f"{ratio:>8} {ours.run.rate:>9.1f} {100 * ours.run.rate / clean:>7.1f}% "
+            f"{wait.run.rate:>8.1f} {ours.run.rate / wait.run.rate:>8.2f}x "
+            f"{ours.max_gap_s:>7.3f}s {1e6 * ours.run.cpu_s / len(lines):>10.0f} "
+            f"{1e6 * wait.run.cpu_s / len(lines):>9.0f} "
+            f"{ours.run.cpu_s / wait.run.cpu_s:>8.2f}x "
+            f"{_exactness(ours.moves, moves):>13} {_exactness(wait.moves, moves):>13}")
+    return rows
+
+
+def _exactness(moves: list[str], lines: list[str]) -> str:
+    """``once`` when the emulation queued every line once, in order; else how many it
+    left out and how many it queued twice (``-3 +0``)."""
+    if moves == lines:
+        return "once"
+    seen: dict[str, int] = {}
+    for move in moves:
+        seen[move] = seen.get(move, 0) + 1
+    missing = sum(1 for line in lines if line not in seen)
+    twice = sum(c - 1 for c in seen.values() if c > 1)
+    order = "" if [m for m in moves if m in set(lines)] == [ln for ln in lines if ln in seen] \
+        else " order!"
+    return f"-{missing} +{twice}{order}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Measure and print the table."""
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
@@ -256,9 +419,20 @@ def main(argv: list[str] | None = None) -> int:
                         help="lines through the fault suite on the core (0: skip)")
     parser.add_argument("--skip-wire", action="store_true",
                         help="skip the table on the pty simulator")
+    parser.add_argument("--peer", choices=["simulator", "octoprint"], default="simulator",
+                        help="octoprint: only the rows against OctoPrint's virtual printer")
+    parser.add_argument("--peer-lines", type=int, default=2000,
+                        help="lines per stream against the OctoPrint peer")
+    parser.add_argument("--resend-ratios", type=int, nargs="+", default=[0, 2, 5, 10],
+                        help="the OctoPrint peer's resend ratios (percent)")
     parser.add_argument("--repeat", type=int, default=1,
                         help="measure each speed and latency this many times (a row each)")
     args = parser.parse_args(argv)
+    if args.peer == "octoprint":
+        print(f"{args.peer_lines} short G1 moves to OctoPrint's virtual printer ({OCTOPRINT}) "
+              "on a pseudo-terminal, link defaults (5 s probe interval)")
+        print("\n".join(peer_table(args.peer_lines, args.resend_ratios)))
+        return 0
     if args.noisy_lines:
         rows = noisy_table(curved_perimeter(args.noisy_lines))
         print(f"{args.noisy_lines} short G1 moves, virtual-clock Marlin, 250000 baud, 1 ms")

@@ -269,7 +269,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             self._expect_resend_ok = True
             oldest = self.window.oldest()
             if garbled and oldest is not None and oldest.number == int(garbled.group(1)) \
-                    and len(self.window) == 1 and self.replay_next is None:
+                    and len(self.window) == 1:
                 # the only line in flight did not run as itself: the printer still needs
                 # it. Replayed now, as a refusal would have it; left to the next line's
                 # refusal, it waited for a probe when it was the only line the window

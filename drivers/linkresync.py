@@ -98,10 +98,14 @@ class Resync(CoreFields):
             self.resolving = True
             self._ask_probe()
         if confirmed and error_line is not None and model.explains(error_line) \
-                and not self._refuses_oldest(number):
+                and model.refused != number and not self._refuses_oldest(number):
             # the printer took lines at or after the replay's start before their copies
             # arrived (the refusal that started it was spurious, or lines still on the wire
-            # got through): those copies are refused, each once, and need no answer
+            # got through): those copies are refused, each once, and need no answer. (Once
+            # resynchronised to ``number``, further refusals asking for it are echoes while
+            # any are expected, then a refusal of ``number`` itself: taken for a new
+            # resynchronisation each time, a line drained after a copy's refusal was
+            # never written again)
             self._resync(number)
             return
         # a line behind a refused one is refused by its number; a checksum error names a
@@ -114,6 +118,11 @@ class Resync(CoreFields):
             self.stats.duplicate_resends += 1
             if confirmed and error_line is not None:
                 self.window.drop_copy(error_line)
+            # the refusals counted as echoes may have included that of ``number`` itself
+            # (drained behind a copy's refusal): if the printer goes quiet, a probe soon
+            # (refused, it asks for ``number`` with no echo left) rather than after the
+            # full silence
+            self.doubt = number in self.window.numbers()
             return
         if number >= self.next_number:
             return  # the printer has every line sent: nothing to replay

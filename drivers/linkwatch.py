@@ -174,6 +174,11 @@ class Watching(CoreFields):
         self.probes_unanswered += 1
         self.stats.probes += 1
         self.last_probe_at = now
+        if now - self.last_answer >= self.config.busy_silence_s:
+            # answers still owed to probes did not come in a long silence: withheld (a
+            # firmware whose ok after a Resend stood for the probe's). Still awaited, they
+            # swallowed the answer of every probe after them, and the link probed for ever
+            self._answers_owed = []
         if self.replay_next is not None:
             self.force_replay = True
         queued = next((c for c in self.control if c.probe), None)

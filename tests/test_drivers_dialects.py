@@ -10,17 +10,21 @@ so a stall shows as a gap between writes.
 
 from __future__ import annotations
 
+import pytest
 from linkcores import connected_core
 
 from drivers.linkconfig import StreamerConfig
 from drivers.linkcore import LinkCore
 from drivers.linkevents import Acked
 from drivers.protocol import frame
+from drivers.simconfig import DIALECTS, dialect
 from drivers.simlines import ERR_CHECKSUM, ERR_LINE_NO
+from drivers.simlinkrun import run_core, run_send_and_wait
 
 # the link's defaults (5 s before a probe after silence), without temperature polls
 LINK = StreamerConfig(temperature_interval_s=0, resync_quiet_s=0.01)
 PROBE_ANSWER = "ok T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"
+MAX_GAP_S = 0.5
 
 
 def _writes(core: LinkCore, now: float) -> list[tuple[int, str]]:
@@ -108,6 +112,26 @@ def test_a_copy_of_a_line_the_printer_took_dropped_without_an_ok_ends_no_stream(
     assert not core.pending
     assert core.last_acked_number == last_n == core.next_number - 1
     assert len(core.window) == 0
+
+
+@pytest.mark.parametrize("name", sorted(DIALECTS))
+@pytest.mark.parametrize("p", [0.02, 0.10])
+def test_every_dialect_streams_exactly_once_without_a_stall(name, p):
+    # 2 and 10 % of lines refused (or a tenth of that in resets, for the M110 dialects),
+    # at the link's own 5 s probe interval: a stall shows as a gap between writes
+    lines = [f"G1 X{100 + i % 50}.{i % 7} Y{100 + i // 50}.5 E0.0{i % 9}" for i in range(1500)]
+    fault = DIALECTS[name][1]
+    p = p / 10 if fault == "reset" else p
+    sim = dialect(name, p, baud=250000, latency_s=0.001, seed=12, keepalive_s=0.05,
+                  boot_delay_s=0.05)
+    run = run_core(lines, sim, LINK, max_seconds=3000)
+    assert run.executed == lines
+    assert run.acked == lines
+    assert run.printer.faults.fired[fault] >= 1500 * p / 3
+    assert run.max_gap < MAX_GAP_S, f"{name}: a {run.max_gap:.2f} s gap between writes"
+    wait = run_send_and_wait(lines, sim, max_seconds=3000)
+    assert wait.executed == lines
+    assert run.rate >= wait.rate
 
 
 def test_the_handshake_numbers_the_m110_as_the_value_it_sets():
