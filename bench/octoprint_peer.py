@@ -24,6 +24,7 @@ import os
 import sys
 import tempfile
 import threading
+import time
 import tty
 from typing import Any, ClassVar
 
@@ -126,6 +127,14 @@ def main() -> int:
             *whole, pending = pending.split(b"\n")
             for line in whole:
                 data = line + b"\n"
+                # held back until the emulation's receive queue has room for the whole
+                # line, as flow control would: its write() waits for room holding the
+                # lock its refusals take, and both stood still until the write timed out
+                queue = printer.incoming
+                while queue is not None and queue.qsize() \
+                        and queue.qsize() + len(data) > queue.maxsize:
+                    time.sleep(0.0005)
+                    queue = printer.incoming
                 while data:
                     written = printer.write(data) or 0
                     data = data[written:]

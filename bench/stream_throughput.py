@@ -193,30 +193,41 @@ def measure(
 def noisy_table(lines: list[str]) -> list[str]:
     """Rows of core vs send-and-wait rates on the virtual clock, clean and noisy."""
     from drivers.linkconfig import StreamerConfig as LinkConfig
-    from drivers.simconfig import SimulatorConfig
+    from drivers.simconfig import DIALECTS, SimulatorConfig, dialect
     from drivers.simlinkrun import run_core, run_send_and_wait
 
     base = {"baud": 250000, "latency_s": 0.001, "seed": 3}
-    rows = [f"{'noise':>14} {'ok after':>8} {'core l/s':>9} {'% clean':>8} "
-            f"{'send-wait l/s':>13} {'core/s&w':>8} {'resent':>7} {'exact':>6}"]
+    rows = [f"{'noise':>24} {'ok after':>8} {'core l/s':>9} {'% clean':>8} "
+            f"{'send-wait l/s':>13} {'core/s&w':>8} {'resent':>7} {'max gap':>8} "
+            f"{'exact':>6}"]
     clean = None
     cases = [("clean", "", 0.0, True)]
     for p in (0.02, 0.05, 0.10):
         for form in ("refuse", "resend"):
             for ok in (True, False):
                 cases.append((f"{form} {100 * p:g} %", form, p, ok))
+    # every firmware dialect with its own fault (resets, for the M110 dialects, at a
+    # tenth of the rate: each costs a boot)
+    for dialect_name, (_, fault) in DIALECTS.items():
+        for p in (0.02, 0.05, 0.10):
+            rate = p / 10 if fault == "reset" else p
+            cases.append((f"{dialect_name} {100 * rate:g} %", dialect_name, rate, True))
     for name, form, p, ok in cases:
-        sim = SimulatorConfig(**base, ok_after_resend=ok, **({f"p_{form}": p} if form else {}))
-        link = LinkConfig(temperature_interval_s=0, probe_after_s=0.05, probe_retries=1000,
-                          ok_after_resend=ok)
+        if form in DIALECTS:
+            sim = dialect(form, p, **base, keepalive_s=0.05, boot_delay_s=0.05)
+        else:
+            sim = SimulatorConfig(**base, ok_after_resend=ok,
+                                  **({f"p_{form}": p} if form else {}))
+        # the link's own probe interval (5 s): a stall shows in the longest gap
+        link = LinkConfig(temperature_interval_s=0, ok_after_resend=ok, resync_quiet_s=0.01)
         core = run_core(lines, sim, link)
         wait = run_send_and_wait(lines, sim)
         clean = clean or core.rate
         exact = core.executed == lines and core.acked == lines and wait.executed == lines
-        rows.append(f"{name:>14} {'yes' if ok else 'no':>8} {core.rate:>9.1f} "
+        rows.append(f"{name:>24} {'yes' if ok else 'no':>8} {core.rate:>9.1f} "
                     f"{100 * core.rate / clean:>7.1f}% {wait.rate:>13.1f} "
                     f"{core.rate / wait.rate:>7.2f}x {core.stats.lines_resent:>7} "
-                    f"{'yes' if exact else 'NO':>6}")
+                    f"{core.max_gap:>7.3f}s {'yes' if exact else 'NO':>6}")
         print(f"measured {name}, ok after resend {ok}", file=sys.stderr)
     return rows
 
