@@ -25,6 +25,7 @@ from hostd.joblife import JobLife
 from hostd.jobstate import HubState, Interrupted, PrinterError
 from hostd.jobstore import Job, JobStore
 from hostd.loadcheck import load_analysis_modules
+from hostd.memory import release_after_job
 from hostd.printer import printer_link
 from hostd.printjob import PrintJob, printer_settings
 from hostd.sources import warm_up
@@ -244,6 +245,7 @@ class Daemon:
                     self.intake.fail(self.store.get(job.id), f"internal error: {exc!r}")
             finally:
                 self.current = None
+                release_after_job()  # see hostd.memory: RSS stays flat job after job
                 self.life.idle()
                 self.queue_changed()
 

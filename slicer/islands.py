@@ -9,11 +9,15 @@ coordinates (WKB) and the settings they depend on, for the last
 :data:`KEEP` islands (fewer when large: :data:`KEEP_BYTES`); only the islands
 not seen lately are offset, all at once.
 The geometry kept is private to its thread: a thread may prepare it in place.
+A long-running host drops every thread's islands when a job ends
+(:func:`forget_everywhere`): kept, they held an organic model's walls (tens of MB
+over a few threads) until other islands pushed them out.
 """
 
 from __future__ import annotations
 
 import threading
+import weakref
 from collections import OrderedDict
 from typing import Any, cast
 
@@ -48,22 +52,53 @@ Island = tuple[float, Any, list[Any]]
 # an island's WKB and the settings its geometry depends on
 Key = tuple[bytes, tuple[Any, ...]]
 
+class _Kept:
+    """One thread's islands, least recently used first, with the bytes of WKB in their
+    keys; the lock is held while the dictionary changes (another thread may clear it)."""
+
+    def __init__(self) -> None:
+        self.islands: OrderedDict[Key, Island] = OrderedDict()
+        self.size = 0
+        self.lock = threading.Lock()
+
+    def __len__(self) -> int:
+        return len(self.islands)
+
+    def clear(self) -> None:
+        with self.lock:
+            self.islands.clear()
+            self.size = 0
+
+
 _local = threading.local()
+_every: weakref.WeakSet[_Kept] = weakref.WeakSet()  # each live thread's, to forget them all
+_every_lock = threading.Lock()
 
 
-def _kept() -> OrderedDict[Key, Island]:
-    """This thread's islands, least recently used first."""
+def _kept() -> _Kept:
+    """This thread's islands."""
     kept = getattr(_local, "kept", None)
     if kept is None:
-        kept = _local.kept = OrderedDict()
-        _local.size = 0  # bytes of WKB in the keys
+        kept = _local.kept = _Kept()
+        with _every_lock:
+            _every.add(kept)
     return kept
 
 
 def forget() -> None:
     """Drop this thread's kept islands (a benchmark's passes each start cold)."""
     _kept().clear()
-    _local.size = 0
+
+
+def forget_everywhere() -> None:
+    """Drop every thread's kept islands (a job ended: its islands are not the next one's).
+
+    Safe while other threads slice: a thread goes on with the islands it found, and
+    offsets again those it does not find."""
+    with _every_lock:
+        every = list(_every)
+    for kept in every:
+        kept.clear()
 
 
 def island_geometry(
@@ -78,21 +113,27 @@ def island_geometry(
     others are offset in one vectorised pass, in their order.
     """
     p = len(islands)
-    kept = _kept()
+    holder = _kept()
+    kept = holder.islands
     tag = (w, perimeters, fill_distance, wall_order)
     keys = [(b, tag) for b in shapely.to_wkb(islands)]
-    found: list[Island | None] = [kept.get(k) for k in keys]
+    with holder.lock:
+        found: list[Island | None] = [kept.get(k) for k in keys]
     miss = [i for i in range(p) if found[i] is None]
+    made: dict[int, Island] = {}
     if miss:
         width, fill, rings = _offsets(islands[miss], w, perimeters, fill_distance, wall_order)
-        for j, i in enumerate(miss):
+        made = {i: (float(width[j]), fill[j], rings[j]) for j, i in enumerate(miss)}
+    with holder.lock:
+        for i, island in made.items():
             if keys[i] not in kept:
-                _local.size += len(keys[i][0])
-            found[i] = kept.setdefault(keys[i], (float(width[j]), fill[j], rings[j]))
-    for k in keys:
-        kept.move_to_end(k)
-    while kept and (len(kept) > KEEP or _local.size > KEEP_BYTES):
-        _local.size -= len(kept.popitem(last=False)[0][0])
+                holder.size += len(keys[i][0])
+            found[i] = kept.setdefault(keys[i], island)
+        for k in keys:
+            if k in kept:  # (unless another thread forgot them meanwhile)
+                kept.move_to_end(k)
+        while kept and (len(kept) > KEEP or holder.size > KEEP_BYTES):
+            holder.size -= len(kept.popitem(last=False)[0][0])
     got = cast(list[Island], found)
     widths = np.array([f[0] for f in got], dtype=np.float64)
     fills = np.empty(p, dtype=object)
