@@ -9,8 +9,10 @@ process and nothing of it is copied into, or required by, the package::
         --log executed.txt
 
 Prints the pseudo-terminal's path on the first line of standard output, then serves until
-standard input closes. ``--resend-ratio P`` is the emulation's own setting: every
-``100 // P``-th line received it reports an error and asks for the next line, as it does.
+standard input closes, each direction of the wire paced to ``--baud`` (a serial
+port's 8N1 bytes: 25,000 bytes/s at 250000 baud). ``--resend-ratio P`` is the
+emulation's own setting: every ``100 // P``-th line received it reports an error and
+asks for the next line, as it does.
 Its error texts are set to Marlin's (``Error:checksum mismatch, Last Line: N``, the last
 line the emulation took), the rest of its settings are its defaults but for the
 simulated errors at fixed line numbers, turned off. Every move it queues (``G0``/``G1``)
@@ -71,7 +73,10 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--resend-ratio", type=int, default=0)
     parser.add_argument("--log", required=True)
+    parser.add_argument("--baud", type=int, default=250000,
+                        help="wire speed both ways (8N1: baud / 10 bytes/s; 0: unlimited)")
     args = parser.parse_args()
+    rate = args.baud / 10
 
     from octoprint.plugins.virtual_printer import VirtualPrinterPlugin, virtual
     from octoprint.plugins.virtual_printer.virtual import VirtualPrinter
@@ -114,6 +119,16 @@ def main() -> int:
     tty.setraw(slave)
     print(os.ttyname(slave), flush=True)
 
+    def wire(free_at: list[float], size: int) -> None:
+        """Wait for ``size`` bytes' time on one direction of the wire."""
+        if rate:
+            now = time.monotonic()
+            free_at[0] = max(now, free_at[0]) + size / rate
+            if free_at[0] > now:
+                time.sleep(free_at[0] - now)
+
+    to_printer_wire, to_host_wire = [0.0], [0.0]
+
     def to_printer() -> None:
         # one line per write, as a serial port delivers them to OctoPrint's own host: the
         # emulation takes one line from each write it is given (two lines in one write
@@ -127,14 +142,16 @@ def main() -> int:
             *whole, pending = pending.split(b"\n")
             for line in whole:
                 data = line + b"\n"
+                wire(to_printer_wire, len(data))
                 # held back until the emulation's receive queue has room for the whole
                 # line, as flow control would: its write() waits for room holding the
                 # lock its refusals take, and both stood still until the write timed out
                 queue = printer.incoming
-                while queue is not None and queue.qsize() \
-                        and queue.qsize() + len(data) > queue.maxsize:
-                    time.sleep(0.0005)
-                    queue = printer.incoming
+                if queue is None:
+                    return
+                with queue.not_full:  # (its mutex: the emulation's get() notifies it)
+                    while queue._qsize() and queue._qsize() + len(data) > queue.maxsize:
+                        queue.not_full.wait(0.05)
                 while data:
                     written = printer.write(data) or 0
                     data = data[written:]
@@ -143,7 +160,9 @@ def main() -> int:
         while printer.outgoing is not None:
             line = printer.readline()
             if line:
-                os.write(master, line if line.endswith(b"\n") else line + b"\n")
+                data = line if line.endswith(b"\n") else line + b"\n"
+                wire(to_host_wire, len(data))
+                os.write(master, data)
 
     for target in (to_printer, to_host):
         threading.Thread(target=target, daemon=True).start()
