@@ -30,6 +30,16 @@ of latency, with 2, 5 and 10 % of lines spuriously refused in both forms (Marlin
 sent) and both ``ok`` dialects, against a send-and-wait host on the same firmware. A last
 line gives the wall-clock rate at which the protocol core gets through the fault suite
 (every fault kind at 1 %).
+
+``--peer octoprint`` runs instead the rows against an emulation nobody here wrote:
+OctoPrint's virtual printer (``bench/octoprint_peer.py``, in a virtual environment of its
+own created under ``bench/.cache/``: AGPL, never a dependency of the package) on a
+pseudo-terminal paced to 250000 baud, clean and at its resend ratios (``--resend-ratios``),
+the link at its defaults against a send-and-wait host that handles requests as OctoPrint
+does; rates, the link's longest gap between writes, CPU per line and the moves the
+emulation queued (``once``, or how many it left out and queued twice)::
+
+    .venv/bin/python -m bench.stream_throughput --peer octoprint --peer-lines 3000
 """
 
 from __future__ import annotations
@@ -385,8 +395,8 @@ def peer_table(count: int, ratios: list[int]) -> list[str]:
             try:
                 run, gap = asyncio.run(host(peer.path, lines))
             finally:
-                moves = peer.stop()
-            runs.append(PeerRun(run, gap, moves))
+                queued = peer.stop()
+            runs.append(PeerRun(run, gap, queued))
             print(f"measured {host.__name__} at {ratio} %", file=sys.stderr)
         ours, wait = runs
         clean = clean or ours.run.rate
