@@ -85,3 +85,33 @@ def test_credentials_and_tls_are_used_and_required(secure: tuple[list[str], Path
                         "the job printed over TLS")
     finally:
         daemon.close()
+
+
+def test_a_server_that_cannot_hold_three_replicas_is_reported_at_once(tmp_path: Path) -> None:
+    binary = nats_binary()
+    if binary is None:
+        pytest.skip("nats-server is not installed (apt-get install nats-server; make test does)")
+    port = free_port()
+    log = open(tmp_path / "single.log", "ab")  # noqa: SIM115 - kept by the child
+    server = subprocess.Popen([binary, "-js", "-a", HOST, "-p", str(port), "-sd",
+                               str(tmp_path / "js")], stdout=log, stderr=log)
+    log.close()
+    try:
+        deadline = time.monotonic() + 20
+        while True:
+            try:
+                with socket.create_connection((HOST, port), timeout=0.5):
+                    break
+            except OSError:
+                if time.monotonic() > deadline:
+                    raise
+                time.sleep(0.1)
+        started = time.monotonic()
+        result = subprocess.run([*HOSTD, "farm", "--servers", f"nats://{HOST}:{port}", "list"],
+                                capture_output=True, text=True, timeout=60, cwd=ROOT)
+        assert result.returncode == 1
+        assert "(3 replicas each) cannot be set up" in result.stderr
+        assert time.monotonic() - started < 30  # reported, not retried for a minute
+    finally:
+        server.terminate()
+        server.wait(15)

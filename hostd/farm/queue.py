@@ -74,6 +74,10 @@ TRANSIENT: tuple[type[BaseException], ...] = (
     nats.js.errors.NoStreamResponseError, asyncio.TimeoutError,
 )
 
+# JetStream errors no retry mends: too few nodes or too little room for three replicas,
+# replicas asked of a server that is not clustered
+LASTING_CODES = frozenset({10023, 10074})
+
 T = TypeVar("T")
 
 
@@ -94,6 +98,8 @@ async def retrying(operation: Callable[[], Awaitable[T]], what: str,
         try:
             return await operation()
         except TRANSIENT as exc:
+            if getattr(exc, "err_code", None) in LASTING_CODES:
+                raise
             if time.monotonic() + delay > give_up:
                 raise FarmError(f"{what}: the cluster did not answer ({exc!r})") from exc
             log.debug("%s: %r; trying again in %.1f s", what, exc, delay)
@@ -173,6 +179,10 @@ class FarmQueue:
             js = client.jetstream(timeout=5)
             jobs, printers, models = await retrying(
                 lambda: _ensure(js, ack_wait_s or config.ack_wait_s), "setting up the farm")
+        except nats.js.errors.APIError as exc:  # e.g. three replicas on fewer nodes
+            await client.close()
+            raise FarmError(f"the farm's stream, buckets and store ({REPLICAS} replicas each) "
+                            f"cannot be set up: {exc.description or exc}") from exc
         except BaseException:
             await client.close()
             raise
