@@ -1,0 +1,218 @@
+"""Soak: many prints back to back on one daemon, its resident memory after each.
+
+A `hostd run` daemon with the default configuration on the simulated printer at
+full speed (``time_scale = 0``, the simulator's default 250000 baud unless
+``--baud``) prints a mix of the shared models one after the other. Some jobs are
+cancelled while they print (every ``--cancel-every``-th), one is retuned mid-print
+(``set infill.density``), the others run to the end. After each job has ended and
+the daemon is idle, the daemon's RSS (``VmRSS``) is read; the target is that it
+stays within ``--budget-mb`` (10 MB) of its value after the first print.
+
+Usage (from the repository root):
+    .venv/bin/python bench/soak.py [--jobs 50] [--models dogbone_100x30x5,bunny]
+                                   [--models-dir DIR] [--json OUT.json]
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import json
+import sys
+import time
+from dataclasses import asdict, dataclass
+from pathlib import Path
+
+if __package__ in (None, ""):
+    sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
+
+from bench.daemonproc import Daemon
+from bench.slice_vs_peers import MODELS as SHARED_MODELS
+from hostd.api import ControlClient, ControlError, Snapshot
+
+MODELS = ("dogbone_100x30x5", "cube20_xyz", "featuretype_mm", "rocker_arm", "candle_stand",
+          "bunny")
+RETUNE = {"infill.density": 0.35}
+POLL_S = 0.2
+
+
+@dataclass(frozen=True)
+class SoakSetup:
+    """The daemon's configuration: the defaults, the simulated printer at full speed."""
+
+    settle_s: float = 0.3
+    baud: int = 250000
+
+    def toml(self, jobs: Path, state: Path) -> str:
+        """The daemon configuration file's text."""
+        return (
+            f'[jobs]\nfolder = "{jobs}"\nsettle_s = {self.settle_s}\n\n'
+            f'[state]\nfolder = "{state}"\n\n'
+            '[printer]\nport = "sim"\n\n'
+            f"[simulator]\ntime_scale = 0.0\nbaud = {self.baud}\n"
+        )
+
+
+@dataclass(frozen=True)
+class JobRow:
+    """One job of the soak: what was done to it, how it ended, the RSS after it."""
+
+    index: int
+    model: str
+    action: str  # "print", "cancel" or "retune"
+    outcome: str  # "done", "cancelled" or "failed"
+    seconds: float
+    rss_mb: float
+
+
+def rss_mb(pid: int) -> float:
+    """Resident set size of process ``pid``, in MB (VmRSS)."""
+    with open(f"/proc/{pid}/status", encoding="ascii") as handle:
+        for line in handle:
+            if line.startswith("VmRSS:"):
+                return int(line.split()[1]) / 1024.0
+    raise RuntimeError(f"no VmRSS for process {pid}")
+
+
+def action_of(index: int, cancel_every: int, retune_at: int) -> str:
+    """What the soak does to job ``index``: cancel it, retune it, or let it print."""
+    if index == retune_at:
+        return "retune"
+    if cancel_every > 0 and index % cancel_every == cancel_every - 1:
+        return "cancel"
+    return "print"
+
+
+def outcomes(daemon: Daemon) -> int:
+    """Jobs ended so far: summaries in ``done/`` and errors in ``failed/``."""
+    jobs = daemon.jobs
+    return (len(list((jobs / "done").glob("*.summary.txt")))
+            + len(list((jobs / "failed").glob("*.error.txt"))))
+
+
+async def status(socket: Path) -> Snapshot:
+    async with ControlClient(str(socket)) as client:
+        return await client.status()
+
+
+async def command(socket: Path, cmd: str, **args: object) -> dict[str, object]:
+    async with ControlClient(str(socket)) as client:
+        return await client.request(cmd, **args)
+
+
+async def run_job(daemon: Daemon, model: Path, action: str, timeout: float) -> str:
+    """Drop ``model``, act on it once it prints layer 1 (cancel, retune), wait until it
+    ended and the daemon is idle; returns ``done``, ``cancelled`` or ``failed``."""
+    socket = daemon.state / "hostd.sock"
+    ended = outcomes(daemon)
+    failed_before = set((daemon.jobs / "failed").glob("*.error.txt"))
+    daemon.drop(model)
+    deadline = time.monotonic() + timeout
+    acted = action == "print"
+    while outcomes(daemon) == ended:
+        if time.monotonic() > deadline:
+            raise RuntimeError(f"{model.name}: not ended after {timeout:.0f} s")
+        if not daemon.alive():
+            raise RuntimeError(f"the daemon exited: {daemon.log_tail()}")
+        if not acted:
+            snap = await status(socket)
+            if snap.state == "printing" and snap.job is not None and snap.job.layer >= 1:
+                try:
+                    if action == "cancel":
+                        await command(socket, "cancel")
+                    else:
+                        await command(socket, "set", settings=RETUNE)
+                except ControlError as exc:  # the job ended meanwhile: a plain print
+                    print(f"  {action} refused: {exc}", file=sys.stderr)
+                acted = True
+        await asyncio.sleep(POLL_S)
+    while (await status(socket)).state != "idle":
+        await asyncio.sleep(POLL_S)
+    errors = set((daemon.jobs / "failed").glob("*.error.txt")) - failed_before
+    if not errors:
+        return "done"
+    text = next(iter(errors)).read_text(errors="replace")
+    return "cancelled" if "cancel" in text else "failed"
+
+
+async def soak(args: argparse.Namespace) -> list[JobRow]:
+    models = [args.models_dir / f"{name}.stl" for name in args.models.split(",")]
+    missing = [m for m in models if not m.exists()]
+    if missing:
+        raise SystemExit(f"missing models: {', '.join(map(str, missing))}")
+    rows: list[JobRow] = []
+    with Daemon(SoakSetup(baud=args.baud)) as daemon:  # type: ignore[arg-type]
+        daemon.wait_ready()
+        daemon.wait_warm()
+        print(f"idle: {rss_mb(daemon.pid):.1f} MB", flush=True)
+        for index in range(args.jobs):
+            model = models[index % len(models)]
+            action = action_of(index, args.cancel_every, args.retune_at)
+            started = time.monotonic()
+            outcome = await run_job(daemon, model, action, args.timeout)
+            seconds = time.monotonic() - started
+            await asyncio.sleep(args.settle)  # the job's last threads and files let go
+            row = JobRow(index, model.stem, action, outcome, round(seconds, 1),
+                         round(rss_mb(daemon.pid), 1))
+            rows.append(row)
+            first = rows[0].rss_mb
+            print(f"{index:3d} {model.stem:18s} {action:6s} {outcome:9s} {seconds:7.1f} s "
+                  f"RSS {row.rss_mb:6.1f} MB ({row.rss_mb - first:+.1f})", flush=True)
+    return rows
+
+
+def summary(rows: list[JobRow], budget_mb: float, cycle: int) -> dict[str, object]:
+    """After the first job's RSS, the largest and the last difference, and the verdict;
+    the same after the first ``cycle`` jobs (each model printed once: the largest
+    job's working set is then in the heap, and what grows after it is a leak)."""
+    first = rows[0].rss_mb
+    later = [r.rss_mb - first for r in rows[1:]] or [0.0]
+    seen = rows[min(cycle, len(rows)) - 1].rss_mb
+    after_cycle = [r.rss_mb - seen for r in rows[cycle:]] or [0.0]
+    return {
+        "jobs": len(rows),
+        "after_first_mb": first,
+        "last_mb": rows[-1].rss_mb,
+        "max_above_first_mb": round(max(later), 1),
+        "min_below_first_mb": round(min(later), 1),
+        "after_each_model_once_mb": seen,
+        "max_above_that_mb": round(max(after_cycle), 1),
+        "budget_mb": budget_mb,
+        "within_budget": max(abs(v) for v in later) <= budget_mb,
+        "outcomes": {o: sum(r.outcome == o for r in rows) for o in ("done", "cancelled",
+                                                                        "failed")},
+    }
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--jobs", type=int, default=50, help="prints back to back (50)")
+    parser.add_argument("--models", default=",".join(MODELS),
+                        help="model names (without .stl), taken in turn")
+    parser.add_argument("--models-dir", type=Path, default=SHARED_MODELS,
+                        help="folder of the shared models")
+    parser.add_argument("--cancel-every", type=int, default=7,
+                        help="cancel every N-th job once it prints layer 1 (0: none)")
+    parser.add_argument("--retune-at", type=int, default=4,
+                        help="the job retuned mid-print (index from 0; -1: none)")
+    parser.add_argument("--baud", type=int, default=250000,
+                        help="the simulated wire (0: unlimited)")
+    parser.add_argument("--budget-mb", type=float, default=10.0)
+    parser.add_argument("--settle", type=float, default=1.0,
+                        help="seconds idle before RSS is read")
+    parser.add_argument("--timeout", type=float, default=1800.0, help="per job, seconds")
+    parser.add_argument("--json", type=Path, help="write the rows and the summary here")
+    args = parser.parse_args()
+    if args.jobs < 1:
+        parser.error("--jobs must be 1 or more")
+    rows = asyncio.run(soak(args))
+    result = summary(rows, args.budget_mb, len(args.models.split(",")))
+    print(json.dumps(result, indent=1))
+    if args.json:
+        args.json.write_text(json.dumps({"rows": [asdict(r) for r in rows], "summary": result},
+                                        indent=1) + "\n")
+    return 0 if result["within_budget"] else 1
+
+
+if __name__ == "__main__":
+    sys.exit(main())
