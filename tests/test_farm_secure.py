@@ -111,6 +111,7 @@ def test_a_server_that_cannot_hold_three_replicas_is_reported_at_once(tmp_path: 
                                 capture_output=True, text=True, timeout=60, cwd=ROOT)
         assert result.returncode == 1
         assert "(3 replicas each) cannot be set up" in result.stderr
+        assert "not supported in non-clustered mode" in result.stderr
         assert time.monotonic() - started < 30  # reported, not retried for a minute
     finally:
         server.terminate()

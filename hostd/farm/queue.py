@@ -74,9 +74,9 @@ TRANSIENT: tuple[type[BaseException], ...] = (
     nats.js.errors.NoStreamResponseError, asyncio.TimeoutError,
 )
 
-# JetStream errors no retry mends: too few nodes or too little room for three replicas,
-# replicas asked of a server that is not clustered
-LASTING_CODES = frozenset({10023, 10074})
+# JetStream errors no retry mends: replicas asked of a server that is not clustered (a
+# cluster short of room, 10023, may be one still starting: that one is retried)
+LASTING_CODES = frozenset({10074})
 
 T = TypeVar("T")
 
