@@ -12,8 +12,9 @@ from drivers.responses import Response
 
 # silence after which a probe goes when a line the printer has read may never get its ok
 # (a refusal named it as the last line; some firmware's ok after the Resend stood in for
-# it): the window may then wait for an ok that never comes, so the link asks at once
-# rather than after ``probe_after_s``
+# it), while a refusal's probe is unanswered or a replay waits for room: the window may
+# then wait for an ok that never comes, so the link asks at once rather than after
+# ``probe_after_s`` (one such probe per silence)
 HELD_PROBE_S = 0.1
 
 # commands that wait for a heater and report temperatures while they run
@@ -96,7 +97,9 @@ class Watching(CoreFields):
         # per interval at most, each only when it fits the receive buffer as modelled
         silence = now - self.last_answer
         interval = self.config.probe_after_s
-        if (self.window.held or self.doubt) and interval > HELD_PROBE_S \
+        unsure = self.window.held or self.doubt or self.resolving \
+            or self.replay_next is not None  # (a replay the window holds back)
+        if unsure and interval > HELD_PROBE_S \
                 and not self.probes_unanswered:  # (one such probe: no storm of them)
             interval = HELD_PROBE_S
         if silence < interval * (self.probes_unanswered + 1) \
