@@ -322,6 +322,8 @@ def _repair_layer(
     object) and their union is labelled with the lower body number.
     """
     fixed = shapely.make_valid(polys)
+    if len(fixed) > _FEW:
+        fixed, body = _uncovered(fixed, body)
     bodies = np.unique(body, return_index=True)[0]  # plain unique imports numpy.ma
     regions = [geom.polygonal(shapely.union_all(fixed[body == b])) for b in bodies]
     label = {int(b): int(b) for b in bodies}
@@ -342,3 +344,21 @@ def _repair_layer(
     if not out_p:
         return np.empty(0, dtype=object), np.empty(0, dtype=np.int64)
     return np.concatenate(out_p), np.concatenate(out_b)
+
+
+# a layer of more polygons than this is first rid of those inside another of its body
+_FEW = 32
+
+
+def _uncovered(polys: np.ndarray, body: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``polys`` (valid) and their ``body`` without the polygons covered by a larger
+    polygon of the same body (or an equal one listed before): they add nothing
+    to the body's union. An inlay body of hundreds of loops inside its plate
+    (a multibody export) is then one polygon to unite instead of hundreds."""
+    tree = shapely.STRtree(polys)
+    inner, outer = tree.query(polys, predicate="covered_by")
+    area = shapely.area(polys)
+    bigger = (area[outer] > area[inner]) | ((area[outer] == area[inner]) & (outer < inner))
+    drop = np.zeros(len(polys), dtype=bool)
+    drop[inner[bigger & (body[outer] == body[inner]) & (inner != outer)]] = True
+    return polys[~drop], body[~drop]
