@@ -39,11 +39,16 @@ class Acknowledging(CoreFields):
                 # the probe asked after a refusal that left an older probe's answer
                 # uncertain: this answer is taken for it, every line before it done. Had
                 # the older probes' answers come after all (this one among them), as many
-                # are still to come: owed, each acknowledges nothing
+                # are still to come: owed, each acknowledges nothing. Every older probe
+                # counts, not only the held ones: one not held (answered for certain) is
+                # most likely the one this answer is for. Owing one answer too few took
+                # a late answer for a newer probe behind job lines, acknowledging them
+                # before they ran (a reset then renumbered past them); one too many is
+                # cleared by the next plain ok, or costs a probe after a short silence
                 self.resolving = False
                 self._late_oks = 0
                 self._answers_owed = [newest] * sum(
-                    1 for e in self.window if e.held and e.number is not None
+                    1 for e in self.window if e.number is not None
                     and e.number < newest and _is_probe_line((e.command, True)))
                 done = self.window.ack_upto(newest)
                 if not any(e.number == newest for e in done):

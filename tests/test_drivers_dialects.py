@@ -147,3 +147,48 @@ def test_the_handshake_numbers_the_m110_as_the_value_it_sets():
     core.feed("ok", 0.001)
     core.queue_control("M115", internal=True, token=2)
     assert core.next_bytes(0.001) == frame(1, "M115")
+
+
+@pytest.mark.parametrize("withheld", [False, True])
+def test_a_probe_answer_after_a_held_probe_acknowledges_no_job_line_before_its_ok(withheld):
+    # Two probes out (1, 2); the printer takes 2 with a refusal naming it its last line
+    # ("Last Line: 2", "Resend: 3", "ok"), so 2's answer may or may not come; probe 3
+    # follows a silence. The first answer (1's) is taken for 3, every probe before it
+    # done: the answers of 1 and 2 are then still owed, not only the held one's. Owing
+    # one, 2's answer was later taken for the probe after three job lines (7), which
+    # acknowledged lines 4-6 before the printer ran them, and a reset then renumbered
+    # past them: acknowledged, never run
+    core = connected_core(LINK)
+    t = 0.01
+    core.queue_control("M105", internal=True, probe=True)
+    core.queue_control("M105", internal=True, probe=True)
+    assert _writes(core, t) == [(1, "M105"), (2, "M105")]
+    for text in (f"Error:{ERR_CHECKSUM}2", "Resend: 3", "ok"):
+        core.feed(text, t)
+    t = 0.11
+    core.tick(t)
+    assert _writes(core, t) == [(3, "M105")]
+    core.feed(PROBE_ANSWER, t)  # 1's answer
+    if not withheld:
+        core.feed(PROBE_ANSWER, t)  # 2's: this firmware answers a held probe too
+    _jobs(core, 3)
+    assert [n for n, _ in _writes(core, t)] == [4, 5, 6]
+    core.queue_control("M105", internal=True, probe=True)
+    assert _writes(core, t) == [(7, "M105")]
+    acked = [e.number for e in core.feed(PROBE_ANSWER, t) if isinstance(e, Acked)]  # 3's
+    assert acked == []  # lines 4-6 have not run yet
+    if withheld:
+        # their own oks acknowledge them, one each, and 7's answer the probe
+        for number in (4, 5, 6):
+            acked = [e.number for e in core.feed("ok", t) if isinstance(e, Acked)]
+            assert acked == [number]
+        core.feed(PROBE_ANSWER, t)
+        assert core.last_acked_number == 7
+        assert len(core.window) == 0
+        return
+    # the board resets before running 4: they are written again after the M110
+    core.feed("start", t)
+    t += 0.1  # booted
+    assert _writes(core, t) == [(3, "M110 N3")]
+    core.feed("ok", t)
+    assert [n for n, _ in _writes(core, t)][:3] == [4, 5, 6]
