@@ -18,7 +18,7 @@ from typing import Any
 from hostd import layerview
 from hostd.intake import Intake
 from hostd.joblife import JobLife
-from hostd.jobstate import ObjectCancelled
+from hostd.jobstate import ObjectCancelled, ObjectRestored
 from hostd.jobstore import JobStore, JobStoreError
 from hostd.printjob import PrintJob
 from hostd.status import CommandError, StatusHub
@@ -146,7 +146,7 @@ class DaemonController:
                                f"{found[-1] + 1} on): too late to bring it back")
         job.schedule.cancelled = [item for item in job.schedule.cancelled if item[0] != raw]
         self.store.forget_cancelled_object(job.job.id, raw)
-        self.hub.event("object_restored", id=job.job.id, name=job.job.name, object=raw)
+        self.life.publish(ObjectRestored(job.job.id, job.job.name, raw))
         return {"job": job.job.id, "object": raw}
 
     def _sliced(self) -> PrintJob:

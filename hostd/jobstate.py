@@ -88,7 +88,9 @@ class EventKind(StrEnum):
     CANCELLED = "cancelled"
     INTERRUPTED = "interrupted"
     OBJECT_CANCELLED = "object_cancelled"
+    OBJECT_RESTORED = "object_restored"
     ERROR = "error"
+    REPAIRED = "repaired"
 
 
 @dataclass(frozen=True)
@@ -202,6 +204,26 @@ class ObjectCancelled(Event):
     name: str
     object: int
     from_layer: int
+
+
+@dataclass(frozen=True)
+class ObjectRestored(Event):
+    """A cancelled body is sliced again (no layer without it was sliced yet)."""
+
+    kind: ClassVar[EventKind] = EventKind.OBJECT_RESTORED
+    id: str
+    name: str
+    object: int
+
+
+@dataclass(frozen=True)
+class ModelRepaired(Event):
+    """The slicer repaired the model (``message`` says what); the print goes on."""
+
+    kind: ClassVar[EventKind] = EventKind.REPAIRED
+    id: str
+    name: str
+    message: str
 
 
 @dataclass(frozen=True)

@@ -22,7 +22,7 @@ from hostd.filecheck import Fingerprint, fingerprint, wait_complete
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
 from hostd.joblife import JobLife
-from hostd.jobstate import JobError, JobState, Started
+from hostd.jobstate import JobError, JobState, ModelRepaired, Started
 from hostd.jobstore import Job, JobStore
 from hostd.printermotion import with_printer_motion
 from hostd.reentry import resume_line
@@ -230,7 +230,7 @@ class PrintJob:
         self.warned = plan.warnings_so_far
         for warning in self.warned:
             log.warning("job %s %s: %s", job.id, job.name, warning)
-            self.hub.event("repaired", id=job.id, name=job.name, message=warning)
+            self.life.publish(ModelRepaired(job.id, job.name, warning))
         self.schedule = LayerSchedule(
             plan, settings, self.store.settings_changes(job.id),
             self.store.cancelled_objects(job.id),
@@ -272,7 +272,7 @@ class PrintJob:
         for warning in warnings:
             if warning not in self.warned:
                 log.warning("job %s %s: %s", job.id, job.name, warning)
-                self.hub.event("repaired", id=job.id, name=job.name, message=warning)
+                self.life.publish(ModelRepaired(job.id, job.name, warning))
         self.warned = warnings
 
     def _park(self) -> Park:

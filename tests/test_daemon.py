@@ -321,3 +321,10 @@ def test_emergency_stop_from_the_control_socket_halts_fails_the_job_and_reconnec
     assert command(socket, "emergency_stop")["job"] is None  # idle: halts, opens again
     hostd.wait_for(lambda: hostd.run_log().count("printer connected") == 3, 20, "reconnected")
     assert hostd.stop() == 0
+
+
+def test_every_event_the_api_names_is_a_typed_job_event():
+    from hostd.api import EVENTS
+    from hostd.jobstate import EventKind
+
+    assert sorted(EVENTS) == sorted(kind.value for kind in EventKind)
