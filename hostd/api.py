@@ -137,6 +137,28 @@ def layer_in_progress(completed: int, layers: int) -> int:
     return max(0, min(completed + 1, layers - 1))
 
 
+def duration(seconds: float | None, *, hours: bool = False, words: bool = False,
+             unknown: str = "--") -> str:
+    """A time span as the daemon, its commands and the dashboard write it.
+
+    ``2:03`` or ``1:02:03``; with ``hours`` always ``0:02:03`` (a column of one form);
+    with ``words`` ``2m 03s`` or ``1h 02m 03s``; ``unknown`` for None. A clock counts the
+    whole seconds passed (0.9 s left reads ``0:00``); words round to the nearest second
+    (a total). A negative span reads as zero. This is the project's one duration
+    formatter outside the G-code (the slicer writes its header's own fixed form).
+    """
+    if seconds is None:
+        return unknown
+    whole = round(seconds) if words else int(seconds)
+    minutes, secs = divmod(max(whole, 0), 60)
+    hour, minutes = divmod(minutes, 60)
+    if words:
+        return f"{hour}h {minutes:02d}m {secs:02d}s" if hour else f"{minutes}m {secs:02d}s"
+    if hour or hours:
+        return f"{hour}:{minutes:02d}:{secs:02d}"
+    return f"{minutes}:{secs:02d}"
+
+
 @dataclass(frozen=True)
 class JobStatus:
     """The job being printed. ``progress`` is 0..1; times in seconds; filament in mm."""

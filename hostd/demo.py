@@ -17,7 +17,7 @@ import time
 from importlib import resources
 from pathlib import Path
 
-from hostd.api import ControlClient, ControlError, Snapshot
+from hostd.api import ControlClient, ControlError, Snapshot, duration
 from hostd.liveline import LiveLine, fit_bar
 
 SAMPLE = "dogbone_100x30x5.stl"
@@ -44,7 +44,7 @@ def progress_line(snapshot: Snapshot, columns: int = 80) -> str:
     if job is None:
         waiting = f"{len(snapshot.queue)} queued" if snapshot.queue else "waiting for a job"
         return f"[{snapshot.state:8}] {waiting}  {heat}"[: columns - 1]
-    eta = "--" if job.eta_s is None else f"{int(job.eta_s) // 60}:{int(job.eta_s) % 60:02d}"
+    eta = duration(job.eta_s)
     head = f"[{snapshot.state:8}] {job.name} "
     tail = (f"{job.progress * 100:5.1f}% layer {job.layer + 1} of {job.layers}  {heat}  "
             f"ETA {eta}")

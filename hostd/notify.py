@@ -8,6 +8,7 @@ import threading
 from dataclasses import dataclass
 from typing import Any, Protocol
 
+from hostd.api import duration
 from hostd.jobinfo import JobTracker, layer_png
 
 log = logging.getLogger("hostd.notify")
@@ -109,7 +110,7 @@ class Notifier:
                 body += f" ({info['filament_g']:.1f} g)." if info["filament_g"] else "."
             elapsed = self._elapsed(job_id)
             if elapsed is not None:
-                body += f" Time {_clock(elapsed)}."
+                body += f" Time {duration(elapsed)}."
             return self._with_layer(Message("done", f"{name} printed", body, "success"),
                                     completed)
         if kind in ("failed", "cancelled"):
@@ -208,12 +209,6 @@ class Notifier:
         except queue.Full:
             return
         self._thread.join(wait_s)
-
-
-def _clock(seconds: float) -> str:
-    minutes, secs = divmod(int(seconds), 60)
-    hours, minutes = divmod(minutes, 60)
-    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
 
 
 def _redact(url: str) -> str:

@@ -18,7 +18,7 @@ from drivers.protocol import strip_comment
 from drivers.streamer import LinkError, StreamCancelled
 from drivers.tasks import cancel_and_wait
 from drivers.transport import TransportError
-from hostd.api import JobStatus, layer_in_progress
+from hostd.api import JobStatus, duration, layer_in_progress
 from hostd.checkpoints import Checkpoint, CheckpointWriter
 from hostd.eta import EtaModel
 from hostd.joblife import JobLife
@@ -359,7 +359,7 @@ class JobRunner:
         self._last_layer_at = time.monotonic()
         self.eta.layer_done(mark.layer, self._last_layer_at)
         status = self._publish()
-        eta = "--" if status.eta_s is None else _clock(status.eta_s)
+        eta = duration(status.eta_s)
         log.info(
             "job %s %s: layer %d/%d, %.1f %%, ETA %s",
             self.job.id, self.job.name, mark.layer + 1, self.layers, status.progress * 100, eta,
@@ -472,12 +472,6 @@ def _extrudes(command: str) -> bool:
             except ValueError:
                 return False
     return False
-
-
-def _clock(seconds: float) -> str:
-    minutes, secs = divmod(int(seconds), 60)
-    hours, minutes = divmod(minutes, 60)
-    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
 
 
 def open_output(path: Path, keep_bytes: int) -> IO[str]:

@@ -13,7 +13,7 @@ import os
 import socket
 from collections.abc import Mapping
 
-from hostd.api import Snapshot
+from hostd.api import Snapshot, duration
 from hostd.status import StatusHub
 
 
@@ -74,8 +74,7 @@ def status_line(snapshot: Snapshot) -> str:
         text = (f"{snapshot.state} {job.name} layer {job.layer + 1} of {job.layers} "
                 f"({job.progress:.0%})")
         if job.eta_s is not None:
-            minutes, seconds = divmod(int(job.eta_s), 60)
-            text += f", ETA {minutes // 60}:{minutes % 60:02d}:{seconds:02d}"
+            text += f", ETA {duration(job.eta_s, hours=True)}"
     if snapshot.queue:
         text += f", {len(snapshot.queue)} queued"
     if snapshot.interrupted:

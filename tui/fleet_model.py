@@ -4,8 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hostd.api import Snapshot
-from tui.format import duration
+from hostd.api import Snapshot, duration
 
 # Problems first: a lower rank sorts higher in the table.
 RANKS = {"error": 0, "offline": 1, "paused": 2, "heating": 3, "printing": 3, "idle": 4}

@@ -1,4 +1,4 @@
-"""Text the dashboard shows: durations, layer numbers, lengths, events, all fitting one line."""
+"""Text the dashboard shows: layer numbers, lengths, events, all fitting one line."""
 
 from __future__ import annotations
 
@@ -7,16 +7,6 @@ import time
 from typing import Any
 
 from rich.cells import cell_len
-
-
-def duration(seconds: float | None) -> str:
-    """``1:02:03``, ``2:03`` or ``--`` for an unknown time."""
-    if seconds is None:
-        return "--"
-    seconds = int(max(seconds, 0))
-    hours, rest = divmod(seconds, 3600)
-    minutes, secs = divmod(rest, 60)
-    return f"{hours}:{minutes:02d}:{secs:02d}" if hours else f"{minutes}:{secs:02d}"
 
 
 def layer_text(index: int, count: int) -> str:

@@ -10,6 +10,7 @@ import time
 from dataclasses import asdict
 from pathlib import Path
 
+from hostd.api import duration
 from hostd.cli import EXIT_OK, UsageError
 from hostd.config import ConfigError, load_config
 from hostd.history import HISTORY_FILE, History, PrintRecord
@@ -63,19 +64,16 @@ def format_table(records: list[PrintRecord], totals: dict) -> str:
     for r in records:
         ended = time.strftime("%Y-%m-%d %H:%M", time.localtime(r.ended))
         extra = f"  ({r.reason})" if r.reason else ""
-        lines.append(f"{r.job_id:>5}  {ended:16}  {r.outcome:9}  {_clock(r.print_s):>8}  "
+        spent = duration(r.print_s, hours=True)
+        lines.append(f"{r.job_id:>5}  {ended:16}  {r.outcome:9}  {spent:>8}  "
                      f"{r.filament_g:7.1f} g  {r.name}{extra}")
     rate = totals["success_rate"]
+    total, longest = (duration(totals[k], hours=True) for k in ("total_print_s", "longest_print_s"))
     lines.append(
         f"{totals['jobs']} jobs ({totals['done']} done, {totals['failed']} failed, "
         f"{totals['cancelled']} cancelled), success rate "
         f"{'--' if rate is None else f'{rate * 100:.0f} %'}; print time "
-        f"{_clock(totals['total_print_s'])}, longest {_clock(totals['longest_print_s'])}; "
+        f"{total}, longest {longest}; "
         f"filament {totals['total_filament_mm'] / 1000:.2f} m ({totals['total_filament_g']:.1f} g)"
     )
     return "\n".join(lines)
-
-
-def _clock(seconds: float) -> str:
-    minutes, secs = divmod(int(seconds), 60)
-    return f"{minutes // 60}:{minutes % 60:02d}:{secs:02d}"

@@ -9,6 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TextIO
 
+from hostd.api import duration
 from hostd.cli import UsageError
 from slicer.errors import ModelError
 from slicer.gcodefile import write_gcode
@@ -118,14 +119,6 @@ class ProgressBar:
         self.stream.flush()
 
 
-def format_duration(seconds: float) -> str:
-    """``1h 02m 03s`` style."""
-    s = round(seconds)
-    h, rem = divmod(s, 3600)
-    m, s = divmod(rem, 60)
-    return f"{h}h {m:02d}m {s:02d}s" if h else f"{m}m {s:02d}s"
-
-
 def return_freed_memory() -> None:
     """Make glibc give freed big arrays back to the system at once (Linux only).
 
@@ -167,7 +160,7 @@ def run(args) -> int:
     print(
         f"{args.output}: {summary.layers} layers, "
         f"filament {summary.filament_mm / 1000.0:.2f} m ({summary.filament_g:.1f} g), "
-        f"estimated time {format_duration(summary.time_s)}; sliced in {elapsed:.2f} s"
+        f"estimated time {duration(summary.time_s, words=True)}; sliced in {elapsed:.2f} s"
     )
     if plan.body_count > 1:
         print(f"{plan.body_count} objects")

@@ -8,7 +8,7 @@ import json
 import sys
 from typing import Any
 
-from hostd.api import ControlClient, ControlError, Snapshot
+from hostd.api import ControlClient, ControlError, Snapshot, duration
 from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
 from hostd.commands.target import socket_path
 
@@ -18,13 +18,6 @@ async def fetch_status(path: str) -> dict[str, Any]:
     async with ControlClient(path) as client:
         reply = await client.request("status")
     return reply["status"]
-
-
-def _seconds(value: float | None) -> str:
-    if value is None:
-        return "unknown"
-    minutes, seconds = divmod(int(value), 60)
-    return f"{minutes // 60}:{minutes % 60:02d}:{seconds:02d}"
 
 
 def format_summary(snapshot: Snapshot) -> str:
@@ -41,7 +34,8 @@ def format_summary(snapshot: Snapshot) -> str:
     if job is not None:
         lines.append(
             f"job {job.name} ({job.id}): layer {job.layer + 1} of {job.layers}, {job.progress:.1%},"
-            f" elapsed {_seconds(job.elapsed_s)}, ETA {_seconds(job.eta_s)},"
+            f" elapsed {duration(job.elapsed_s, hours=True, unknown='unknown')},"
+            f" ETA {duration(job.eta_s, hours=True, unknown='unknown')},"
             f" {job.layers_ready_ahead} layers ready ahead"
             + (f", filament {job.filament_used_mm / 1000:.2f} of about"
                f" {job.filament_total_mm / 1000:.2f} m"

@@ -11,7 +11,8 @@ from textual.screen import ModalScreen
 from textual.widgets import Input, OptionList, Static
 from textual.widgets.option_list import Option
 
-from tui.format import duration, metres
+from hostd.api import duration
+from tui.format import metres
 
 DIALOG_CSS = """
 %s { align: center middle; }
