@@ -11,7 +11,7 @@ import tomllib
 import uuid
 from pathlib import Path
 
-from hostd.config import Config, ConfigError, slicing_settings
+from hostd.config import Config
 from hostd.filecheck import Fingerprint, fingerprint, open_for_writing
 from hostd.jobfolder import LOAD_SUFFIX, free_stem, leaves_folder, move, split_name
 from hostd.jobstate import Queued
@@ -19,6 +19,8 @@ from hostd.jobstore import Job, JobStore
 from hostd.loadcheck import LoadChecks, load_analysis_modules
 from hostd.outcomes import Outcomes
 from hostd.status import StatusHub
+from slicer.fea.material import file_settings
+from slicer.settings import SettingsError
 
 log = logging.getLogger("hostd.intake")
 
@@ -130,7 +132,8 @@ class Intake:
             raise Rejected(f"cannot read {path.name}: {exc.strerror}") from exc
 
     def _settings(self, override: Path) -> dict[str, object]:
-        """The job's slicing settings (flat keys): the config's, with NAME.toml applied."""
+        """The job's slicing settings (flat keys): the config's, with NAME.toml applied
+        (slicing keys and an optional ``[material]`` table, as ``hostd tailor`` reads)."""
         base = self.config.slicing
         if not override.exists():
             return base.to_mapping()
@@ -141,8 +144,8 @@ class Intake:
         except (OSError, UnicodeDecodeError, tomllib.TOMLDecodeError) as exc:
             raise Rejected(f"{override.name} is not valid TOML: {exc}") from exc
         try:
-            settings = slicing_settings(values, base, "")
-        except ConfigError as exc:
+            settings = file_settings(values, base)
+        except SettingsError as exc:
             raise Rejected(f"{override.name}: {exc}") from exc
         mapping = settings.to_mapping()
         field_file = str(mapping.get("infill.file") or "")

@@ -45,3 +45,36 @@ def test_relative_field_file_in_the_config_is_anchored_at_load(tmp_path):
     config = config_from_mapping({"slicing": {"infill.file": "s.csv"}}, tmp_path)
     assert config.slicing.infill_file == str(tmp_path / "s.csv")
     assert config_from_mapping({}, tmp_path).slicing.infill_file == ""
+
+
+def test_a_job_toml_may_carry_a_material_table_over_the_configured_material(tmp_path):
+    config = config_from_mapping({"material": {"density_g_cm3": 1.24}}, tmp_path)
+    override = tmp_path / "part.toml"
+    override.write_text("infill.density = 0.3\n\n[material]\nyoungs_modulus_mpa = 1800\n"
+                        "density_g_cm3 = 1.04\n", encoding="utf-8")
+    settings = Intake._settings(SimpleNamespace(config=config), override)
+    assert settings["fea.youngs_modulus_mpa"] == 1800
+    assert settings["filament_density"] == 1.04
+    assert settings["fea.poisson_ratio"] == config.slicing.fea_poisson_ratio
+    assert settings["infill.density"] == 0.3
+
+
+@pytest.mark.parametrize(("toml", "message"), [
+    ("filament_density = 1.1\n[material]\ndensity_g_cm3 = 1.04\n",
+     r"part.toml: material.density_g_cm3: also given as slicing setting filament_density"),
+    ("[material]\nhardness = 3\n", r"part.toml: material.hardness: unknown material key"),
+    ("[material]\npoisson_ratio = 0.9\n", r"part.toml: material.poisson_ratio: "),
+    ('material = "ABS"\n', r"part.toml: material: must be a \[material\] table"),
+])
+def test_a_wrong_material_table_rejects_the_job_naming_the_key(tmp_path, toml, message):
+    with pytest.raises(Rejected, match=message):
+        _job_settings(tmp_path, toml)
+
+
+@pytest.mark.parametrize("example", ["dogbone", "bracket"])
+def test_the_examples_material_is_read_by_the_daemon(example):
+    folder = Path(__file__).resolve().parents[1] / "examples" / example
+    config = config_from_mapping({}, folder)
+    settings = Intake._settings(SimpleNamespace(config=config), folder / f"{example}.toml")
+    assert (settings["fea.youngs_modulus_mpa"], settings["fea.poisson_ratio"],
+            settings["filament_density"]) == (2200, 0.35, 1.04)

@@ -19,7 +19,7 @@ from hostd.commands.slice import load_settings, write_gcode
 from hostd.commands.tailor_pictures import write_pictures
 from slicer.errors import ModelError
 from slicer.fea.loadcase import LOAD_SUFFIX
-from slicer.fea.material import describe, material_settings
+from slicer.fea.material import describe, file_settings
 from slicer.fea.predict import Prediction, TensionTest, predict_moduli, tension_test
 from slicer.fea.tailor import default_cache_dir, tailored_plan
 from slicer.plan import SlicePlan
@@ -47,27 +47,13 @@ def find_inputs(folder: Path) -> tuple[Path, Path, Path | None]:
     return model, loads[0], settings if settings.is_file() else None
 
 
-def _given(values: dict[str, object], prefix: str = "") -> frozenset[str]:
-    """The dotted keys of a (nested) table of slicing settings."""
-    out: set[str] = set()
-    for key, value in values.items():
-        name = f"{prefix}{key}"
-        out |= _given(value, f"{name}.") if isinstance(value, dict) else {name}
-    return frozenset(out)
-
-
 def _settings(args, extra: Path | None) -> tuple[SliceSettings, tuple]:
     """``--config``'s slicing settings, then the folder's ``NAME.toml`` (slicing keys and
     an optional ``[material]`` table), then ``--set``."""
     settings, bed = load_settings(args.config, [])
     if extra is not None:
         try:
-            values = tomllib.loads(extra.read_text(encoding="utf-8"))
-            material = values.pop("material", {})
-            settings = SliceSettings.from_mapping(values, settings)
-            if not isinstance(material, dict):
-                raise SettingsError("material", "must be a [material] table")
-            settings = material_settings(material, settings, _given(values))
+            settings = file_settings(tomllib.loads(extra.read_text(encoding="utf-8")), settings)
         except (SettingsError, tomllib.TOMLDecodeError, OSError, UnicodeDecodeError) as exc:
             raise UsageError(f"{extra}: {exc}") from exc
     try:

@@ -38,6 +38,29 @@ def material_settings(values: Mapping[str, Any], base: SliceSettings,
         raise SettingsError(f"material.{name}", exc.reason) from exc
 
 
+def file_settings(values: Mapping[str, Any], base: SliceSettings) -> SliceSettings:
+    """``base`` with a job's ``NAME.toml``: slicing keys (nested or dotted) and an
+    optional ``[material]`` table, one key given once. ``hostd tailor`` reads the
+    folder's file and the daemon a dropped job's with it. Raises SettingsError naming
+    the key (``material.KEY`` for the table's)."""
+    rest = dict(values)
+    material = rest.pop("material", {})
+    if not isinstance(material, Mapping):
+        raise SettingsError("material", "must be a [material] table")
+    settings = SliceSettings.from_mapping(rest, base=base)
+    return material_settings(material, settings, _dotted(rest))
+
+
+def _dotted(values: Mapping[str, Any], prefix: str = "") -> frozenset[str]:
+    """The dotted keys of a (nested) table: ``{"infill": {"density": 0.3}}`` gives
+    ``infill.density``."""
+    out: set[str] = set()
+    for key, value in values.items():
+        name = f"{prefix}{key}"
+        out |= _dotted(value, f"{name}.") if isinstance(value, Mapping) else {name}
+    return frozenset(out)
+
+
 def material_keys(values: Mapping[str, Any]) -> frozenset[str]:
     """The dotted slicing keys a ``[material]`` table sets."""
     return frozenset(KEYS[k] for k in values if k in KEYS)
@@ -49,4 +72,4 @@ def describe(settings: SliceSettings) -> str:
             f"{settings.fea_poisson_ratio:g}, density {settings.filament_density:g} g/cm^3")
 
 
-__all__ = ["KEYS", "describe", "material_keys", "material_settings"]
+__all__ = ["KEYS", "describe", "file_settings", "material_keys", "material_settings"]
