@@ -288,6 +288,8 @@ class PrintJob:
         flight): wait until the printer took them, and open the link to the next job."""
         with contextlib.suppress(LinkError):
             await link.drain()
+        if isinstance(self.source, SlicedSource):
+            await self.source.settled()  # the layers in flight end with the job
         link.begin_job()
         job = self.store.get(self.job.id)
         self.intake.fail(job, reason, state="cancelled")

@@ -120,6 +120,8 @@ class SlicedSource:
         self._lock = threading.Lock()
         # layers asked for while held back, with the futures the window was given
         self._held: list[tuple[int, concurrent.futures.Future[list[str]]]] | None = []
+        # layers handed to the pool and not finished (see settled())
+        self._slicing: set[concurrent.futures.Future[list[str]]] = set()
         self._window: LayerWindow[list[str]] = LayerWindow(
             self._submit, self.layer_count, depth, first=first, alone=True,
             worth=lambda lines: len(lines) > 1,  # more than its ;LAYER line
@@ -141,7 +143,30 @@ class SlicedSource:
                 waiting: concurrent.futures.Future[list[str]] = concurrent.futures.Future()
                 self._held.append((index, waiting))
                 return waiting
-        return self._executor.submit(self.schedule.layer_gcode, index)
+        return self._track(self._executor.submit(self.schedule.layer_gcode, index))
+
+    def _track(
+        self, future: concurrent.futures.Future[list[str]]
+    ) -> concurrent.futures.Future[list[str]]:
+        """Count ``future`` among the layers being sliced until it is done."""
+        with self._lock:
+            self._slicing.add(future)
+        future.add_done_callback(self._untrack)
+        return future
+
+    def _untrack(self, future: concurrent.futures.Future[list[str]]) -> None:
+        with self._lock:
+            self._slicing.discard(future)
+
+    async def settled(self) -> None:
+        """Wait until no layer of this source is being sliced any longer (after
+        :meth:`close`: the ones a worker had begun finish), so that what they made is
+        freed with the job (a cancelled job's layers in flight)."""
+        with self._lock:
+            slicing = list(self._slicing)
+        if slicing:
+            await asyncio.gather(*(asyncio.wrap_future(f) for f in slicing),
+                                 return_exceptions=True)
 
     def started(self) -> None:
         with self._lock:
@@ -153,7 +178,7 @@ class SlicedSource:
             if not waiting.set_running_or_notify_cancel():
                 continue  # dropped by close()
             try:
-                made = self._executor.submit(self.schedule.layer_gcode, index)
+                made = self._track(self._executor.submit(self.schedule.layer_gcode, index))
             except RuntimeError as exc:  # the pool is shutting down
                 waiting.set_exception(exc)
                 continue
