@@ -159,6 +159,22 @@ def duration(seconds: float | None, *, hours: bool = False, words: bool = False,
     return f"{minutes}:{secs:02d}"
 
 
+def bar(fraction: float, width: int, *, ascii: bool = False, empty: str | None = None) -> str:
+    """A progress bar of exactly ``width`` cells, the fraction clamped to 0..1.
+
+    Block glyphs to an eighth of a cell (``█████▌····``) for the dashboard, or with
+    ``ascii`` whole cells of ``#`` and ``-`` (``#####-----``) for a plain terminal or a
+    log. ``empty`` fills the rest (default ``·``, or ``-`` with ``ascii``). This is the
+    project's one progress bar: the commands' lines and both dashboards draw it.
+    """
+    width = max(0, width)
+    fill, partial = ("#", "") if ascii else ("█", " ▏▎▍▌▋▊▉")
+    steps = max(1, len(partial))
+    full, part = divmod(round(max(0.0, min(1.0, fraction)) * width * steps), steps)
+    text = fill * full + (partial[part] if part else "")
+    return text + (empty or ("-" if ascii else "·")) * (width - len(text))
+
+
 @dataclass(frozen=True)
 class JobStatus:
     """The job being printed. ``progress`` is 0..1; times in seconds; filament in mm."""

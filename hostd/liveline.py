@@ -7,6 +7,8 @@ import os
 import shutil
 from typing import TextIO
 
+from hostd.api import bar
+
 
 def terminal_columns(stream: TextIO) -> int:
     """The width of the terminal ``stream`` writes to now; else ``$COLUMNS``, else 80.
@@ -26,8 +28,7 @@ def fit_bar(fraction: float, tail: str, columns: int, widest: int = 30) -> str:
     room = min(widest, columns - 1 - len(tail) - 3)
     if room < 5:
         return tail.strip()[: max(0, columns - 1)]
-    filled = round(max(0.0, min(1.0, fraction)) * room)
-    return f"[{'#' * filled}{'-' * (room - filled)}] {tail}"[: columns - 1]
+    return f"[{bar(fraction, room, ascii=True)}] {tail}"[: columns - 1]
 
 
 class LiveLine:

@@ -22,6 +22,7 @@ from hostd.api import (
     Snapshot,
     Temperature,
     Temps,
+    bar,
     duration,
 )
 from hostd.control import serve_control
@@ -32,7 +33,7 @@ from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tui.app import Dashboard
 from tui.canvas import Canvas, Frame
-from tui.format import bar, clock, fit_words, layer_text
+from tui.format import clock, fit_words, layer_text
 from tui.printer_screen import NO_LAYER_VIEW
 from tui.sources import EventItem, SocketSource, StatusItem
 from tui.widgets.dialogs import ConfirmScreen, FilterScreen, HelpScreen, RetuneScreen

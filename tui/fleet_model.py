@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from hostd.api import Snapshot, duration
+from hostd.api import Snapshot, bar, duration
 
 # Problems first: a lower rank sorts higher in the table.
 RANKS = {"error": 0, "offline": 1, "paused": 2, "heating": 3, "printing": 3, "idle": 4}
@@ -42,10 +42,7 @@ class PrinterEntry:
 def progress_bar(fraction: float) -> str:
     """A ``BAR_WIDTH``-cell bar in eighths plus a percentage, e.g. ``█████▌     55%``."""
     fraction = min(max(fraction, 0.0), 1.0)
-    eighths = round(fraction * BAR_WIDTH * 8)
-    full, part = divmod(eighths, 8)
-    bar = "█" * full + (" ▏▎▍▌▋▊▉"[part] if part else "")
-    return f"{bar:<{BAR_WIDTH}} {fraction * 100:3.0f}%"
+    return f"{bar(fraction, BAR_WIDTH, empty=' ')} {fraction * 100:3.0f}%"
 
 
 def _temp(actual: float, target: float) -> str:

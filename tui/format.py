@@ -19,15 +19,6 @@ def metres(mm: float | None) -> str:
     return "--" if mm is None else f"{mm / 1000:.2f} m"
 
 
-def bar(fraction: float, width: int) -> str:
-    """A progress bar of ``width`` cells with eighth-cell resolution."""
-    width = max(0, width)
-    eighths = round(max(0.0, min(1.0, fraction)) * width * 8)
-    full, part = divmod(eighths, 8)
-    text = "█" * full + (" ▏▎▍▌▋▊▉"[part] if part and full < width else "")
-    return text + "·" * (width - len(text))
-
-
 def clock(ts: float) -> str:
     """Local ``HH:MM:SS`` of a Unix time."""
     return time.strftime("%H:%M:%S", time.localtime(ts))

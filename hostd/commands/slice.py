@@ -9,7 +9,7 @@ from collections.abc import Iterator
 from contextlib import contextmanager
 from typing import TextIO
 
-from hostd.api import duration
+from hostd.api import bar, duration
 from hostd.cli import UsageError
 from slicer.errors import ModelError
 from slicer.gcodefile import write_gcode
@@ -108,10 +108,9 @@ class ProgressBar:
             return
         self._last = now
         frac = done / total if total else 1.0
-        filled = round(frac * self.width)
-        bar = "#" * filled + "-" * (self.width - filled)
+        drawn = bar(frac, self.width, ascii=True)
         self.stream.write(
-            f"\r{self.label} [{bar}] {100 * frac:5.1f}% layer {done}/{total} "
+            f"\r{self.label} [{drawn}] {100 * frac:5.1f}% layer {done}/{total} "
             f"{now - self.started:5.1f}s"
         )
         if done >= total:
@@ -150,10 +149,10 @@ def run(args) -> int:
     with _stage_clock(profile) as clock:
         started = time.monotonic()
         plan, tailoring = load_tailored(args.model, settings, bed, getattr(args, "load", None))
-        bar = None if args.quiet else ProgressBar(sys.stderr, "slicing")
+        shown = None if args.quiet else ProgressBar(sys.stderr, "slicing")
         try:
             jobs = getattr(args, "jobs", None)
-            summary = write_gcode(plan, args.output, bar, workers=1 if profile else jobs)
+            summary = write_gcode(plan, args.output, shown, workers=1 if profile else jobs)
         except OSError as exc:
             raise UsageError(f"cannot write {args.output}: {exc.strerror or exc}") from exc
         elapsed = time.monotonic() - started

@@ -8,9 +8,9 @@ import numpy as np
 from rich.style import Style
 from rich.text import Text
 
-from hostd.api import Snapshot, duration
+from hostd.api import Snapshot, bar, duration
 from tui.canvas import Canvas
-from tui.format import bar, layer_text, metres
+from tui.format import layer_text, metres
 from tui.widgets.lines import LinesWidget
 
 STATE_COLOURS = {
