@@ -7,10 +7,11 @@ import logging
 from pathlib import Path
 
 import pytest
-from test_drivers_streamer import FAST, job, job_lines, sim_config, stream_job
+from streaming import FAST, job_lines, sim_config, stream_job
 
 from drivers.linkconfig import LinkSettingError, StreamerConfig
 from drivers.linkprofile import profile_for, tuned
+from drivers.simlinkrun import arc_job as job
 from drivers.simulator import SimulatedPrinter
 from hostd.config import ConfigError, config_from_mapping
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from test_drivers_streamer import INTERNAL, scripted, stream_scripted
+from streaming import INTERNAL, scripted, stream_scripted
 
 from drivers.linkconfig import StreamerConfig
 from drivers.motionreport import parse_motion_report, report_lines

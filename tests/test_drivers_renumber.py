@@ -5,8 +5,9 @@ from __future__ import annotations
 import asyncio
 
 import pytest
-from test_drivers_streamer import FAST, job, job_lines, sim_config
+from streaming import FAST, job_lines, sim_config
 
+from drivers.simlinkrun import arc_job as job
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer, StreamerConfig
 from drivers.transport import open_transport

@@ -14,8 +14,9 @@ import itertools
 import time
 
 import pytest
-from test_drivers_streamer import FAST, job, job_lines, sim_config, stream_job
+from streaming import FAST, job_lines, sim_config, stream_job
 
+from drivers.simlinkrun import arc_job as job
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer, StreamerConfig
 from drivers.transport import open_transport

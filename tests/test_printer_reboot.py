@@ -7,11 +7,12 @@ import asyncio
 import dataclasses
 from pathlib import Path
 
-from test_drivers_streamer import FAST, job, job_lines, sim_config
+from streaming import FAST, job_lines, sim_config
 from waiting import wait_until
 
 from drivers.numbering import NumberingProbe
 from drivers.responses import parse_response
+from drivers.simlinkrun import arc_job as job
 from drivers.simulator import SimulatedPrinter
 from drivers.streamer import Streamer
 from drivers.transport import open_transport
