@@ -2,53 +2,28 @@
 
 from __future__ import annotations
 
-import asyncio
 import sqlite3
 import subprocess
-from collections.abc import Callable
 from pathlib import Path
-from typing import Any
 
 import pytest
-import trimesh
 from conftest import DATA, HOSTD, ROOT, commands_of, executed_job_lines, sim_config
+from daemon_helpers import (
+    command,
+    commands,
+    layer_commands,
+    printing_layer,
+    small_box,
+    status,
+    two_bodies,
+)
 from waiting import wait_until
 
-from drivers.protocol import strip_comment
-from hostd.api import ControlClient, ControlError, Snapshot
+from hostd.api import ControlError
 from hostd.jobstore import JobStore
 from slicer.arcs import for_printer
-from slicer.entry import entered, last_xy
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
-
-
-def two_bodies(path: Path) -> Path:
-    """Two 20 x 20 x 10 mm boxes side by side in one STL (two bodies)."""
-    left = trimesh.creation.box((20.0, 20.0, 10.0))
-    left.apply_translation((-20.0, 0.0, 5.0))
-    right = trimesh.creation.box((20.0, 20.0, 10.0))
-    right.apply_translation((20.0, 0.0, 5.0))
-    trimesh.util.concatenate([left, right]).export(path)
-    return path
-
-
-def small_box(path: Path) -> Path:
-    """A 10 x 10 x 3 mm box: a short job."""
-    trimesh.creation.box((10.0, 10.0, 3.0)).export(path)
-    return path
-
-
-def command(socket: Path, cmd: str, **args: Any) -> dict[str, Any]:
-    async def ask() -> dict[str, Any]:
-        async with ControlClient(str(socket)) as client:
-            return await client.request(cmd, **args)
-
-    return asyncio.run(ask())
-
-
-def status(socket: Path) -> Snapshot:
-    return Snapshot.from_dict(command(socket, "status")["status"])
 
 
 def job_state(state: Path, job: str) -> tuple[str, int]:
@@ -58,35 +33,6 @@ def job_state(state: Path, job: str) -> tuple[str, int]:
     finally:
         db.close()
     return (row[0], row[1]) if row else ("", -1)
-
-
-def printing_layer(socket: Path, at_least: int):
-    """A waiter: the status once layer ``at_least`` (from 0) is printing, the ones below done."""
-    def check():
-        snap = status(socket)
-        if snap.state == "printing" and snap.job is not None and snap.job.layer >= at_least:
-            return snap
-        return None
-    return check
-
-
-def commands(lines: list[str]) -> list[str]:
-    return [c for c in map(strip_comment, lines) if c]
-
-
-def layer_commands(plan_of: Callable[[int], SlicePlan],
-                   excluded_of: Callable[[int], frozenset[int]], count: int) -> list[str]:
-    """The commands of layers ``0..count-1`` as the daemon joins them: each layer's first
-    travel goes around the cancelled bodies from where the layer before ended."""
-    out: list[str] = []
-    at = None
-    for index in range(count):
-        plan, left_out = plan_of(index), excluded_of(index)
-        lines, _ = entered(plan.layer_gcode(index, left_out), at,
-                           plan.entry_region(index, left_out), plan.settings.acceleration)
-        at = last_xy(lines) if last_xy(lines) is not None else at
-        out += commands(lines)
-    return out
 
 
 def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, tmp_path):

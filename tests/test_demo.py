@@ -9,6 +9,8 @@ import sys
 import time
 from pathlib import Path
 
+from daemon_helpers import daemon_pids
+
 from hostd.api import JobStatus, Snapshot
 from hostd.demo import drop_sample, progress_line
 
@@ -35,20 +37,6 @@ def test_progress_line_shows_job_bar_and_layer() -> None:
     assert "layer 6 of 25" in progress_line(Snapshot(state="printing", job=job), columns=80)
 
 
-def _daemon_pids(folder: Path) -> list[int]:
-    pids = []
-    for entry in Path("/proc").iterdir():
-        if entry.name.isdigit():
-            try:
-                cwd = os.readlink(entry / "cwd")
-                cmd = (entry / "cmdline").read_bytes()
-            except OSError:
-                continue
-            if cwd == str(folder) and b"run" in cmd:
-                pids.append(int(entry.name))
-    return pids
-
-
 def test_demo_prints_and_ctrl_c_stops_the_daemon(tmp_path: Path) -> None:
     demo = subprocess.Popen(
         [sys.executable, "-m", "hostd.demo"],
@@ -68,13 +56,13 @@ def test_demo_prints_and_ctrl_c_stops_the_daemon(tmp_path: Path) -> None:
     try:
         rest, _ = demo.communicate(timeout=30)
     except subprocess.TimeoutExpired:
-        for pid in _daemon_pids(tmp_path):  # leave no daemon behind, show its log
+        for pid in daemon_pids(tmp_path):  # leave no daemon behind, show its log
             os.kill(pid, signal.SIGKILL)
         demo.kill()
         log = (tmp_path / "var" / "hostd.log").read_text()[-3000:]
         raise AssertionError(f"the demo did not stop on Ctrl-C; daemon log:\n{log}") from None
     assert b"daemon exited with code 0" in rest
     assert demo.returncode == 0
-    assert _daemon_pids(tmp_path) == []
+    assert daemon_pids(tmp_path) == []
     executed = (tmp_path / "var" / "simulator-executed.log").read_text().splitlines()
     assert any(line.startswith("G1") and " E" in line for line in executed)

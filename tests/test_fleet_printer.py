@@ -16,8 +16,8 @@ import aiomqtt
 import pytest
 from brokers import HOST, Broker, start_broker
 from conftest import commands_of
-from test_daemon import commands, layer_commands, two_bodies
-from test_fleet import REPO, rows
+from daemon_helpers import commands, layer_commands, two_bodies
+from fleet_helpers import REPO, rows
 from waiting import until
 
 from hostd.api import ControlError

@@ -12,8 +12,8 @@ import pytest
 import shapely
 import trimesh
 from conftest import HOSTD, ROOT, commands_of, sim_config
+from daemon_helpers import small_box
 from PIL import Image
-from test_daemon import small_box
 
 from slicer.settings import SettingsError, SliceSettings
 

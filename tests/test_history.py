@@ -9,7 +9,7 @@ import subprocess
 from pathlib import Path
 
 from conftest import HOSTD, ROOT, sim_config
-from test_daemon import command, printing_layer, small_box, status, two_bodies
+from daemon_helpers import command, printing_layer, small_box, status, two_bodies
 
 from hostd.history import History, PrintRecord
 

@@ -14,8 +14,8 @@ from typing import Any
 import pytest
 import trimesh
 from conftest import sim_config
+from daemon_helpers import command, printing_layer, small_box
 from PIL import Image
-from test_daemon import command, printing_layer, small_box
 from waiting import wait_until
 
 from hostd.config import NotifyConfig

@@ -8,7 +8,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 from conftest import DATA, commands_of, executed_job_lines, sim_config
-from test_daemon import commands, layer_commands, two_bodies
+from daemon_helpers import commands, layer_commands, two_bodies
 from waiting import until
 
 from hostd.api import ControlClient, ControlError

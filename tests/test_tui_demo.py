@@ -14,7 +14,7 @@ import time
 from pathlib import Path
 
 from conftest import ROOT
-from test_demo import _daemon_pids
+from daemon_helpers import daemon_pids
 
 
 def _read_until(fd: int, needles: tuple[bytes, ...], timeout: float) -> bytes:
@@ -61,7 +61,7 @@ def test_demo_opens_the_dashboard_and_q_stops_everything(tmp_path: Path) -> None
             demo.kill()
             demo.wait()
         os.close(master)
-    assert _daemon_pids(tmp_path) == []
+    assert daemon_pids(tmp_path) == []
     executed = (tmp_path / "var" / "simulator-executed.log").read_text().splitlines()
     assert any(line.startswith("G1") and " E" in line for line in executed)
 

@@ -9,7 +9,7 @@ import json
 import numpy as np
 import pytest
 from conftest import DATA
-from test_daemon import two_bodies
+from daemon_helpers import two_bodies
 
 from drivers.protocol import strip_comment
 from hostd.layerview import estimate, field_samples, layer_view, parse_layer, sample_layers
