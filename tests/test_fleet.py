@@ -11,15 +11,14 @@ from pathlib import Path
 
 import pytest
 from brokers import HOST, Broker, free_port, start_broker
+from fleet_helpers import REPO, rows
 from textual.widgets import Static
 from waiting import until
 
 from tui.fleet import FleetApp, FleetScreen
 from tui.fleet_model import RANKS
-from tui.fleet_table import FleetTable
 from tui.sources import MqttSource
 
-REPO = Path(__file__).resolve().parents[1]
 # index % 6 -> state, for the twelve printers p0000..p0011
 STATES = "printing,idle,paused,error,printing,heating"
 
@@ -39,12 +38,6 @@ def publisher(broker: Broker, *args: str) -> subprocess.Popen[bytes]:
         cwd=REPO, env={**os.environ, "PYTHONPATH": str(REPO)},
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
     )
-
-
-def rows(app: FleetApp) -> list[tuple[str, str]]:
-    """(printer, state) of every row, top to bottom."""
-    table = app.screen.query_one("#fleet", FleetTable)
-    return [table.row_at(i)[:2] for i in range(table.row_count)]
 
 
 def counts_line(app: FleetApp) -> str:

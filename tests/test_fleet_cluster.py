@@ -13,7 +13,7 @@ import aiomqtt
 from brokers import HOST, start_broker, start_nats_cluster
 from conftest import DATA, sim_config
 from doubles import RecordingController
-from test_fleet import rows
+from fleet_helpers import rows
 from waiting import until
 
 from hostd.api import Snapshot

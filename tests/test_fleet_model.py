@@ -146,7 +146,7 @@ def test_fleet_view_over_tls_with_its_own_ca_and_a_client_certificate(tmp_path: 
     """``--tls --cafile --certfile --keyfile``: a broker whose CA is not the system's and
     which admits only clients with a certificate that CA signed (and a password)."""
     from brokers import make_ca_chain
-    from test_fleet import rows
+    from fleet_helpers import rows
     from waiting import until
 
     from tui.fleet import FleetApp
