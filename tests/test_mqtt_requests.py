@@ -10,7 +10,7 @@ from typing import Any
 import pytest
 from brokers import Broker, start_broker, start_nats_cluster
 from doubles import RecordingController
-from test_mqtt_bridge import PRINTER, Observer, observe, settings, topic, with_bridge
+from mqtt_helpers import PRINTER, Observer, observe, settings, topic, with_bridge
 from waiting import until
 
 from hostd.api import ControlError, Snapshot
