@@ -9,7 +9,8 @@ import re
 import pytest
 import textual.constants
 from rich.color import Color, ColorSystem
-from test_tui import FixedSource, until
+from tui_helpers import FixedSource
+from waiting import until
 
 from tui.app import Dashboard
 from tui.widgets.layer import CANCELLED, HIGHLIGHT, KINDS, OTHER, LayerView

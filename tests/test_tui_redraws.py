@@ -16,8 +16,9 @@ import numpy as np
 import pytest
 from rich.style import Style
 from rich.text import Text
-from test_tui import T0, FixedSource, printing, until
 from textual.widget import Widget
+from tui_helpers import T0, FixedSource, printing
+from waiting import until
 
 from hostd.cli import main
 from tui.app import Dashboard, redraw_seconds

@@ -6,7 +6,8 @@ import time
 from collections.abc import Iterator
 
 import pytest
-from test_tui import FixedSource, until
+from tui_helpers import FixedSource
+from waiting import until
 
 from tui.app import Dashboard
 from tui.widgets.dialogs import HelpScreen
