@@ -4,7 +4,7 @@ VENV   := .venv
 BIN    := $(VENV)/bin
 STAMP  := $(VENV)/.installed
 
-.PHONY: run test lint bench clean system-deps
+.PHONY: run test test-fast lint bench clean system-deps
 
 $(STAMP): pyproject.toml
 	$(PYTHON) -m venv $(VENV)
@@ -49,6 +49,11 @@ test: $(STAMP) system-deps
 	$(BIN)/python -m pytest -q -n 2 --dist loadfile; suite=$$?; \
 	wait $$checker; typed=$$?; cat $$report; rm -f $$report; \
 	[ $$suite -eq 0 ] && [ $$typed -eq 0 ]
+
+# The inner loop: the unit layer only (modules marked `unit`: no pty, no subprocess,
+# no broker, no daemon, no SQLite), in under a minute; `make test` runs everything
+test-fast: $(STAMP)
+	$(BIN)/python -m pytest -q -n 2 -m "unit and not slow"
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

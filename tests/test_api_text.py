@@ -7,6 +7,8 @@ import pytest
 
 from hostd.api import bar, duration
 
+pytestmark = pytest.mark.unit
+
 
 def test_a_clock_shows_hours_only_when_there_are_some() -> None:
     assert duration(0) == "0:00"

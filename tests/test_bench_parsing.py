@@ -12,6 +12,8 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench import gcodeparse as g
 
+pytestmark = pytest.mark.unit
+
 E_PER_MM = 0.03
 
 

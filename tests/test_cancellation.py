@@ -17,6 +17,8 @@ from waiting import until
 from drivers.tasks import cancel_and_wait
 from hostd.mqtt_calls import publish
 
+pytestmark = pytest.mark.unit
+
 
 class AckedLikeAiomqtt:
     """A client whose publication waits for its acknowledgement as aiomqtt 2 does."""

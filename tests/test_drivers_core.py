@@ -22,6 +22,8 @@ from drivers.simlines import ERR_CHECKSUM
 from drivers.simlinkrun import run_core, run_send_and_wait
 from drivers.simvirtual import VirtualPrinter
 
+pytestmark = pytest.mark.unit
+
 LINK = StreamerConfig(temperature_interval_s=0, probe_after_s=0.05, probe_retries=1000,
                       resync_quiet_s=0.01)
 NO_OK_LINK = StreamerConfig(**{**LINK.__dict__, "ok_after_resend": False})

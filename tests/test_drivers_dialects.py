@@ -21,6 +21,8 @@ from drivers.simconfig import DIALECTS, dialect
 from drivers.simlines import ERR_CHECKSUM, ERR_LINE_NO
 from drivers.simlinkrun import run_core, run_send_and_wait
 
+pytestmark = pytest.mark.unit
+
 # the link's defaults (5 s before a probe after silence), without temperature polls
 LINK = StreamerConfig(temperature_interval_s=0, resync_quiet_s=0.01)
 PROBE_ANSWER = "ok T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"

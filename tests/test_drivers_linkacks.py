@@ -4,7 +4,11 @@ from __future__ import annotations
 
 import asyncio
 
+import pytest
+
 from drivers.linkacks import Ack, AckChannel, Tags
+
+pytestmark = pytest.mark.unit
 
 
 def test_a_tag_follows_its_line_from_queue_to_acknowledgement() -> None:

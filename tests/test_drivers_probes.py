@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import math
 
+import pytest
 from linkcores import connected_core
 
 from drivers.linkconfig import StreamerConfig
@@ -13,6 +14,8 @@ from drivers.linkevents import Failed, LinkState, Report
 from drivers.simconfig import SimulatorConfig
 from drivers.simlinkrun import run_core
 from drivers.simvirtual import VirtualPrinter
+
+pytestmark = pytest.mark.unit
 
 # the pty tests' and the stall harness's short probe interval: silence comes quickly
 LINK = StreamerConfig(temperature_interval_s=0, probe_after_s=0.02, probe_retries=1000,

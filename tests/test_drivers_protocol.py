@@ -12,6 +12,8 @@ from drivers.protocol import checksum, frame, parse_response, strip_comment
 from drivers.resend import edit_distance, recover, resolve_resend
 from drivers.window import InFlight, SendWindow
 
+pytestmark = pytest.mark.unit
+
 KINDS = {"ok", "resend", "busy", "error", "temperature", "start", "wait", "capability", "echo",
          "other"}
 

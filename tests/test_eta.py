@@ -15,6 +15,8 @@ from hostd.schedule import LayerSchedule
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
+pytestmark = pytest.mark.unit
+
 SETTINGS = SliceSettings.from_mapping({"acceleration": 3000.0})
 
 

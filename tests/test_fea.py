@@ -11,6 +11,8 @@ from slicer.fea.hexmesh import hex_mesh
 from slicer.fea.loadcase import parse_load_case
 from slicer.fea.voxel import default_cell, mesh_volume, voxelize
 
+pytestmark = pytest.mark.unit
+
 E, NU = 2200.0, 0.35
 
 

@@ -25,6 +25,8 @@ from slicer.fields.stress_pending import announce, waited_for
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
+pytestmark = pytest.mark.unit
+
 ROOT = Path(__file__).resolve().parent.parent
 DOGBONE = ROOT / "examples" / "dogbone" / "dogbone.stl"
 BED = (220.0, 220.0, 250.0)

@@ -10,6 +10,8 @@ from hostd.config import ConfigError, config_from_mapping
 from slicer.gcode import filament_grams
 from slicer.settings import SliceSettings
 
+pytestmark = pytest.mark.unit
+
 
 def test_the_material_sets_the_modulus_and_the_density_every_mass_uses() -> None:
     config = config_from_mapping(

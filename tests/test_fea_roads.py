@@ -3,11 +3,14 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from slicer.fea.anisotropic import element_matrices, isotropic, rotated
 from slicer.fea.coupon import Coupon, fill_modulus, homogenised_modulus, resolved_modulus
 from slicer.fea.hexmesh import element_matrix
 from slicer.fea.roadcell import crossed_roads
+
+pytestmark = pytest.mark.unit
 
 E = 2200.0
 

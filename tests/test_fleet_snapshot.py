@@ -7,11 +7,15 @@ import time
 from collections.abc import AsyncIterator
 from typing import Any
 
+import pytest
+
 from bench.fleetpub import snapshot
 from hostd.api import ControlError
 from tui.fleet import FleetApp
 from tui.fleet_table import FleetTable
 from tui.sources import AvailabilityItem, EventItem, StatusItem
+
+pytestmark = pytest.mark.unit
 
 NOW = 1_764_000_000.0
 STATES = ("printing", "idle", "printing", "paused", "error", "printing", "heating", "printing")

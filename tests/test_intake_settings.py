@@ -10,6 +10,8 @@ import pytest
 from hostd.config import config_from_mapping
 from hostd.intake import Intake, Rejected
 
+pytestmark = pytest.mark.unit
+
 
 def _job_settings(folder: Path, toml: str) -> dict[str, object]:
     config = config_from_mapping({}, folder)

@@ -10,6 +10,8 @@ import pytest
 
 from slicer.pipeline import CancelledLayer, LayerWindow, Pending, in_thread
 
+pytestmark = pytest.mark.unit
+
 
 class Maker:
     """Makes layer ``i`` as ``[i] * width(i)`` on a thread pool, recording what was submitted."""

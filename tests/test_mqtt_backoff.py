@@ -8,6 +8,8 @@ import pytest
 
 from hostd.mqtt import Backoff, MqttSetupError, Topics
 
+pytestmark = pytest.mark.unit
+
 
 def test_backoff_grows_exponentially_with_jitter_up_to_the_cap() -> None:
     backoff = Backoff(initial_s=0.5, maximum_s=30.0, factor=2.0)

@@ -10,6 +10,8 @@ from PIL import Image
 
 from hostd.cli import main
 
+pytestmark = pytest.mark.unit
+
 DATA = Path(__file__).parent / "data"
 
 

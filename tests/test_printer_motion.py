@@ -4,10 +4,14 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import pytest
+
 from drivers.motionreport import parse_motion_report
 from hostd.config import config_from_mapping
 from hostd.printermotion import motion_note
 from hostd.printjob import printer_settings
+
+pytestmark = pytest.mark.unit
 
 REPORTED = parse_motion_report(["echo:  M201 X2500.00 Y2500.00 Z100.00 E10000.00",
                                 "echo:  M204 P3000.00 R3000.00 T3000.00", "ok"])

@@ -5,9 +5,12 @@ from __future__ import annotations
 import io
 
 import numpy as np
+import pytest
 from PIL import Image
 
 from slicer.raster import Canvas
+
+pytestmark = pytest.mark.unit
 
 ORANGE, BROWN = (235, 120, 30, 255), (120, 55, 10, 255)
 

@@ -12,6 +12,8 @@ from drivers.backoff import Backoff, reconnect
 from hostd import mqtt
 from hostd.daemon import RECONNECT
 
+pytestmark = pytest.mark.unit
+
 
 def test_printer_delays_double_from_one_second_up_to_the_cap_each_drawn_at_random() -> None:
     rng = random.Random(3)

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import pytest
+
 from hostd.reentry import reentry_moves, resume_line
+
+pytestmark = pytest.mark.unit
 
 
 def test_the_resume_continues_at_the_first_unacknowledged_command_or_goes_back_the_planner():

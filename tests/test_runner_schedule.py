@@ -12,6 +12,8 @@ from slicer.gcode import LayerCode
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def plan(tmp_path_factory) -> SlicePlan:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from hypothesis import given
 from hypothesis import strategies as st
 
@@ -13,6 +14,8 @@ from drivers.simlines import (
     check_line,
     strtol,
 )
+
+pytestmark = pytest.mark.unit
 
 
 def _body(number: int, command: str) -> bytes:

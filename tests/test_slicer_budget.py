@@ -19,6 +19,8 @@ from slicer.gcode import _pack
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
+pytestmark = pytest.mark.unit
+
 _ARC = re.compile(r"^G([23]) (?:F\d+ )?X(\S+) Y(\S+) I(\S+) J(\S+) E(\S+)$")
 _MOVE = re.compile(r"^G[0123] (?:F\d+ )?X(\S+) Y(\S+)")
 

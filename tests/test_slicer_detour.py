@@ -17,6 +17,8 @@ from slicer.detour import MARGIN, detours
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
+pytestmark = pytest.mark.unit
+
 MOVE = re.compile(r"^(G[0-3]) (?:F\S+ )?X(\S+) Y(\S+)(?: Z\S+)?(?: I\S+ J\S+)?(?: E(\S+))?")
 
 

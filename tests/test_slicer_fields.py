@@ -17,6 +17,8 @@ from slicer.fields.draw import draw_field
 from slicer.fields.stress_data import load_stress
 from slicer.settings import SettingsError, SliceSettings
 
+pytestmark = pytest.mark.unit
+
 DATA = Path(__file__).parent / "data"
 CURVED_FIELDS = ("wave", "eggcrate", "concentric", "random", "poisson", "expression", "stress")
 LENGTH_TOLERANCE = 0.12  # path length per area within 12 % of 1 / spacing

@@ -8,6 +8,8 @@ import pytest
 from slicer.expression import compile_formula
 from slicer.settings import SettingsError
 
+pytestmark = pytest.mark.unit
+
 VARS = ("x", "y", "z", "layer", "d")
 
 

@@ -17,6 +17,8 @@ from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 from tests.slicer_helpers import DATA, box_stl, extrusions, write_mesh
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def two_boxes(tmp_path_factory):

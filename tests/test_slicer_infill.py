@@ -11,6 +11,8 @@ from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tests.slicer_helpers import box_stl, extrusions
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(scope="module")
 def cube_path(tmp_path_factory):

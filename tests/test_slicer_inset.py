@@ -8,6 +8,8 @@ import shapely
 
 from slicer.inset import _convex_insets, inset
 
+pytestmark = pytest.mark.unit
+
 
 def _half_planes(polygon: shapely.Polygon, d: float) -> shapely.Geometry:
     """The inset by its definition: the polygon's edges' half-planes moved in by ``d``,

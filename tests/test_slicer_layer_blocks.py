@@ -18,6 +18,8 @@ from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tests.slicer_helpers import DATA, box_stl, write_mesh
 
+pytestmark = pytest.mark.unit
+
 
 def _two_bodies(path: Path) -> Path:
     """A box and a cylinder apart on one plate: two bodies, labelled moves, holes."""

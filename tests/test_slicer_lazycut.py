@@ -5,6 +5,7 @@ from __future__ import annotations
 from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
+import pytest
 import shapely
 
 from slicer.lazycut import LazyOutlines
@@ -12,6 +13,8 @@ from slicer.mesh import prepare, read_stl
 from slicer.plan import SlicePlan, cut_planes, layer_tops
 from slicer.settings import SliceSettings
 from tests.slicer_helpers import DATA
+
+pytestmark = pytest.mark.unit
 
 SETTINGS = SliceSettings()
 

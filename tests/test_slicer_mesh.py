@@ -14,6 +14,8 @@ from slicer.section import cut_block, face_layer_ranges
 from slicer.settings import SliceSettings
 from tests.slicer_helpers import DATA, write_mesh
 
+pytestmark = pytest.mark.unit
+
 
 def test_merge_corners_is_exact() -> None:
     corners = np.array(

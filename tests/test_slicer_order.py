@@ -1,11 +1,14 @@
 """Bulk G-code formatting, travel checks and infill ordering match one-at-a-time versions."""
 
 import numpy as np
+import pytest
 import shapely
 
 from slicer import order
 from slicer.fields.linear import hatch, hatch_many, line_frame
 from slicer.gcode import _travels_leave, format_moves
+
+pytestmark = pytest.mark.unit
 
 
 def _python_lines(xy: np.ndarray, e: np.ndarray) -> list[str]:

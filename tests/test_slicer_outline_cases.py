@@ -4,6 +4,7 @@ plates of separate parts numbered without the whole-model cut."""
 from __future__ import annotations
 
 import numpy as np
+import pytest
 import shapely
 import trimesh
 
@@ -11,6 +12,8 @@ from slicer.grouping import group_rows
 from slicer.outline import drop_collinear
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
+
+pytestmark = pytest.mark.unit
 
 BED = (200.0, 200.0, 200.0)
 

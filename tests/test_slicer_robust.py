@@ -12,6 +12,7 @@ import os
 import tempfile
 
 import numpy as np
+import pytest
 import trimesh
 from hypothesis import HealthCheck, event, given, settings
 from hypothesis import strategies as st
@@ -19,6 +20,8 @@ from hypothesis import strategies as st
 from slicer.errors import ModelError
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
+
+pytestmark = pytest.mark.unit
 
 BED = (200.0, 200.0, 200.0)
 # the suite's examples per property; the long profile sets its own count

@@ -13,6 +13,8 @@ import shapely
 from slicer import skinfill
 from slicer.skins import _OPEN, SkinCache, _domains, skin_regions
 
+pytestmark = pytest.mark.unit
+
 DATA = Path(__file__).parent / "data"
 
 FILL = 0.8  # mm from an outline to its infill domain

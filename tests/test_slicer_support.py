@@ -14,6 +14,8 @@ from slicer.fields.base import LayerContext
 from slicer.settings import SliceSettings
 from slicer.support import support_interfaces, support_paths, support_regions
 
+pytestmark = pytest.mark.unit
+
 DATA = Path(__file__).parent / "data"
 H = 0.2
 

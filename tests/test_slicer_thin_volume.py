@@ -10,6 +10,8 @@ from slicer.layer import SKIN, WALL_OUTER, fill_distance
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
+pytestmark = pytest.mark.unit
+
 SETTINGS = SliceSettings.from_mapping({"line_width": 0.4, "perimeters": 2})
 LAYER = 10  # a middle layer: no top or bottom skin
 

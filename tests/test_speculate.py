@@ -6,11 +6,14 @@ import asyncio
 import os
 from pathlib import Path
 
+import pytest
 from conftest import DATA
 
 from hostd.speculate import MadeAhead, Speculation
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
+
+pytestmark = pytest.mark.unit
 
 BED = (220.0, 220.0, 250.0)
 

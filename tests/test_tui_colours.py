@@ -15,6 +15,8 @@ from waiting import until
 from tui.app import Dashboard
 from tui.widgets.layer import CANCELLED, HIGHLIGHT, KINDS, OTHER, LayerView
 
+pytestmark = pytest.mark.unit
+
 SYSTEMS = (ColorSystem.TRUECOLOR, ColorSystem.EIGHT_BIT, ColorSystem.STANDARD)
 
 

@@ -13,6 +13,8 @@ from tui.app import Dashboard
 from tui.widgets.dialogs import HelpScreen
 from tui.widgets.layer import LayerView
 
+pytestmark = pytest.mark.unit
+
 
 @pytest.fixture(autouse=True)
 def utc(monkeypatch: pytest.MonkeyPatch) -> Iterator[None]:
