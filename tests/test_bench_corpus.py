@@ -2,14 +2,10 @@
 
 from __future__ import annotations
 
-import pytest
-
 from bench import corpus, corpus_table
 from bench.slice_vs_peers import Measured, Row
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
-
-pytestmark = pytest.mark.unit
 
 
 def test_corpus_models_are_deterministic_and_slice(tmp_path):

@@ -13,8 +13,6 @@ from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tests.slicer_helpers import DATA, box_stl, extrusions, layer_blocks
 
-pytestmark = pytest.mark.unit
-
 SETTINGS = SliceSettings()
 
 
