@@ -64,15 +64,13 @@ Over MQTT (3.1.1, topics ``hostd/<printer>/...``; the daemon's side is
 
 from __future__ import annotations
 
+import asyncio
 import contextlib
 import json
 import time
 from collections.abc import AsyncIterator
 from dataclasses import asdict, dataclass, field
-from typing import TYPE_CHECKING, Any
-
-if TYPE_CHECKING:  # asyncio is imported when a client connects: `hostd slice` needs only
-    import asyncio  # the durations and the bar of this module, and asyncio costs its start
+from typing import Any
 
 STATES = ("idle", "heating", "printing", "paused", "error", "offline")
 COMMANDS = (
@@ -284,8 +282,6 @@ class ControlClient:
         self._writer: asyncio.StreamWriter | None = None
 
     async def __aenter__(self) -> ControlClient:
-        import asyncio
-
         try:
             self._reader, self._writer = await asyncio.open_unix_connection(
                 self.path, limit=MAX_REPLY_BYTES
