@@ -30,6 +30,7 @@ import contextlib
 import hashlib
 import logging
 import os
+import random
 import time
 import uuid
 from dataclasses import dataclass
@@ -179,6 +180,9 @@ class FarmAgent:
                 await self._follow(queue)
                 continue
             if not self.idle():
+                log.debug("farm: not taking: printer busy (current %s, queued %d, link %s)",
+                          self.host.current, len(self.host.store.queued()),
+                          self.host.link.state if self.host.link is not None else None)
                 await self._pause(1.0)
                 continue
             try:
@@ -227,7 +231,12 @@ class FarmAgent:
         station = self.station()
         why = misfit(Needs.from_dict(entry.needs), station)
         if why is not None or not self.idle():
+            log.debug("farm: offer of %s given back: %s", job_id, why or "printer busy")
             await _quietly(message.nak(delay=NAK_DELAY_S))
+            # Not first in line for it again: the server hands an offer back to the oldest
+            # pull waiting, and a printer that fetched again at once was that pull every
+            # time, so two printers each kept being handed the offer the other could take
+            await asyncio.sleep(NAK_DELAY_S * random.uniform(1.2, 2.0))
             return
         mine = entry.but(state="taken", printer=self.printer, reason=None,
                          token=uuid.uuid4().hex, beat=time.time(), lease_s=self.lease_s,
