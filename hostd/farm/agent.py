@@ -30,7 +30,6 @@ import contextlib
 import hashlib
 import logging
 import os
-import random
 import time
 import uuid
 from dataclasses import dataclass
@@ -233,10 +232,6 @@ class FarmAgent:
         if why is not None or not self.idle():
             log.debug("farm: offer of %s given back: %s", job_id, why or "printer busy")
             await _quietly(message.nak(delay=NAK_DELAY_S))
-            # Not first in line for it again: the server hands an offer back to the oldest
-            # pull waiting, and a printer that fetched again at once was that pull every
-            # time, so two printers each kept being handed the offer the other could take
-            await asyncio.sleep(NAK_DELAY_S * random.uniform(1.2, 2.0))
             return
         mine = entry.but(state="taken", printer=self.printer, reason=None,
                          token=uuid.uuid4().hex, beat=time.time(), lease_s=self.lease_s,
