@@ -3,9 +3,10 @@ it as a job of its own queue, and record the outcome, exactly once.
 
 The rules (see :mod:`hostd.farm.queue` for the JetStream pieces):
 
-- An offer is fetched only when the printer is idle (connected, nothing printing,
-  queued or interrupted). One that does not fit, or that came while the printer
-  turned busy, is given back with a delayed nak.
+- Offers are fetched only when the printer is idle (connected, nothing printing,
+  queued or interrupted), all those waiting at once, and the first that fits is
+  taken. One that does not fit, or that came while the printer turned busy, is
+  given back with a delayed nak; those not looked at, at once.
 - Taking is a compare-and-set of the job's entry, waiting -> taken by this
   printer. Only then is the model fetched and queued here, under the name
   ``<job id>.stl``: its G-code, summary and model end in ``done/`` or ``failed/``
@@ -61,6 +62,8 @@ NAK_DELAY_S = 0.5
 DECLARE_EVERY_S = 5.0
 # how long one fetch waits for an offer (s)
 FETCH_WAIT_S = 1.0
+# how many waiting offers one fetch looks at
+OFFERS_AT_ONCE = 32
 # a local job made from a farm job has this source
 SOURCE_PREFIX = "farm:"
 
@@ -201,38 +204,56 @@ class FarmAgent:
 
     async def _take_one(self, queue: FarmQueue,
                         takers: JetStreamContext.PullSubscription) -> None:
-        """Fetch one offer and take it if it is waiting, current, and fits."""
+        """Fetch the offers waiting now and take the first that is waiting, current and
+        fits; give the others back.
+
+        All waiting offers are looked at together, not one at a time: JetStream hands
+        back an offer given back before a newer one, so a printer that asked for one
+        offer at a time would be handed the same misfit over and over and never reach
+        the job behind it.
+        """
         try:
-            messages = await takers.fetch(1, timeout=FETCH_WAIT_S)
+            messages = await takers.fetch(OFFERS_AT_ONCE, timeout=FETCH_WAIT_S)
         except nats.errors.TimeoutError:
             return
         except TRANSIENT as exc:
             log.debug("farm: fetch: %r", exc)
             await asyncio.sleep(0.5)
             return
-        message = messages[0]
+        held: Held | None = None
+        for message in messages:
+            if held is None:
+                held = await self._consider(queue, message)
+            else:  # not looked at: another printer may take it at once
+                await _quietly(message.nak())
+        if held is not None:
+            self.held = held
+            await self._queue_here(queue, held)
+
+    async def _consider(self, queue: FarmQueue, message: Msg) -> Held | None:
+        """Take one offer if it is waiting, current and fits; settle it otherwise."""
         try:
             job_id, generation = read_offer(message.data)
         except (ValueError, KeyError, TypeError):
             log.warning("farm: an offer that is not one: %r", message.data[:80])
             await _quietly(message.term())
-            return
+            return None
         try:
             entry, revision = await queue.entry(job_id)
         except FarmError:
             await _quietly(message.ack())  # no such job (its entry was removed)
-            return
+            return None
         if entry.generation != generation or entry.state != "waiting":
             # taken, printed or failed already, or given back since (a newer offer
             # carries it): this offer is spent
             await _quietly(message.ack())
-            return
+            return None
         station = self.station()
         why = misfit(Needs.from_dict(entry.needs), station)
         if why is not None or not self.idle():
             log.debug("farm: offer of %s given back: %s", job_id, why or "printer busy")
             await _quietly(message.nak(delay=NAK_DELAY_S))
-            return
+            return None
         mine = entry.but(state="taken", printer=self.printer, reason=None,
                          token=uuid.uuid4().hex, beat=time.time(), lease_s=self.lease_s,
                          layer=-1)
@@ -240,10 +261,9 @@ class FarmAgent:
             revision = await queue.replace(mine, revision)
         except Lost:
             await _quietly(message.ack())  # another printer took it, or it was given back
-            return
+            return None
         log.info("farm: job %s (%s) taken", entry.id, entry.name)
-        self.held = Held(mine, revision, None, message, time.monotonic())
-        await self._queue_here(queue, self.held)
+        return Held(mine, revision, None, message, time.monotonic())
 
     async def _queue_here(self, queue: FarmQueue, held: Held) -> None:
         """Fetch the model and queue it in this daemon's store as ``<id>.stl``."""
