@@ -2,12 +2,12 @@
 
 from __future__ import annotations
 
-import math
 from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
 from drivers.linkevents import LinkState
+from slicer.options import Flag, Number, SettingError, Texts, Whole
 
 LONG_COMMANDS = frozenset(
     {"M109", "M190", "M191", "G28", "G29", "G30", "G32", "G34", "M400", "G4", "M600", "M303",
@@ -118,47 +118,37 @@ class StreamerConfig:
         """Settings from a mapping (a TOML table): every key checked, unknown keys refused.
 
         The keys given are recorded in ``explicit``: firmware defaults never override them.
-        Raises :class:`LinkSettingError` naming the key.
+        Raises :class:`~slicer.options.SettingError` naming the key.
         """
         defaults = cls()
         kwargs: dict[str, Any] = {}
         for key, value in values.items():
             if key not in cls.setting_names():
-                raise LinkSettingError(key, "unknown key")
+                raise SettingError(key, "unknown key")
             kwargs[key] = _typed(key, value, getattr(defaults, key))
         return cls(**kwargs, explicit=frozenset(kwargs))
 
 
-class LinkSettingError(ValueError):
-    """A link setting is unknown or out of range; ``key`` names it."""
-
-    def __init__(self, key: str, reason: str) -> None:
-        super().__init__(f"{key}: {reason}")
-        self.key = key
-        self.reason = reason
+# the one settings error (``slicer.options``), by the name the link has always used
+LinkSettingError = SettingError
 
 
 def _check(ok: bool, key: str, reason: str) -> None:
     if not ok:
-        raise LinkSettingError(key, reason)
+        raise SettingError(key, reason)
 
 
 def _typed(key: str, value: Any, default: Any) -> Any:
-    """``value`` checked against the type of the setting's default."""
+    """``value`` checked by the field of the setting's default's type (the ranges are
+    checked by ``StreamerConfig`` itself, for settings made in code as well)."""
     if isinstance(default, bool):
-        _check(isinstance(value, bool), key, f"expected true or false, got {value!r}")
-    elif isinstance(default, int):
-        _check(isinstance(value, int) and not isinstance(value, bool), key,
-               f"expected a whole number, got {value!r}")
-    elif isinstance(default, float):
-        _check(isinstance(value, int | float) and not isinstance(value, bool), key,
-               f"expected a number, got {value!r}")
-        _check(math.isfinite(value), key, "must be finite")
-        return float(value)
-    elif isinstance(default, tuple):
-        _check(isinstance(value, list | tuple) and all(isinstance(v, str) for v in value),
-               key, f"expected a list of G-code lines, got {value!r}")
-        return tuple(value)
+        return Flag().check(key, value)
+    if isinstance(default, int):
+        return Whole().check(key, value)
+    if isinstance(default, float):
+        return Number().check(key, value)
+    if isinstance(default, tuple):
+        return Texts("G-code lines").check(key, value)
     return value
 
 

@@ -9,18 +9,13 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from drivers.linkconfig import LinkSettingError, StreamerConfig
+from drivers.linkconfig import StreamerConfig
 from slicer.fea.material import material_keys, material_settings
-from slicer.settings import SettingsError, SliceSettings
+from slicer.options import Flag, Number, SettingError, Table, Text, Texts, Whole
+from slicer.settings import SliceSettings
 
-
-class ConfigError(ValueError):
-    """A configuration key is unknown or its value is wrong; the message names the key."""
-
-    def __init__(self, key: str, reason: str) -> None:
-        super().__init__(f"{key}: {reason}" if key else reason)
-        self.key = key
-        self.reason = reason
+# the one settings error (``slicer.options``), by the name the configuration has always used
+ConfigError = SettingError
 
 
 @dataclass(frozen=True)
@@ -168,68 +163,69 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             raise ConfigError(name, "unknown section")
         if not isinstance(value, Mapping):
             raise ConfigError(name, "expected a [table]")
-    jobs = _Section(data.get("jobs", {}), "jobs")
-    state = _Section(data.get("state", {}), "state")
-    printer = _Section(data.get("printer", {}), "printer")
-    sim = _Section(data.get("simulator", {}), "simulator")
-    mqtt = _Section(data.get("mqtt", {}), "mqtt")
-    runner = _Section(data.get("runner", {}), "runner")
-    notify = _Section(data.get("notify", {}), "notify")
-    farm = _Section(data.get("farm", {}), "farm")
+    jobs = Table(data.get("jobs", {}), "jobs")
+    state = Table(data.get("state", {}), "state")
+    printer = Table(data.get("printer", {}), "printer")
+    sim = Table(data.get("simulator", {}), "simulator")
+    mqtt = Table(data.get("mqtt", {}), "mqtt")
+    runner = Table(data.get("runner", {}), "runner")
+    notify = Table(data.get("notify", {}), "notify")
+    farm = Table(data.get("farm", {}), "farm")
     config = Config(
         jobs=JobsConfig(
-            folder=_folder(cwd, jobs.text("folder", "jobs", empty=False)),
-            settle_s=jobs.number("settle_s", 1.0, 0.0, 3600.0),
-            max_bytes=jobs.integer("max_bytes", 200_000_000, 1, 2**50),
+            folder=_folder(cwd, jobs.get("folder", Text(empty=False), "jobs")),
+            settle_s=jobs.get("settle_s", Number(0.0, 3600.0), 1.0),
+            max_bytes=jobs.get("max_bytes", Whole(1, 2**50), 200_000_000),
         ),
-        state=StateConfig(folder=_folder(cwd, state.text("folder", "var", empty=False))),
+        state=StateConfig(folder=_folder(cwd, state.get("folder", Text(empty=False), "var"))),
         printer=PrinterConfig(
-            id=printer.ident("id", "sim"),
-            port=printer.text("port", "sim", empty=False),
-            baud=printer.integer("baud", 250000, 300, 10_000_000),
-            bed=printer.bed("bed", (220.0, 220.0, 250.0)),
-            link=printer.link("link"),
-            material=printer.text("material", "PLA", empty=False).strip(),
-            nozzle_mm=printer.number("nozzle_mm", 0.4, 0.05, 5.0),
+            id=_ident(printer, "id", "sim"),
+            port=printer.get("port", Text(empty=False), "sim"),
+            baud=printer.get("baud", Whole(300, 10_000_000), 250000),
+            bed=_bed(printer, "bed", (220.0, 220.0, 250.0)),
+            link=_link(printer, "link"),
+            material=printer.get("material", Text(empty=False), "PLA").strip(),
+            nozzle_mm=printer.get("nozzle_mm", Number(0.05, 5.0), 0.4),
         ),
         simulator=SimConfig(
-            time_scale=sim.number("time_scale", 1.0, 0.0, 1000.0),
-            baud=sim.integer("baud", 250000, 0, 10_000_000),
-            acceleration=sim.number("acceleration", 3000.0, 10.0, 100_000.0),
+            time_scale=sim.get("time_scale", Number(0.0, 1000.0), 1.0),
+            baud=sim.get("baud", Whole(0, 10_000_000), 250000),
+            acceleration=sim.get("acceleration", Number(10.0, 100_000.0), 3000.0),
         ),
         mqtt=MqttConfig(
-            enabled=mqtt.flag("enabled", False),
-            host=mqtt.text("host", "127.0.0.1", empty=False),
-            port=mqtt.integer("port", 1883, 1, 65535),
-            username=mqtt.text("username", ""),
-            password=mqtt.text("password", ""),
-            tls=mqtt.flag("tls", False),
-            ca_file=mqtt.text("ca_file", ""),
-            allow_commands=mqtt.flag("allow_commands", False),
-            homeassistant=mqtt.flag("homeassistant", False),
-            keepalive=mqtt.integer("keepalive", 30, 5, 3600),
+            enabled=mqtt.get("enabled", Flag(), False),
+            host=mqtt.get("host", Text(empty=False), "127.0.0.1"),
+            port=mqtt.get("port", Whole(1, 65535), 1883),
+            username=mqtt.get("username", Text(), ""),
+            password=mqtt.get("password", Text(), ""),
+            tls=mqtt.get("tls", Flag(), False),
+            ca_file=mqtt.get("ca_file", Text(), ""),
+            allow_commands=mqtt.get("allow_commands", Flag(), False),
+            homeassistant=mqtt.get("homeassistant", Flag(), False),
+            keepalive=mqtt.get("keepalive", Whole(5, 3600), 30),
             hosts=_broker_list(mqtt, "hosts", mqtt.values.get("port", 1883)),
         ),
         runner=RunnerConfig(
-            lookahead=runner.integer("lookahead", 4, 1, 64),
-            workers=runner.integer("workers", 2, 1, 32),
-            replay_lines=runner.integer("replay_lines", 16, 0, 10_000),
+            lookahead=runner.get("lookahead", Whole(1, 64), 4),
+            workers=runner.get("workers", Whole(1, 32), 2),
+            replay_lines=runner.get("replay_lines", Whole(0, 10_000), 16),
         ),
         notify=NotifyConfig(
-            urls=notify.texts("urls", ()),
-            events=notify.choices("events", NotifyConfig.events, NOTIFY_EVENTS),
-            timeout_s=notify.number("timeout_s", 10.0, 0.1, 300.0),
-            picture=notify.flag("picture", True),
+            urls=notify.get("urls", _ENTRIES, ()),
+            events=notify.get("events", Texts(empty_items=False, choices=NOTIFY_EVENTS),
+                              NotifyConfig.events),
+            timeout_s=notify.get("timeout_s", Number(0.1, 300.0), 10.0),
+            picture=notify.get("picture", Flag(), True),
         ),
         farm=FarmConfig(
-            enabled=farm.flag("enabled", False),
-            servers=farm.texts("servers", FarmConfig.servers),
-            user=farm.text("user", ""),
-            password=farm.text("password", ""),
-            tls=farm.flag("tls", False),
-            ca_file=farm.text("ca_file", ""),
-            max_bytes=farm.integer("max_bytes", 50_000_000, 1, 2**40),
-            ack_wait_s=farm.number("ack_wait_s", 30.0, 1.0, 3600.0),
+            enabled=farm.get("enabled", Flag(), False),
+            servers=farm.get("servers", _ENTRIES, FarmConfig.servers),
+            user=farm.get("user", Text(), ""),
+            password=farm.get("password", Text(), ""),
+            tls=farm.get("tls", Flag(), False),
+            ca_file=farm.get("ca_file", Text(), ""),
+            max_bytes=farm.get("max_bytes", Whole(1, 2**40), 50_000_000),
+            ack_wait_s=farm.get("ack_wait_s", Number(1.0, 3600.0), 30.0),
         ),
         slicing=_anchor_files(_with_material(data, slicing_settings(
             data.get("slicing", {}), None, "slicing")), cwd),
@@ -243,11 +239,8 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
 
 def _with_material(data: Mapping[str, Any], settings: SliceSettings) -> SliceSettings:
     """``settings`` with the ``[material]`` table's modulus, Poisson's ratio and density."""
-    try:
-        return material_settings(data.get("material", {}), settings,
-                                 frozenset(_dotted(data.get("slicing", {}))))
-    except SettingsError as exc:
-        raise ConfigError(exc.key, exc.reason) from exc
+    return material_settings(data.get("material", {}), settings,
+                             frozenset(_dotted(data.get("slicing", {}))))
 
 
 def slicing_settings(
@@ -256,8 +249,8 @@ def slicing_settings(
     """Slicing settings from (nested or dotted) keys; errors name ``prefix.key``."""
     try:
         return SliceSettings.from_mapping(values, base=base)
-    except SettingsError as exc:
-        raise ConfigError(f"{prefix}.{exc.key}" if prefix else exc.key, exc.reason) from exc
+    except SettingError as exc:
+        raise exc.within(prefix) from exc
 
 
 def _dotted(values: Mapping[str, Any], prefix: str = "") -> list[str]:
@@ -281,20 +274,20 @@ def _anchor_files(settings: SliceSettings, cwd: Path) -> SliceSettings:
     return replace(settings, infill_file=str(path))
 
 
-def _broker_list(section: _Section, key: str, default_port: Any) -> tuple[tuple[str, int], ...]:
+def _broker_list(section: Table, key: str, default_port: Any) -> tuple[tuple[str, int], ...]:
     """``hosts = ["host[:port]", ...]`` as (host, port) pairs; a missing port is ``port``."""
-    value = section._get(key, [])
+    value = section.raw(key, [])
     if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
-        raise section._fail(key, f'expected a list of "host[:port]" strings, got {value!r}')
+        raise section.fail(key, f'expected a list of "host[:port]" strings, got {value!r}')
     found = []
     for item in value:
         host, colon, port = item.strip().rpartition(":")
         if not colon:
             host, port = item.strip(), str(default_port)
         if not host or any(ch.isspace() or ch in "/[]" for ch in host):
-            raise section._fail(key, f"{item!r} is not host or host:port")
+            raise section.fail(key, f"{item!r} is not host or host:port")
         if not port.isdigit() or not 1 <= int(port) <= 65535:
-            raise section._fail(key, f"{item!r}: the port must be a number in 1..65535")
+            raise section.fail(key, f"{item!r}: the port must be a number in 1..65535")
         found.append((host, int(port)))
     return tuple(found)
 
@@ -304,100 +297,39 @@ def _folder(cwd: Path, text: str) -> Path:
     return path if path.is_absolute() else (cwd / path).absolute()
 
 
-class _Section:
-    """One TOML table being read: typed getters that remember which keys were used."""
+_ENTRIES = Texts(empty_items=False)  # a list of strings, none of them blank
 
-    def __init__(self, values: Mapping[str, Any], name: str) -> None:
-        self.values = values
-        self.name = name
-        self.used: set[str] = set()
 
-    def _get(self, key: str, default: Any) -> Any:
-        self.used.add(key)
-        return self.values.get(key, default)
+def _ident(section: Table, key: str, default: str) -> str:
+    """A name that may stand in an MQTT topic: no spaces, ``/``, ``#`` or ``+``."""
+    value = section.get(key, Text(empty=False), default)
+    if any(ch in value for ch in "/#+ \t\n") or not value.isprintable():
+        raise section.fail(key, f"{value!r} may not contain spaces, '/', '#' or '+'")
+    return value
 
-    def _fail(self, key: str, reason: str) -> ConfigError:
-        return ConfigError(f"{self.name}.{key}", reason)
 
-    def refuse_unknown(self) -> None:
-        for key in self.values:
-            if key not in self.used:
-                raise self._fail(key, "unknown key")
+def _link(section: Table, key: str) -> StreamerConfig:
+    """The printer link's table (``[printer.link]``), checked by the link's settings."""
+    value = section.raw(key, {})
+    if not isinstance(value, Mapping):
+        raise section.fail(key, "expected a [table]")
+    try:
+        return StreamerConfig.from_mapping(value)
+    except SettingError as exc:
+        raise exc.within(section.key(key)) from exc
 
-    def text(self, key: str, default: str, empty: bool = True) -> str:
-        value = self._get(key, default)
-        if not isinstance(value, str):
-            raise self._fail(key, f"expected a string, got {value!r}")
-        if not empty and not value.strip():
-            raise self._fail(key, "must not be empty")
-        return value
 
-    def ident(self, key: str, default: str) -> str:
-        value = self.text(key, default, empty=False)
-        if any(ch in value for ch in "/#+ \t\n") or not value.isprintable():
-            raise self._fail(key, f"{value!r} may not contain spaces, '/', '#' or '+'")
-        return value
-
-    def texts(self, key: str, default: tuple[str, ...]) -> tuple[str, ...]:
-        value = self._get(key, list(default))
-        if not isinstance(value, list) or not all(isinstance(item, str) for item in value):
-            raise self._fail(key, f"expected a list of strings, got {value!r}")
-        for item in value:
-            if not item.strip():
-                raise self._fail(key, "an entry is empty")
-        return tuple(value)
-
-    def choices(
-        self, key: str, default: tuple[str, ...], allowed: tuple[str, ...]
-    ) -> tuple[str, ...]:
-        value = self.texts(key, default)
-        for item in value:
-            if item not in allowed:
-                raise self._fail(key, f"unknown {item!r}; choose from {', '.join(allowed)}")
-        return value
-
-    def flag(self, key: str, default: bool) -> bool:
-        value = self._get(key, default)
-        if not isinstance(value, bool):
-            raise self._fail(key, f"expected true or false, got {value!r}")
-        return value
-
-    def number(self, key: str, default: float, low: float, high: float) -> float:
-        value = self._get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int | float):
-            raise self._fail(key, f"expected a number, got {value!r}")
-        if not math.isfinite(value):
-            raise self._fail(key, "must be finite")
-        if not low <= value <= high:
-            raise self._fail(key, f"{value!r} is outside {low:g}..{high:g}")
-        return float(value)
-
-    def integer(self, key: str, default: int, low: int, high: int) -> int:
-        value = self._get(key, default)
-        if isinstance(value, bool) or not isinstance(value, int):
-            raise self._fail(key, f"expected a whole number, got {value!r}")
-        if not low <= value <= high:
-            raise self._fail(key, f"{value!r} is outside {low}..{high}")
-        return value
-
-    def link(self, key: str) -> StreamerConfig:
-        value = self._get(key, {})
-        if not isinstance(value, Mapping):
-            raise self._fail(key, "expected a [table]")
-        try:
-            return StreamerConfig.from_mapping(value)
-        except LinkSettingError as exc:
-            raise self._fail(f"{key}.{exc.key}", exc.reason) from exc
-
-    def bed(self, key: str, default: tuple[float, float, float]) -> tuple[float, float, float]:
-        value = self._get(key, list(default))
-        if not isinstance(value, list) or len(value) != 3:
-            raise self._fail(key, f"expected [x, y, z] in mm, got {value!r}")
-        out = []
-        for item in value:
-            if isinstance(item, bool) or not isinstance(item, int | float):
-                raise self._fail(key, f"expected numbers, got {item!r}")
-            if not math.isfinite(item) or not 1.0 <= item <= 10_000.0:
-                raise self._fail(key, f"{item!r} is outside 1..10000 mm")
-            out.append(float(item))
-        return (out[0], out[1], out[2])
+def _bed(section: Table, key: str,
+         default: tuple[float, float, float]) -> tuple[float, float, float]:
+    """The build volume ``[x, y, z]`` in mm, each 1..10000."""
+    value = section.raw(key, list(default))
+    if not isinstance(value, list) or len(value) != 3:
+        raise section.fail(key, f"expected [x, y, z] in mm, got {value!r}")
+    out = []
+    for item in value:
+        if isinstance(item, bool) or not isinstance(item, int | float):
+            raise section.fail(key, f"expected numbers, got {item!r}")
+        if not math.isfinite(item) or not 1.0 <= item <= 10_000.0:
+            raise section.fail(key, f"{item!r} is outside 1..10000 mm")
+        out.append(float(item))
+    return (out[0], out[1], out[2])

@@ -8,6 +8,8 @@ from collections.abc import Mapping
 from dataclasses import dataclass
 from typing import Any
 
+from slicer.options import Choice, Field, Flag, Number, SettingError, Text, Whole, parse_assignment
+
 INFILL_FIELDS = (
     "linear",
     "wave",
@@ -25,24 +27,8 @@ MASS_MATCHES = ("", "linear")
 ARC_MODES = ("auto", "on", "off")
 
 
-class SettingsError(ValueError):
-    """A slicing setting is unknown or out of range; the message names the key."""
-
-    def __init__(self, key: str, reason: str) -> None:
-        super().__init__(f"{key}: {reason}")
-        self.key = key
-        self.reason = reason
-
-
-@dataclass(frozen=True)
-class _Spec:
-    """How one flat key is checked: its type and allowed range or choices."""
-
-    kind: type
-    low: float | None = None
-    high: float | None = None
-    choices: tuple[str, ...] | None = None
-    length: int | None = None
+# the one settings error (``slicer.options``), by the name the slicer has always used
+SettingsError = SettingError
 
 
 @dataclass(frozen=True)
@@ -118,7 +104,7 @@ class SliceSettings:
             spec = _SPECS.get(key)
             if spec is None:
                 raise SettingsError(key, "unknown slicing setting")
-            changes[key.replace(".", "_")] = _check(key, raw, spec)
+            changes[key.replace(".", "_")] = spec.check(key, raw)
         merged = dataclasses.replace(base or cls(), **changes)
         if merged.first_layer_height <= 0:
             raise SettingsError("first_layer_height", "must be positive")
@@ -137,22 +123,6 @@ class SliceSettings:
         return 3.141592653589793 * (self.filament_diameter / 2.0) ** 2
 
 
-def parse_assignment(text: str) -> tuple[str, Any]:
-    """Parse ``KEY=VALUE`` from the command line into a key and a TOML-typed value."""
-    import tomllib
-
-    if "=" not in text:
-        raise SettingsError(text, "expected KEY=VALUE")
-    key, _, raw = text.partition("=")
-    key = key.strip()
-    raw = raw.strip()
-    try:
-        value = tomllib.loads(f"v = {raw}")["v"]
-    except tomllib.TOMLDecodeError:
-        value = raw
-    return key, value
-
-
 def _flatten(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     flat: dict[str, Any] = {}
     for key, value in values.items():
@@ -164,81 +134,63 @@ def _flatten(values: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     return flat
 
 
-def _check(key: str, raw: Any, spec: _Spec) -> Any:
-    if spec.kind is bool:
-        if not isinstance(raw, bool):
-            raise SettingsError(key, f"expected true or false, got {raw!r}")
-        return raw
-    if spec.kind is str:
-        if not isinstance(raw, str):
-            raise SettingsError(key, f"expected a string, got {raw!r}")
-        if spec.choices is not None and raw not in spec.choices:
-            raise SettingsError(key, f"{raw!r} is not one of {', '.join(spec.choices)}")
-        return raw
-    if isinstance(raw, bool) or not isinstance(raw, int | float):
-        raise SettingsError(key, f"expected a number, got {raw!r}")
-    if spec.kind is int and (isinstance(raw, float) and not raw.is_integer()):
-        raise SettingsError(key, f"expected a whole number, got {raw!r}")
-    value = spec.kind(raw)
-    if value != value or value in (float("inf"), float("-inf")):
-        raise SettingsError(key, "must be finite")
-    if spec.low is not None and value < spec.low:
-        raise SettingsError(key, f"{raw!r} is below the minimum {spec.low:g}")
-    if spec.high is not None and value > spec.high:
-        raise SettingsError(key, f"{raw!r} is above the maximum {spec.high:g}")
-    return value
 
 
-_SPECS: dict[str, _Spec] = {
-    "layer_height": _Spec(float, 0.04, 1.0),
-    "first_layer_height": _Spec(float, 0.04, 1.0),
-    "line_width": _Spec(float, 0.1, 2.0),
-    "perimeters": _Spec(int, 0, 20),
-    "top_layers": _Spec(int, 0, 50),
-    "bottom_layers": _Spec(int, 0, 50),
-    "wall_order": _Spec(str, choices=WALL_ORDERS),
-    "infill.field": _Spec(str, choices=INFILL_FIELDS),
-    "infill.density": _Spec(float, 0.0, 1.0),
-    "infill.angle": _Spec(float, -360.0, 360.0),
-    "infill.overlap": _Spec(float, 0.0, 0.5),
-    "infill.seed": _Spec(int, 0, 2**31 - 1),
-    "infill.file": _Spec(str),
-    "infill.expression": _Spec(str),
-    "infill.scale": _Spec(float, 0.5, 200.0),
-    "infill.solid_below_area": _Spec(float, 0.0, 10000.0),
-    "infill.stress": _Spec(str, choices=STRESS_VARIANTS),
-    "infill.load": _Spec(str),
-    "infill.match_mass_of": _Spec(str, choices=MASS_MATCHES),
-    "infill.target_mass_g": _Spec(float, 0.0, 100000.0),
-    "fea.mesh_size": _Spec(float, 0.0, 50.0),
-    "fea.youngs_modulus_mpa": _Spec(float, 1.0, 1e6),
-    "fea.poisson_ratio": _Spec(float, 0.0, 0.49),
-    "support.enabled": _Spec(bool),
-    "support.angle": _Spec(float, 0.0, 90.0),
-    "support.clearance": _Spec(float, 0.0, 5.0),
-    "support.density": _Spec(float, 0.02, 1.0),
-    "nozzle_temp": _Spec(float, 0.0, 350.0),
-    "bed_temp": _Spec(float, 0.0, 150.0),
-    "filament_diameter": _Spec(float, 1.0, 3.5),
-    "filament_density": _Spec(float, 0.5, 3.0),
-    "print_speed": _Spec(float, 1.0, 1000.0),
-    "wall_speed": _Spec(float, 1.0, 1000.0),
-    "first_layer_speed": _Spec(float, 1.0, 1000.0),
-    "travel_speed": _Spec(float, 1.0, 1000.0),
-    "retract_length": _Spec(float, 0.0, 20.0),
-    "retract_speed": _Spec(float, 1.0, 200.0),
-    "acceleration": _Spec(float, 10.0, 50000.0),
-    "fan_speed": _Spec(float, 0.0, 1.0),
-    "fan_first_layer": _Spec(int, 0, 1000),
-    "skip_heating": _Spec(bool),
-    "resolution": _Spec(float, 0.0, 1.0),
-    "infill.resolution": _Spec(float, 0.0, 1.0),
-    "gcode.arcs": _Spec(str, choices=ARC_MODES),
-    "gcode.baud": _Spec(int, 0, 10_000_000),
-    "gcode.coarse_resolution": _Spec(float, 0.0, 1.0),
-    "gcode.planner_blocks": _Spec(int, 1, 256),
-    "gcode.thumbnails": _Spec(str),
-    "gcode.labels": _Spec(bool),
+def _whole(low: int, high: int) -> Whole:
+    """A whole-number setting within ``low..high``; ``3.0`` in a file is taken as 3."""
+    return Whole(low, high, whole_floats=True)
+
+
+_SPECS: dict[str, Field[Any]] = {
+    "layer_height": Number(0.04, 1.0),
+    "first_layer_height": Number(0.04, 1.0),
+    "line_width": Number(0.1, 2.0),
+    "perimeters": _whole(0, 20),
+    "top_layers": _whole(0, 50),
+    "bottom_layers": _whole(0, 50),
+    "wall_order": Choice(WALL_ORDERS),
+    "infill.field": Choice(INFILL_FIELDS),
+    "infill.density": Number(0.0, 1.0),
+    "infill.angle": Number(-360.0, 360.0),
+    "infill.overlap": Number(0.0, 0.5),
+    "infill.seed": _whole(0, 2**31 - 1),
+    "infill.file": Text(),
+    "infill.expression": Text(),
+    "infill.scale": Number(0.5, 200.0),
+    "infill.solid_below_area": Number(0.0, 10000.0),
+    "infill.stress": Choice(STRESS_VARIANTS),
+    "infill.load": Text(),
+    "infill.match_mass_of": Choice(MASS_MATCHES),
+    "infill.target_mass_g": Number(0.0, 100000.0),
+    "fea.mesh_size": Number(0.0, 50.0),
+    "fea.youngs_modulus_mpa": Number(1.0, 1e6),
+    "fea.poisson_ratio": Number(0.0, 0.49),
+    "support.enabled": Flag(),
+    "support.angle": Number(0.0, 90.0),
+    "support.clearance": Number(0.0, 5.0),
+    "support.density": Number(0.02, 1.0),
+    "nozzle_temp": Number(0.0, 350.0),
+    "bed_temp": Number(0.0, 150.0),
+    "filament_diameter": Number(1.0, 3.5),
+    "filament_density": Number(0.5, 3.0),
+    "print_speed": Number(1.0, 1000.0),
+    "wall_speed": Number(1.0, 1000.0),
+    "first_layer_speed": Number(1.0, 1000.0),
+    "travel_speed": Number(1.0, 1000.0),
+    "retract_length": Number(0.0, 20.0),
+    "retract_speed": Number(1.0, 200.0),
+    "acceleration": Number(10.0, 50000.0),
+    "fan_speed": Number(0.0, 1.0),
+    "fan_first_layer": _whole(0, 1000),
+    "skip_heating": Flag(),
+    "resolution": Number(0.0, 1.0),
+    "infill.resolution": Number(0.0, 1.0),
+    "gcode.arcs": Choice(ARC_MODES),
+    "gcode.baud": _whole(0, 10_000_000),
+    "gcode.coarse_resolution": Number(0.0, 1.0),
+    "gcode.planner_blocks": _whole(1, 256),
+    "gcode.thumbnails": Text(),
+    "gcode.labels": Flag(),
 }
 _SIZE = r"(?:[1-9]\d{0,2}|10[01]\d|102[0-4])"
 _THUMBNAILS = re.compile(rf"(?:{_SIZE}x{_SIZE}(?:,{_SIZE}x{_SIZE})*)?")
@@ -249,12 +201,15 @@ SETTING_KEYS: tuple[str, ...] = tuple(_SPECS)
 def setting_range(key: str) -> tuple[float | None, float | None]:
     """The lowest and highest value the flat setting ``key`` accepts (None: unbounded)."""
     spec = _SPECS[key]
-    return spec.low, spec.high
+    if isinstance(spec, Number | Whole):
+        return spec.low, spec.high
+    return None, None
 
 __all__ = [
     "ARC_MODES",
     "INFILL_FIELDS",
     "SETTING_KEYS",
+    "SettingError",
     "SettingsError",
     "SliceSettings",
     "parse_assignment",
