@@ -1,4 +1,4 @@
-"""Link settings, states, counters and errors shared by the streamer and its callers."""
+"""Link settings, states and counters shared by the streamer and its callers."""
 
 from __future__ import annotations
 
@@ -23,14 +23,6 @@ PAUSED = LinkState.PAUSED
 CANCELLED = LinkState.CANCELLED
 ERROR = LinkState.ERROR
 HALTED = LinkState.HALTED
-
-
-class LinkError(ConnectionError):
-    """The link to the printer failed: port lost, printer silent, halted or emergency stop."""
-
-
-class StreamCancelled(Exception):
-    """The stream was cancelled: ``send()`` no longer accepts job lines."""
 
 
 @dataclass(frozen=True)

@@ -8,14 +8,15 @@ import logging
 from collections.abc import Awaitable, Callable
 
 from drivers.backoff import Backoff, reconnect
-from drivers.linkconfig import LinkError, StreamerConfig
+from drivers.linkconfig import StreamerConfig
 from drivers.linkcore import LinkCore
+from drivers.linkerrors import LinkError, TransportError
 from drivers.linkevents import Event
 from drivers.linkprofile import Profile, profile_for, tuned
 from drivers.linkwaiters import Waiters
 from drivers.motionreport import PrinterMotion, parse_motion_report
 from drivers.numbering import NumberingProbe, probe_line
-from drivers.transport import Transport, TransportError
+from drivers.transport import Transport
 
 log = logging.getLogger("drivers.link")
 
@@ -176,5 +177,4 @@ class Connecting:
             return await self._reopen()
         from drivers.transport import open_transport
 
-        baud = int(getattr(getattr(self._transport, "_port", None), "baudrate", 250000))
-        return await open_transport(self._transport.name, baud)
+        return await open_transport(self._transport.name, self._transport.baud)

@@ -9,7 +9,6 @@ writing is in :mod:`drivers.linkwrite`, timers in :mod:`drivers.linkwatch`.
 from __future__ import annotations
 
 import re
-from collections import deque
 
 from drivers.linkconfig import StreamerConfig, StreamStats
 from drivers.linkevents import (
@@ -23,10 +22,10 @@ from drivers.linkevents import (
     Temperature,
 )
 from drivers.linkmodel import PrinterModel
-from drivers.linkoks import Acknowledging
+from drivers.linkoks import AckCounter
 from drivers.linkresync import Resync
-from drivers.linkwatch import Watching
-from drivers.linkwrite import Control, Renumber, Writing
+from drivers.linkwatch import Watchdog
+from drivers.linkwrite import LinkWriter, Renumber
 from drivers.numbering import NumberingProbe
 from drivers.resend import edit_distance, recover
 from drivers.responses import Response, parse_response
@@ -38,12 +37,18 @@ from drivers.window import InFlight, SendWindow
 _UNKNOWN = 'echo:unknown command: "'
 _GARBLED_N = re.compile(r'\s*[^\d\s"](\d+)\D')  # (the blank after it may be garbled too)
 
-# most oks awaited for an M110 written several times
-MAX_LATE_OKS = 8
 
+class LinkCore:
+    """Everything the link knows and decides, as plain data; see the module docstring.
 
-class LinkCore(Acknowledging, Resync, Writing, Watching):
-    """Everything the link knows and decides, as plain data; see the module docstring."""
+    Composed of four parts, each owning its own fields: :attr:`writer`
+    (:class:`~drivers.linkwrite.LinkWriter`), :attr:`acks`
+    (:class:`~drivers.linkoks.AckCounter`), :attr:`resync`
+    (:class:`~drivers.linkresync.Resync`) and :attr:`watchdog`
+    (:class:`~drivers.linkwatch.Watchdog`). The core itself keeps what they share: the
+    settings, the counters, the window of lines in flight, the model of the printer's line
+    bookkeeping, the link's state and the job's flags, and the events for the shell.
+    """
 
     def __init__(self, config: StreamerConfig | None = None) -> None:
         """A core in ``DISCONNECTED`` state, nothing queued."""
@@ -51,47 +56,63 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.stats = StreamStats()
         self.capabilities: dict[str, str] = {}
         self.firmware = ""
-        self.acked = 0
         self.state = LinkState.DISCONNECTED
         self.error: str | None = None
         self.window = SendWindow(self.config.rx_buffer, self.config.bufsize)
         self.model = PrinterModel()
-        self.history: dict[int, tuple[str, bool]] = {}
-        self.next_number = 1
-        self.replay_next: int | None = None
-        self.last_acked_number = 0
-        self.control: deque[Control] = deque()
-        self.pending: deque[tuple[str, int]] = deque()
-        self.renumber: Renumber | None = None
         self.paused = False
         self.cancelled = False
         self.stopping = False  # M112 queued or written: no job line goes after it
-        self.resolving = False  # a probe after a refusal is out: no job line until answered
-        self.doubt = False  # an answer taken for an owed one may have been a probe's in flight
         self.started = False
         self.handshaking = False
-        self.last_rx = 0.0  # any line received
-        self.last_answer = 0.0  # a line that answers the link (not an auto-report)
-        self.last_poll = 0.0
-        self.probes_unanswered = 0
-        self.reports_unanswered = 0  # auto-reports since the last answer
-        self.last_probe_at = -1.0  # when the last probe was due and sent
-        self.over_budget = 0  # lines past the modelled receive buffer since the last answer
-        self.reconnected_at = 0.0
-        self.connect_at = 0.0  # when the port was opened (``begin_connect``)
         self._events: list[Event] = []
         self._plain_oks: dict[str, Response] = {}  # parsed once: plain and advanced oks
-        self._oks_lost = False  # the port was cut: oks are counted in the window's order
         self._expect_resend_ok = False
         self._last_error: Response | None = None  # a line error just before this line
-        self._emitted_through = 0
-        self._waiters: dict[int, int] = {}  # line number -> token of a replayed control line
-        self._late_oks = 0  # oks of M110s written again, still to come and not counted
-        self._answers_owed: list[int] = []  # probes acknowledged ahead of their answers
-        self.advanced_ok = False
         self.transcript: list[str] | None = None  # when a list, every line received goes in
         self.numbering_probe: NumberingProbe | None = None  # out before the handshake
-        self.init_resync()
+        self.writer = LinkWriter(self)
+        self.acks = AckCounter(self)
+        self.resync = Resync(self)
+        self.watchdog = Watchdog(self)
+
+    # -- what the parts tell each other through the core ----------------------------------
+
+    def emit(self, event: Event) -> None:
+        """One event for the shell (:meth:`take_events`)."""
+        self._events.append(event)
+
+    @property
+    def acked(self) -> int:
+        """Job lines acknowledged so far."""
+        return self.acks.acked
+
+    @property
+    def next_number(self) -> int:
+        """The number the next new line is written under."""
+        return self.writer.next_number
+
+    def queue_job(self, command: str, token: int) -> None:
+        """A job command to write after those already queued; ``Written`` tells its number."""
+        self.writer.queue_job(command, token)
+
+    def queue_control(self, command: str, *, internal: bool, token: int | None = None,
+                      probe: bool = False, force: bool = False, front: bool = False) -> None:
+        """A line outside the job (:meth:`~drivers.linkwrite.LinkWriter.queue_control`)."""
+        self.writer.queue_control(command, internal=internal, token=token, probe=probe,
+                                  force=force, front=front)
+
+    def next_bytes(self, now: float) -> bytes | None:
+        """The next bytes to write now (recorded as written), or ``None``."""
+        return self.writer.next_bytes(now)
+
+    def tick(self, now: float) -> list[Event]:
+        """Let time pass: probes, polls, give-ups. Returns the events produced."""
+        return self.watchdog.tick(now)
+
+    def tick_interval(self) -> float:
+        """How often the shell should call :meth:`tick` (seconds)."""
+        return self.watchdog.tick_interval()
 
     # -- the shell's side -----------------------------------------------------------------
 
@@ -107,8 +128,8 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
 
     def idle(self) -> bool:
         """Nothing in flight, queued for the link's own use, replaying or renumbering."""
-        return (not len(self.window) and not self.control
-                and self.replay_next is None and self.renumber is None)
+        return (not len(self.window) and not self.writer.control
+                and self.writer.replay_next is None and self.writer.renumber is None)
 
     def settled(self) -> bool:
         """Idle, and a probe written after every other line has been answered: every line
@@ -116,9 +137,9 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         end or the numbering restart. If not, a probe is queued to find out."""
         if not self.idle():
             return False
-        if not self.fenced and not any(c.probe for c in self.control):
-            self.queue_control("M105", internal=True, probe=True)
-        return self.fenced
+        if not self.writer.fenced and not any(c.probe for c in self.writer.control):
+            self.writer.queue_control("M105", internal=True, probe=True)
+        return self.writer.fenced
 
     def alive(self) -> bool:
         """False once the link failed or the printer halted."""
@@ -126,7 +147,6 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
 
     def feed(self, text: str, now: float) -> list[Event]:
         """One line received from the printer (without its line ending)."""
-        self.last_rx = now
         if self.transcript is not None:
             self.transcript.append(text)
         response = self._plain_oks.get(text)
@@ -135,12 +155,9 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             if response.kind == "ok" and not response.temperatures \
                     and len(self._plain_oks) < 16:
                 self._plain_oks[text] = response  # the same few texts, line after line
-            if self.is_report(response):
-                self.reports_unanswered += 1  # a sign of a powered board, not of a live link
-            else:
-                self.answered(now)
+            self.watchdog.heard(now, response, False)
         else:
-            self.answered(now)
+            self.watchdog.heard(now, response, True)
         self.handle(response, now)
         if not self._events:
             return []
@@ -163,9 +180,8 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
 
     def fail_waiters(self, reason: str) -> None:
         """Drop everything queued; the shell fails every waiter it holds."""
-        self.pending.clear()
-        self.control.clear()
-        self._waiters.clear()
+        self.writer.drop_all()
+        self.acks.forget_waiters()
         self._events.append(Failed(reason))
 
     def report(self, text: str) -> None:
@@ -195,7 +211,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self._expect_resend_ok = False
         error_before = self._last_error
         self._last_error = None
-        renumber = self.renumber
+        renumber = self.writer.renumber
         if error_before is not None and renumber is not None and renumber.writes \
                 and kind != "resend" and not (kind == "ok" and self.config.ok_after_resend):
             # a refusal whose Resend was lost to noise, the next readable line come instead
@@ -212,10 +228,10 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
             if error_before is not None and self.config.ok_after_resend:
                 self.on_lost_resend(error_before)  # this is the ok after it
                 return
-            self._on_ok(response)
+            self.acks.on_ok(response)
         elif kind == "resend":
             self._expect_resend_ok = error_before is not None and self.config.ok_after_resend
-            self.on_resend(response, error_before)
+            self.resync.on_resend(response, error_before)
         elif kind == "error":
             self._on_error(response)
         elif kind == "temperature":
@@ -238,7 +254,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         if edit_distance(head.lower(), _UNKNOWN) > 1:
             return  # one character changed by noise is still the same message
         body = raw[len(_UNKNOWN):]
-        renumber = self.renumber
+        renumber = self.writer.renumber
         if renumber is not None:
             # after a reset the M110 is the only line written, but the rest of a line
             # written while the board booted (its N lost) may still run as an unknown
@@ -260,7 +276,7 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         rests = body.split(maxsplit=1)[1:]  # after the first word ("O>4 G1 ...": a digit hit)
         if garbled:
             rests.append(raw[garbled.end():])
-        if (garbled and int(garbled.group(1)) in self.history) or any(
+        if (garbled and int(garbled.group(1)) in self.writer.history) or any(
                 self._recent_command(rest.split("*")[0].rstrip('"').strip()) for rest in rests):
             # a line of ours whose leading N was garbled ran as an unknown command; its ok
             # belongs to no line of ours (the line is refused by number later). An M110 is
@@ -275,13 +291,13 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
                 # refusal, it waited for a probe when it was the only line the window
                 # allowed. (With lines behind it, those are refused by number, and a
                 # replay now would land in a receive buffer nothing drained)
-                self.replay_from(oldest.number)
+                self.resync.replay_from(oldest.number)
 
     def _recent_command(self, text: str) -> bool:
         """Whether ``text`` is the command of one of the last lines written (an echo whose
         line number noise changed too, ``F198 G1 ...`` for line 118, names it so)."""
-        history = self.history
-        top = self.next_number - 1
+        history = self.writer.history
+        top = self.writer.next_number - 1
         return any(history.get(n, ("",))[0] == text for n in range(top, max(0, top - 64), -1))
 
     def _on_start(self) -> None:
@@ -295,36 +311,20 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         else:
             self.on_reset()
 
-    def _completes_renumber(self, entry: InFlight) -> bool:
-        renumber = self.renumber
-        return (renumber is not None and renumber.sent and entry.number == renumber.line
-                and entry.command.startswith("M110"))
-
-    def _finish_renumber(self) -> None:
+    def finish_renumber(self) -> None:
         """The printer took the ``M110``: continue in the numbering it set (every record
         kept by line number is set for it here)."""
-        renumber = self.renumber
+        renumber = self.writer.renumber
         assert renumber is not None
-        value, keep = renumber.value, renumber.keep_history
-        self.renumber = None
+        value = renumber.value
         if renumber.token is not None:
             self._events.append(Acked(value, f"M110 N{value}", False, renumber.token))
-        self.clear_resync()
-        if keep and value + 1 < self.next_number:
-            self.replay_next = value + 1
-        else:
-            self.history.clear()
-            self.next_number = value + 1
-            self.replay_next = None
-            self.force_replay = False
-            self._emitted_through = value
-            self.forget_requests()  # requests counted against the old numbers
-        self.last_acked_number = value
-        self._oks_lost = False  # the count restarts from the M110
+        self.resync.clear()
+        fresh = self.writer.end_renumber(value, renumber.keep_history)
+        if fresh:
+            self.resync.forget_requests()  # requests counted against the old numbers
+        self.acks.renumbered(value, fresh, renumber.late_oks())
         self.model.renumbered(value)
-        # an M110 written again after silence may have its first ok still to come, before
-        # any ok of the lines that follow: those oks are not counted for them
-        self._late_oks = min(renumber.late_oks(), MAX_LATE_OKS)
 
     def _on_error(self, response: Response) -> None:
         self.stats.errors += 1
@@ -346,37 +346,27 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         implied = Response("resend", f"Resend: {digits}",
                            line=error.line + 1 if error.line is not None else None,
                            digits=digits)
-        self.on_resend(implied, error, implied=True)
+        self.resync.on_resend(implied, error, implied=True)
         self._expect_resend_ok = False  # its ok is the one being read
 
     def on_reset(self) -> None:
         """``start`` mid-stream: the printer rebooted and lost its buffers and line number."""
         self.stats.resets += 1
-        self.forget_requests()  # requests seen before the reboot confirm nothing after it
-        if self.renumber is None:
-            value = self.last_acked_number
-            self.renumber = Renumber(value, value, keep_history=True, quiet=True)
+        self.resync.forget_requests()  # requests seen before the reboot confirm nothing after it
+        if self.writer.renumber is None:
+            value = self.acks.last_acked_number
+            self.writer.begin_renumber(Renumber(value, value, keep_history=True, quiet=True))
         self.forget_in_flight()
         self.model.lost()
 
-    def forget_in_flight(self) -> None:
-        """Whatever was on the wire or in the printer's buffers is gone (reset or cut):
-        nothing in flight, no replay under way, an ``M110`` in progress to be written anew."""
+    def forget_in_flight(self, cut: bool = False) -> None:
+        """Whatever was on the wire or in the printer's buffers is gone (a reset, or the
+        port ``cut``): nothing in flight, no replay under way, an ``M110`` in progress to be
+        written anew."""
         self.window.clear()
-        self.clear_resync()
-        self.replay_next = None
-        self.force_replay = False
-        self.resolving = False
-        self.doubt = False
-        self._late_oks = 0
-        self._answers_owed = []
-        if self.renumber is not None:
-            self.renumber.sent = False
-            self.renumber.writes = self.renumber.refusals = 0
-
-    def remember_waiter(self, number: int, token: int) -> None:
-        """A control line's waiter, found again by number when the line is replayed."""
-        self._waiters[number] = token
+        self.resync.clear()
+        self.writer.forget_in_flight()
+        self.acks.forget_in_flight(cut)
 
     # -- connection -------------------------------------------------------------------------
 
@@ -384,14 +374,14 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         """New settings (firmware defaults chosen at connect): buffers apply at once."""
         self.config = config
         self.window.max_bytes = config.rx_buffer
-        if config.bufsize > self.window.max_lines or not self.advanced_ok:
+        if config.bufsize > self.window.max_lines or not self.acks.advanced_ok:
             self.window.max_lines = max(config.bufsize, 1)
         self.window.limit = self.window.max_lines
 
     def begin_connect(self, now: float) -> None:
         """The port is open: wait for ``start`` (the board's reset)."""
         self.state = LinkState.CONNECTING
-        self.last_rx = self.last_answer = self.connect_at = now
+        self.watchdog.opened(now)
 
     def begin_handshake(self, reset_to: int, keep_history: bool, token: int) -> None:
         """``M110 N<reset_to>`` once nothing is in flight; ``token`` is acknowledged when
@@ -399,12 +389,12 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
         self.handshaking = True  # from now on a `start` is a reset to recover from
         # numbered as the value it sets: "N1 M110 N0" set the last line to 0 on Marlin and
         # to 1 on firmware that reads the line's own number, which then refused line 1
-        self.renumber = Renumber(reset_to, reset_to, keep_history, token=token)
+        self.writer.begin_renumber(Renumber(reset_to, reset_to, keep_history, token=token))
 
     def connected(self, now: float) -> None:
         """The handshake is done: ready to stream (or paused, if paused meanwhile)."""
         self.state = LinkState.PAUSED if self.paused else LinkState.READY
-        self.last_poll = now
+        self.watchdog.polled(now)
 
     def link_lost(self, reason: str) -> None:
         """The port failed; the shell tries to reopen it."""
@@ -414,8 +404,86 @@ class LinkCore(Acknowledging, Resync, Writing, Watching):
     def reopened(self, now: float) -> None:
         """The port is open again: wait for ``start`` or ``start_timeout_s``."""
         self.stats.reconnects += 1
-        self.reconnected_at = self.last_rx = self.last_answer = now
-        self._oks_lost = True
-        self.forget_in_flight()
+        self.watchdog.reopened(now)
+        self.forget_in_flight(cut=True)
         self.model.lost()
         self.state = LinkState.RECONNECTING
+
+    def start_timed_out(self) -> None:
+        """No ``start`` banner within ``start_timeout_s`` of opening the port: a board that
+        did not reset on open (or prints no banner) is taken as ready (``Started``)."""
+        self.started = True
+        self._events.append(Started())
+
+    def reconnect_timed_out(self) -> None:
+        """No ``start`` after reopening: the printer kept its state; continue after the
+        last acknowledged line (it refuses, by line number, anything it already has)."""
+        self.state = LinkState.PAUSED if self.paused else LinkState.READY
+        first = self.acks.last_acked_number + 1
+        if self.writer.renumber is None and first < self.writer.next_number:
+            self.writer.replay_at(first)
+
+    # -- the job's controls ---------------------------------------------------------------
+
+    def emergency(self, command: str) -> list[int]:
+        """``command`` (``M112``, ``M108``, ``M410``) as the very next line, past the line
+        window and any replay, into the first room in the printer's receive buffer.
+
+        ``M112`` also ends the job: the job lines not yet written are dropped (their
+        tokens returned, for the shell to fail) and none is written after it; the link
+        still answers the printer's resend requests, so an ``M112`` refused is sent again.
+        """
+        self.writer.queue_control(command, internal=False, force=True, front=True)
+        if command != "M112":
+            return []
+        self.writer.stop_replay()
+        self.stopping = True
+        return self.writer.drop_pending()
+
+    def out_of_band(self, command: str) -> None:
+        """``command`` was written unnumbered, straight after the lines already written
+        (``M108`` or ``M410`` to an emergency parser). Marlin acts on it at once and still
+        queues it, answering ``ok`` in its place in the stream: it is in flight like the
+        lines before it. Uncounted, its ``ok`` acknowledged the next line before the
+        printer had run it."""
+        self.window.push(InFlight(None, command, len(command) + 1, internal=True))
+
+    def pause(self, park: list[str]) -> None:
+        """Stop job lines after those written; ``park`` lines go out first."""
+        self.paused = True
+        if self.state == LinkState.READY:
+            self.state = LinkState.PAUSED
+        for command in park:
+            self.writer.queue_control(command, internal=False)
+
+    def resume(self) -> None:
+        """Job lines flow again."""
+        self.paused = False
+        if self.state == LinkState.PAUSED:
+            self.state = LinkState.READY
+
+    def cancel(self, end_gcode: list[str]) -> list[int]:
+        """Refuse job lines; ``end_gcode`` after what is in flight. Tokens dropped."""
+        self.cancelled = True
+        self.paused = False
+        tokens = self.writer.drop_pending()
+        for command in end_gcode:
+            self.writer.queue_control(command, internal=False)
+        return tokens
+
+    def cancel_done(self) -> None:
+        """What the cancel sent has been written (and drained, if asked): ``CANCELLED``
+        until :meth:`begin_job`, unless the link failed meanwhile."""
+        if self.alive():
+            self.state = LinkState.CANCELLED
+
+    def closed(self) -> None:
+        """The shell closed the port: ``DISCONNECTED``, unless the link had failed."""
+        if self.alive():
+            self.state = LinkState.DISCONNECTED
+
+    def begin_job(self) -> None:
+        """Accept job lines again after ``cancel``."""
+        self.cancelled = False
+        if self.state == LinkState.CANCELLED:
+            self.state = LinkState.READY

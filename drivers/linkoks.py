@@ -1,11 +1,25 @@
-"""The protocol core's acknowledgements: which lines an ``ok`` completes, reported once."""
+"""The protocol core's acknowledgement counter: which lines an ``ok`` completes, reported once.
+
+:class:`AckCounter` owns the count (the last line acknowledged, the job lines acknowledged,
+the acknowledgements reported), what makes an ``ok`` uncertain (oks lost to a cut port,
+late oks of an ``M110`` written again, answers owed to probes, a refusal's probe awaited)
+and the waiters of the link's own lines. The core (:class:`~drivers.linkcore.LinkCore`)
+holds it.
+"""
 
 from __future__ import annotations
 
+from typing import TYPE_CHECKING
+
 from drivers.linkevents import Acked
-from drivers.linkfields import CoreFields
 from drivers.responses import Response
 from drivers.window import InFlight
+
+if TYPE_CHECKING:  # the core holds the counter; the counter asks it (one-way at run time)
+    from drivers.linkcore import LinkCore
+
+# most oks awaited for an M110 written several times
+MAX_LATE_OKS = 8
 
 
 def _is_probe_line(held: tuple[str, bool] | None, internal: bool = False) -> bool:
@@ -14,26 +28,29 @@ def _is_probe_line(held: tuple[str, bool] | None, internal: bool = False) -> boo
         and (held[1] or not internal)
 
 
-class Acknowledging(CoreFields):
-    """Mixin of :class:`~drivers.linkcore.LinkCore`: oks counted, lines acknowledged."""
+class AckCounter:
+    """Oks counted, lines acknowledged (see the module docstring)."""
 
-    # the core's own fields and methods this mixin uses (set in ``LinkCore.__init__``)
-    acked: int
-    advanced_ok: bool
-    _oks_lost: bool
-    _late_oks: int
-    _emitted_through: int
-    _waiters: dict[int, int]
+    def __init__(self, core: LinkCore) -> None:
+        """Nothing acknowledged yet."""
+        self.core = core
+        self.window = core.window
+        self.model = core.model
+        self.acked = 0  # job lines acknowledged
+        self.last_acked_number = 0
+        self.emitted_through = 0  # the last line whose acknowledgement was reported
+        self.advanced_ok = False  # the firmware sends ``ok ... B<n>``
+        self.oks_lost = False  # the port was cut: oks are counted in the window's order
+        self.late_oks = 0  # oks of M110s written again, still to come and not counted
+        self.answers_owed: list[int] = []  # probes acknowledged ahead of their answers
+        self.resolving = False  # a probe after a refusal is out: no job line until answered
+        self.doubt = False  # an answer taken for an owed one may have been a probe's in flight
+        self.waiters: dict[int, int] = {}  # line number -> token of a replayed control line
 
-    def _completes_renumber(self, entry: InFlight) -> bool:
-        raise NotImplementedError
-
-    def _finish_renumber(self) -> None:
-        raise NotImplementedError
-
-    def _on_ok(self, response: Response) -> None:
+    def on_ok(self, response: Response) -> None:
+        """One ``ok`` (plain, advanced, or a probe's ``ok T:``), in the order received."""
         probe_answer = bool(response.temperatures)
-        if probe_answer and self.resolving and not self._answers_owed:
+        if probe_answer and self.resolving and not self.answers_owed:
             newest = self._past_held_probe()
             if newest is not None:
                 # the probe asked after a refusal that left an older probe's answer
@@ -46,8 +63,8 @@ class Acknowledging(CoreFields):
                 # before they ran (a reset then renumbered past them); one too many is
                 # cleared by the next plain ok, or costs a probe after a short silence
                 self.resolving = False
-                self._late_oks = 0
-                self._answers_owed = [newest] * sum(
+                self.late_oks = 0
+                self.answers_owed = [newest] * sum(
                     1 for e in self.window if e.number is not None
                     and e.number < newest and _is_probe_line((e.command, True)))
                 done = self.window.ack_upto(newest)
@@ -57,30 +74,30 @@ class Acknowledging(CoreFields):
                     self.acknowledged(entry)
                 return
         if probe_answer:
-            self._late_oks = 0  # a probe's answer: any late ok came before it
-            if self._answers_owed:
+            self.late_oks = 0  # a probe's answer: any late ok came before it
+            if self.answers_owed:
                 # the answer of a probe acknowledged with the one before it: the printer
                 # has answered up to that probe now, and no line after it
-                del self._answers_owed[0]
+                del self.answers_owed[0]
                 # taken for the owed answer, it may have been the probe's in flight (the
                 # older answer was withheld): if nothing follows, ask again soon
                 self.doubt = any(e.probe for e in self.window)
                 return
-        elif self._answers_owed:
-            self._answers_owed = []  # answers come in order: those owed came (or were lost)
-        if not probe_answer and self._late_oks:
-            self._late_oks -= 1
+        elif self.answers_owed:
+            self.answers_owed = []  # answers come in order: those owed came (or were lost)
+        if not probe_answer and self.late_oks:
+            self.late_oks -= 1
             return
         if response.queue_free is not None:
             self.advanced_ok = True
-            if self.config.learn_bufsize and response.queue_free + 1 > self.window.max_lines:
+            if self.core.config.learn_bufsize and response.queue_free + 1 > self.window.max_lines:
                 grown = self.window.limit >= self.window.max_lines
                 self.window.max_lines = response.queue_free + 1
                 if grown:
                     self.window.limit = self.window.max_lines
         # oks are counted in order; an advanced ok's N is not trusted to name the line it
         # acknowledges (firmwares print the last line received or the one executed)
-        if self.renumber is not None:
+        if self.core.writer.renumber is not None:
             # the M110 numbers itself apart (a reset's M110 reuses the last line's number)
             done = self._ack_probe() if probe_answer else self.window.ack_one()
         else:
@@ -88,11 +105,11 @@ class Acknowledging(CoreFields):
         if not done:
             return
         self.doubt = False
-        last = self.next_number - 1
+        last = self.core.writer.next_number - 1
         for entry in done:
             if entry.probe and entry.number == last:
-                self.fenced = True  # (a firmware that answers M105 without temperatures too)
-        if self.replay_next is None:
+                self.core.writer.fence()  # (a firmware that answers M105 without temperatures too)
+        if self.core.writer.replay_next is None:
             self.window.grow()
         for entry in done:
             self.acknowledged(entry)
@@ -114,7 +131,7 @@ class Acknowledging(CoreFields):
                       and e.number is not None and e.number > held[0]), None)
         if later is None:
             return None
-        history = self.history
+        history = self.core.writer.history
         if any(not _is_probe_line(history.get(n)) for n in
                range(self.last_acked_number + 1, later)):
             return None
@@ -127,7 +144,7 @@ class Acknowledging(CoreFields):
         first = next((k for k, e in enumerate(done) if _is_probe_line((e.command, True))),
                      None)
         if first is not None:
-            self._answers_owed = [e.number for e in done[first + 1:] if e.number is not None]
+            self.answers_owed = [e.number for e in done[first + 1:] if e.number is not None]
         return done
 
     def _ack_by_count(self, probe_answer: bool) -> list[InFlight]:
@@ -150,32 +167,32 @@ class Acknowledging(CoreFields):
         ok lost or an extra one read) the window's order decides, as before; a probe's
         answer sets the count right.
         """
-        history = self.history
+        history = self.core.writer.history
         oldest = self.window.oldest()
         if oldest is not None and oldest.number is None and not probe_answer:
             return self.window.ack_one()  # a line written out of band, every one before done
         number = self.last_acked_number + 1
-        if self._oks_lost:
+        if self.oks_lost:
             # the port was cut: oks of lines run meanwhile are lost, so the count is behind
             # by an unknown number; the window's order decides (refusals naming the last
             # line held drop the copies of those lines) until it meets the count again
             done = self._ack_probe() if probe_answer else self.window.ack_one()
             if any(e.number is not None and e.number >= number for e in done):
-                self._oks_lost = False
+                self.oks_lost = False
             return done
         if probe_answer:
-            while number < self.next_number and not _is_probe_line(history.get(number)):
+            while number < self.core.writer.next_number and not _is_probe_line(history.get(number)):
                 number += 1
-            if number >= self.next_number:
+            if number >= self.core.writer.next_number:
                 return self._ack_probe()
             ahead: list[int] = []
-            while number + 1 < self.next_number \
+            while number + 1 < self.core.writer.next_number \
                     and _is_probe_line(history.get(number + 1), internal=True):
                 number += 1
                 ahead.append(number)
-            self._answers_owed = ahead
+            self.answers_owed = ahead
         held = history.get(number)
-        if held is None or number >= self.next_number:
+        if held is None or number >= self.core.writer.next_number:
             return self._ack_probe() if probe_answer else self.window.ack_one()
         done = self.window.ack_upto(number)
         if len(done) == 1 and done[0].number == number:
@@ -194,8 +211,8 @@ class Acknowledging(CoreFields):
         (``last_acked_number``, ``_emitted_through``) end as the new numbering sets them.
         """
         number = entry.number
-        repeated = number is not None and number <= self._emitted_through
-        if number is not None and not repeated and number > self._emitted_through + 1:
+        repeated = number is not None and number <= self.emitted_through
+        if number is not None and not repeated and number > self.emitted_through + 1:
             self._catch_up(number)
         if number is not None:
             if number > self.last_acked_number:
@@ -203,32 +220,87 @@ class Acknowledging(CoreFields):
             if number > self.model.held:
                 self.model.held = number  # (PrinterModel.holds, inline: once per line)
             if not repeated:
-                self._emitted_through = number
+                self.emitted_through = number
         token = entry.token
         if number is not None:
             # a line replayed after a refusal or reset is a new entry: its waiter is by number
-            token = self._waiters.pop(number, token)
+            token = self.waiters.pop(number, token)
         job = not entry.internal and not repeated  # not again when replayed after a refusal
         if job:
             self.acked += 1
         if job or token is not None:
-            self._events.append(Acked(number if number is not None else -1, entry.command,
+            self.core.emit(Acked(number if number is not None else -1, entry.command,
                                       job, token))
-        if self._completes_renumber(entry):
-            self._finish_renumber()
+        if self.core.writer.completes_renumber(entry):
+            self.core.finish_renumber()
 
     def _catch_up(self, number: int) -> None:
         """Line ``number`` is done, so is every line before it (the printer runs them in
         order): acknowledge those not yet acknowledged (their own oks were counted for
         copies written again, or for lines the printer refused)."""
-        for earlier in range(self._emitted_through + 1, number):
-            held = self.history.get(earlier)
+        for earlier in range(self.emitted_through + 1, number):
+            held = self.core.writer.history.get(earlier)
             if held is None:
                 continue
             command, internal = held
-            token = self._waiters.pop(earlier, None)
+            token = self.waiters.pop(earlier, None)
             if not internal:
                 self.acked += 1
             if not internal or token is not None:
-                self._events.append(Acked(earlier, command, not internal, token))
-        self._emitted_through = max(self._emitted_through, number - 1)
+                self.core.emit(Acked(earlier, command, not internal, token))
+        self.emitted_through = max(self.emitted_through, number - 1)
+
+    def remember_waiter(self, number: int, token: int) -> None:
+        """A control line's waiter, found again by number when the line is replayed."""
+        self.waiters[number] = token
+
+    def resolve_by_probe(self) -> None:
+        """A probe asked after a refusal: no job line until it is answered."""
+        self.resolving = True
+
+    def resolved(self) -> None:
+        """The refusal's probe was answered (or taken back)."""
+        self.resolving = False
+
+    def suspect(self, doubt: bool) -> None:
+        """Whether an answer just taken may have been another's (probe soon if silent)."""
+        self.doubt = doubt
+
+    def forget_owed(self) -> None:
+        """Answers owed to probes will not come (withheld through a long silence)."""
+        self.answers_owed = []
+
+    def take_back(self, number: int) -> None:
+        """The printer holds every line before ``number`` and none from it: the
+        acknowledgements counted past it were for lines it refused."""
+        self.last_acked_number = number - 1
+        self.drop_owed_from(number)
+
+    def drop_owed_from(self, number: int) -> None:
+        """Probes from ``number`` on are written again: their copies' answers are counted."""
+        self.answers_owed = [n for n in self.answers_owed if n < number]
+
+    def renumbered(self, value: int, fresh: bool, late_oks: int) -> None:
+        """An ``M110`` set the last line to ``value``; ``fresh``: numbering restarts (no
+        line kept to replay); ``late_oks``: oks of earlier writes of it still to come."""
+        if fresh:
+            self.emitted_through = value
+        self.last_acked_number = value
+        self.oks_lost = False  # the count restarts from the M110
+        # an M110 written again after silence may have its first ok still to come, before
+        # any ok of the lines that follow: those oks are not counted for them
+        self.late_oks = min(late_oks, MAX_LATE_OKS)
+
+    def forget_in_flight(self, cut: bool) -> None:
+        """What was in flight is gone (a reset, or the port ``cut``: then the oks of lines
+        run meanwhile are lost and the count follows the window's order)."""
+        self.resolving = False
+        self.doubt = False
+        self.late_oks = 0
+        self.answers_owed = []
+        if cut:
+            self.oks_lost = True
+
+    def forget_waiters(self) -> None:
+        """The link failed: nobody waits for a replayed line any more."""
+        self.waiters.clear()

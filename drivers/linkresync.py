@@ -1,21 +1,36 @@
-"""The protocol core's answer to refusals: which line to replay from, once per refusal."""
+"""The protocol core's answer to refusals: which line to replay from, once per refusal.
+
+:class:`Resync` owns what it counts of the requests themselves (a request not announced
+by an ``Error``, one for an implausible line, awaiting confirmation by repetition); the
+model of the printer's line bookkeeping it reasons on (:mod:`drivers.linkmodel`) is the
+core's, shared with the writer and the counter. The core
+(:class:`~drivers.linkcore.LinkCore`) holds it.
+"""
 
 from __future__ import annotations
 
-from drivers.linkfields import CoreFields
+from typing import TYPE_CHECKING
+
 from drivers.resend import resolve_resend
 from drivers.responses import Response
 
+if TYPE_CHECKING:  # the core holds the resync; the resync asks it (one-way at run time)
+    from drivers.linkcore import LinkCore
 
-class Resync(CoreFields):
-    """Mixin of :class:`~drivers.linkcore.LinkCore`: resend requests and refusals."""
 
-    def init_resync(self) -> None:
+class Resync:
+    """Resend requests and refusals (see the module docstring)."""
+
+    def __init__(self, core: LinkCore) -> None:
         """No request seen yet."""
+        self.core = core
+        self.window = core.window
+        self.model = core.model
+        self.stats = core.stats
         self._unconfirmed: tuple[int, int] = (-1, 0)
         self._implausible: tuple[str, int] = ("", 0)
 
-    def clear_resync(self) -> None:
+    def clear(self) -> None:
         """No replay under way and no refusal expected (reset, renumbering, link cut)."""
         self.model.settled()
 
@@ -35,15 +50,16 @@ class Resync(CoreFields):
         """
         error_line = error_before.line if error_before is not None else None
         self.stats.resends += 1
-        if self.renumber is not None:
+        if self.core.writer.renumber is not None:
             self._refused_during_renumber(error_before)
             return
         # a probe acknowledged ahead of its answer (owed) may still be refused: the
         # printer can ask for it (left out, a request for it was read as a garbled one
         # for the line after, refused by number in a loop that only a reset ended)
-        low = min([*self.window.numbers(), *self._answers_owed, self.last_acked_number + 1,
-                   self.next_number])
-        candidates = range(low, self.next_number + 1)
+        acks, writer = self.core.acks, self.core.writer
+        low = min([*self.window.numbers(), *acks.answers_owed, acks.last_acked_number + 1,
+                   writer.next_number])
+        candidates = range(low, writer.next_number + 1)
         number = resolve_resend(response.digits, candidates, error_line)
         if number is None:
             number = self._repeated_implausible(response, error_line)
@@ -53,7 +69,7 @@ class Resync(CoreFields):
         self._implausible = ("", 0)
         if error_before is None and not self._confirm_unannounced(number):
             return
-        if number <= self.last_acked_number:
+        if number <= self.core.acks.last_acked_number:
             if implied:
                 # only the Error's Last Line names it (its Resend lost): a digit of it
                 # changed by noise ("Last Line: 3?" for 35) would take back every
@@ -61,24 +77,23 @@ class Resync(CoreFields):
                 # the next line too, with a Resend that says
                 self.stats.implausible_resends += 1
                 return
-            far = self.last_acked_number - number > self.window.max_lines + 4
+            far = self.core.acks.last_acked_number - number > self.window.max_lines + 4
             lost = error_line == 0 and number == 1 and not implied
-            if number not in self.history or (far and number == 1) or lost:
+            if number not in self.core.writer.history or (far and number == 1) or lost:
                 # the printer lost its line number (a reset whose banner was lost, or a
                 # firmware that prints none: "Last Line: 0" only a reset or M110 gives)
-                self.on_reset()
+                self.core.on_reset()
                 return
             # oks counted for lines the printer refused (a mangled line it answered as an
             # unknown command, noise on the oks): it holds every line before `number` and
             # none from it, so take the acknowledgements back and replay; a renumbering
             # to the last line acknowledged would skip the lines it never took
-            self.last_acked_number = number - 1
-            self._answers_owed = [n for n in self._answers_owed if n < number]
-            if not self.stopping:
+            self.core.acks.take_back(number)
+            if not self.core.stopping:
                 # the lines it names may have been taken after all (the request came late),
                 # and a firmware that drops a repeated line silently answers their copies
                 # with nothing: a probe after the replay says where the printer is
-                self.resolving = True
+                self.core.acks.resolve_by_probe()
                 self._ask_probe()
         model = self.model
         if error_line is not None:
@@ -86,8 +101,8 @@ class Resync(CoreFields):
         # two lines agreeing (the Error's Last Line and the Resend's number, as received)
         confirmed = (not implied and error_line is not None and error_line + 1 == number
                      and response.digits == str(number))
-        if confirmed and error_line is not None and error_line > self.last_acked_number \
-                and self.window.release(error_line) and not self.stopping:
+        if confirmed and error_line is not None and error_line > self.core.acks.last_acked_number \
+                and self.window.release(error_line) and not self.core.stopping:
             # the printer has read the lines up to its Last Line: they leave its receive
             # buffer (and the window), but whether their oks come is the firmware's choice
             # (an emulation answers the refused next line with the only ok the last line
@@ -95,7 +110,7 @@ class Resync(CoreFields):
             # silence for one. Until it is answered no job line goes out: with nothing but
             # the probe after them, its ok T: is the first answer past those lines, and
             # acknowledges them however many oks the firmware gave them
-            self.resolving = True
+            self.core.acks.resolve_by_probe()
             self._ask_probe()
         if confirmed and error_line is not None and model.explains(error_line) \
                 and model.refused != number and not self._refuses_oldest(number):
@@ -122,9 +137,9 @@ class Resync(CoreFields):
             # (drained behind a copy's refusal): if the printer goes quiet, a probe soon
             # (refused, it asks for ``number`` with no echo left) rather than after the
             # full silence
-            self.doubt = number in self.window.numbers()
+            self.core.acks.suspect(number in self.window.numbers())
             return
-        if number >= self.next_number:
+        if number >= self.core.writer.next_number:
             return  # the printer has every line sent: nothing to replay
         self.replay_from(number)
 
@@ -133,10 +148,10 @@ class Resync(CoreFields):
         write them again from there, with a narrower window."""
         self.window.shrink()
         # probes from the refused line on are replayed: their copies' answers are counted
-        self._answers_owed = [n for n in self._answers_owed if n < number]
+        self.core.acks.drop_owed_from(number)
         dropped = self.window.drop_from(number)
-        self.model.replaying(number, len(dropped) - 1, top=self.next_number - 1)
-        self.replay_next = number
+        self.model.replaying(number, len(dropped) - 1, top=self.core.writer.next_number - 1)
+        self.core.writer.replay_at(number)
 
     def _refuses_oldest(self, number: int) -> bool:
         """True when a refusal asking for ``number`` can only be that of the oldest line in
@@ -156,10 +171,10 @@ class Resync(CoreFields):
     def _ask_probe(self) -> None:
         """An ``M105`` as the next line the link adds, unless one is already out or
         queued: its ``ok T:`` acknowledges every line before it."""
-        if any(c.probe for c in self.control) or any(
+        if any(c.probe for c in self.core.writer.control) or any(
                 e.probe for e in self.window if not e.held and not e.copy):
             return
-        self.queue_control("M105", internal=True, probe=True, front=True)
+        self.core.writer.queue_control("M105", internal=True, probe=True, front=True)
 
     def _resync(self, number: int) -> None:
         """A refusal whose ``Last Line`` is past the replay's start: the printer took those
@@ -177,13 +192,10 @@ class Resync(CoreFields):
         model.advanced(number, max(0, out - 1) + 1)
         self.window.drop_copy(number - 1)
         self.stats.duplicate_resends += 1
-        if self.replay_next is not None and self.replay_next < number:
-            self.replay_next = number if number < self.next_number else None
-            if self.replay_next is None:
-                self.force_replay = False
+        self.core.writer.skip_replay_to(number)
 
     def _refused_during_renumber(self, error_before: Response | None) -> None:
-        renumber = self.renumber
+        renumber = self.core.writer.renumber
         assert renumber is not None  # called while renumbering
         if renumber.writes:
             renumber.refusals += 1
@@ -217,11 +229,11 @@ class Resync(CoreFields):
         count = count + 1 if digits == response.digits else 1
         self._implausible = (response.digits, count)
         number = response.line
-        if number is None or number > self.next_number:
+        if number is None or number > self.core.writer.next_number:
             return None
         confirmed = error_line is not None and error_line + 1 == number
         if count >= 3 or confirmed:
             self._implausible = ("", 0)
-            if number <= self.last_acked_number or number in self.history:
+            if number <= self.core.acks.last_acked_number or number in self.core.writer.history:
                 return number
         return None

@@ -1,13 +1,22 @@
-"""The protocol core's writing half: which line goes out next, if the window allows one."""
+"""The protocol core's writer: which line goes out next, if the window allows one.
+
+:class:`LinkWriter` owns what is queued (job lines, the link's own lines), the line
+numbering (the next number, the lines kept for resends, an ``M110`` in progress) and the
+replay after a refusal. The core (:class:`~drivers.linkcore.LinkCore`) holds it.
+"""
 
 from __future__ import annotations
 
+from collections import deque
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
-from drivers.linkevents import STOPPED, LinkState, Written
-from drivers.linkfields import CoreFields
+from drivers.linkevents import STOPPED, Written
 from drivers.protocol import frame
 from drivers.window import InFlight
+
+if TYPE_CHECKING:  # the core holds the writer; the writer asks it (one-way at run time)
+    from drivers.linkcore import LinkCore
 
 
 @dataclass
@@ -46,12 +55,24 @@ class Control:
     token: int | None = None
 
 
-class Writing(CoreFields):
-    """Mixin of :class:`~drivers.linkcore.LinkCore`: the writer's decisions."""
+class LinkWriter:
+    """The writer's decisions and the fields they rest on (see the module docstring)."""
 
-    force_replay = False  # a probe is due: one replayed line passes the window
-    fenced = False  # a probe written after every other line has been answered
-    _framed: tuple[int, str, bytes] | None = None  # the next job line, framed
+    def __init__(self, core: LinkCore) -> None:
+        """Nothing queued, numbering from 1."""
+        self.core = core
+        self.window = core.window
+        self.model = core.model
+        self.stats = core.stats
+        self.pending: deque[tuple[str, int]] = deque()  # job lines: command, token
+        self.control: deque[Control] = deque()  # the link's or the user's own lines
+        self.next_number = 1
+        self.history: dict[int, tuple[str, bool]] = {}  # number -> (command, internal)
+        self.renumber: Renumber | None = None  # an M110 in progress
+        self.replay_next: int | None = None  # the next line a replay writes again
+        self.force_replay = False  # a probe is due: one replayed line passes the window
+        self.fenced = False  # a probe written after every other line has been answered
+        self._framed: tuple[int, str, bytes] | None = None  # the next job line, framed
 
     def queue_job(self, command: str, token: int) -> None:
         """A job command to write after those already queued; ``Written`` tells its number."""
@@ -74,7 +95,7 @@ class Writing(CoreFields):
 
     def next_bytes(self, now: float) -> bytes | None:
         """The next line to write now (recorded as written), or ``None``."""
-        if self.state in STOPPED:
+        if self.core.state in STOPPED:
             return None
         out = self._next_line(now)
         if out is None:
@@ -93,13 +114,14 @@ class Writing(CoreFields):
             return self._next_replay_line(now)
         if self.control:
             return self._next_control_line(now)
-        if self.resolving and not any(c.probe for c in self.control) \
+        if self.core.acks.resolving and not any(c.probe for c in self.control) \
                 and not any(e.probe for e in self.window):
-            self.resolving = False  # the probe was answered (or taken back) meanwhile
-        if self.pending and not self.paused and not self.cancelled and not self.stopping \
-                and not self.resolving:
+            self.core.acks.resolved()  # the probe was answered (or taken back) meanwhile
+        core = self.core
+        if self.pending and not core.paused and not core.cancelled and not core.stopping \
+                and not core.acks.resolving:
             number = self.next_number
-            if number >= self.config.renumber_at:
+            if number >= self.core.config.renumber_at:
                 if len(self.window):
                     # drain first, outside the renumbering: until the M110 is written the
                     # printer keeps the old numbers, and a probe must recover a lost ok
@@ -129,8 +151,8 @@ class Writing(CoreFields):
             self.next_number = number + 1
             history = self.history
             history[number] = (command, False)
-            history.pop(number - self.config.history, None)
-            self._events.append(Written(token, number))
+            history.pop(number - self.core.config.history, None)
+            self.core.emit(Written(token, number))
             return data, InFlight(number, command, len(data))
         return None
 
@@ -142,7 +164,7 @@ class Writing(CoreFields):
             return self._next_control_line(now)
         if renumber.sent or len(self.window):
             return None
-        if renumber.quiet and now - self.last_rx < self.config.resync_quiet_s:
+        if renumber.quiet and now - self.core.watchdog.last_rx < self.core.config.resync_quiet_s:
             return None  # let replies to lines sent before the reset arrive first
         command = f"M110 N{renumber.value}"
         data = frame(renumber.line, command)
@@ -158,14 +180,14 @@ class Writing(CoreFields):
             return self._next_control_line(now)
         held = self.history.get(number)
         if held is None:
-            self.fail(f"printer asked for line {number}, which is no longer held")
+            self.core.fail(f"printer asked for line {number}, which is no longer held")
             return None
         command, internal = held
         data = frame(number, command)
         if not self.window.has_room(len(data)):
             if not self.force_replay:
                 return None
-            if not self.may_force(len(data), now):
+            if not self.core.watchdog.may_force(len(data), now):
                 return None  # not into a full receive buffer (or later: see may_force)
             # a probe is due and the window looks full (an ok lost: the count stays a line
             # behind; or the printer is slow, and its receive buffer is full): one line
@@ -189,7 +211,7 @@ class Writing(CoreFields):
         if not self.window.has_room(len(data)):
             if not control.force:
                 return None
-            if not self.may_force(len(data), now):
+            if not self.core.watchdog.may_force(len(data), now):
                 # into a receive buffer the model says full only as the silence doubles: an
                 # overrun merged a probe with the next line (checksum still matching), and
                 # cut an M112 short, to be asked for again only if more lines came
@@ -197,7 +219,7 @@ class Writing(CoreFields):
         self.control.popleft()
         number = self._assign(control.command, internal=control.internal)
         if control.token is not None:
-            self.remember_waiter(number, control.token)
+            self.core.acks.remember_waiter(number, control.token)
         return data, InFlight(number, control.command, len(data), internal=control.internal,
                               probe=control.probe, token=control.token)
 
@@ -206,58 +228,89 @@ class Writing(CoreFields):
         number = self.next_number
         self.next_number += 1
         self.history[number] = (command, internal)
-        self.history.pop(number - self.config.history, None)
+        self.history.pop(number - self.core.config.history, None)
         return number
 
-    def emergency(self, command: str) -> list[int]:
-        """``command`` (``M112``, ``M108``, ``M410``) as the very next line, past the line
-        window and any replay, into the first room in the printer's receive buffer.
+    # -- what the other parts of the core ask of the writer --------------------------------
 
-        ``M112`` also ends the job: the job lines not yet written are dropped (their
-        tokens returned, for the shell to fail) and none is written after it; the link
-        still answers the printer's resend requests, so an ``M112`` refused is sent again.
-        """
-        self.queue_control(command, internal=False, force=True, front=True)
-        if command != "M112":
-            return []
+    def drop_all(self) -> None:
+        """Forget every queued line (the link failed)."""
+        self.pending.clear()
+        self.control.clear()
+
+    def begin_renumber(self, renumber: Renumber) -> None:
+        """An ``M110`` to write once nothing else is in flight."""
+        self.renumber = renumber
+
+    def completes_renumber(self, entry: InFlight) -> bool:
+        """Whether ``entry``, acknowledged, is the ``M110`` in progress."""
+        renumber = self.renumber
+        return (renumber is not None and renumber.sent and entry.number == renumber.line
+                and entry.command.startswith("M110"))
+
+    def end_renumber(self, value: int, keep_history: bool) -> bool:
+        """The printer took the ``M110`` setting its last line to ``value``: replay the
+        lines kept after it (``keep_history``), or number afresh from ``value + 1`` (then
+        True: the numbering restarts)."""
+        self.renumber = None
+        if keep_history and value + 1 < self.next_number:
+            self.replay_next = value + 1
+            return False
+        self.history.clear()
+        self.next_number = value + 1
         self.replay_next = None
         self.force_replay = False
-        self.stopping = True
-        return self.drop_pending()
+        return True
 
-    def out_of_band(self, command: str) -> None:
-        """``command`` was written unnumbered, straight after the lines already written
-        (``M108`` or ``M410`` to an emergency parser). Marlin acts on it at once and still
-        queues it, answering ``ok`` in its place in the stream: it is in flight like the
-        lines before it. Uncounted, its ``ok`` acknowledged the next line before the
-        printer had run it."""
-        self.window.push(InFlight(None, command, len(command) + 1, internal=True))
+    def write_renumber_again(self) -> None:
+        """The ``M110`` went unanswered: it is idempotent, write it again."""
+        assert self.renumber is not None
+        self.window.clear()
+        self.renumber.sent = False
 
-    def pause(self, park: list[str]) -> None:
-        """Stop job lines after those written; ``park`` lines go out first."""
-        self.paused = True
-        if self.state == LinkState.READY:
-            self.state = LinkState.PAUSED
-        for command in park:
-            self.queue_control(command, internal=False)
+    def forget_in_flight(self) -> None:
+        """What was in flight is gone: no replay, an ``M110`` in progress written anew."""
+        self.stop_replay()
+        renumber = self.renumber
+        if renumber is not None:
+            renumber.sent = False
+            renumber.writes = renumber.refusals = 0
 
-    def resume(self) -> None:
-        """Job lines flow again."""
-        self.paused = False
-        if self.state == LinkState.PAUSED:
-            self.state = LinkState.READY
+    def replay_at(self, number: int) -> None:
+        """Write the lines from ``number`` again, after those in flight."""
+        self.replay_next = number
 
-    def cancel(self, end_gcode: list[str]) -> list[int]:
-        """Refuse job lines; ``end_gcode`` after what is in flight. Tokens dropped."""
-        self.cancelled = True
-        self.paused = False
-        tokens = self.drop_pending()
-        for command in end_gcode:
-            self.queue_control(command, internal=False)
-        return tokens
+    def skip_replay_to(self, number: int) -> None:
+        """The printer holds every line before ``number``: a replay under way skips them."""
+        if self.replay_next is not None and self.replay_next < number:
+            self.replay_next = number if number < self.next_number else None
+            if self.replay_next is None:
+                self.force_replay = False
 
-    def begin_job(self) -> None:
-        """Accept job lines again after ``cancel``."""
-        self.cancelled = False
-        if self.state == LinkState.CANCELLED:
-            self.state = LinkState.READY
+    def stop_replay(self) -> None:
+        """No replay under way (what was in flight is gone, or an ``M112`` goes first)."""
+        self.replay_next = None
+        self.force_replay = False
+
+    def urge_probe(self) -> None:
+        """A probe is due: the replay's next line may pass the window (as the probe would),
+        and the probe goes out past it, ahead of the lines waiting for room (see
+        :meth:`~drivers.linkwatch.Watchdog.probe`)."""
+        if self.replay_next is not None:
+            self.force_replay = True
+        queued = next((c for c in self.control if c.probe), None)
+        if queued is None:
+            queued = Control("M105", internal=True, probe=True, force=True)
+        else:
+            queued.force = True
+            self.control.remove(queued)
+        # ahead of the lines waiting for room in the window (park or end G-code, a user's
+        # command): when the count holds room the printer has freed (oks lost), only a
+        # probe's answer frees it, and a probe behind them was never written (the link
+        # then declared a printer that answered every line dead)
+        at = next((k for k, c in enumerate(self.control) if not c.force), len(self.control))
+        self.control.insert(at, queued)
+
+    def fence(self) -> None:
+        """A probe written after every other line was answered: every line is taken."""
+        self.fenced = True

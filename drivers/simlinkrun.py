@@ -129,7 +129,7 @@ def run_core(
                 raise RuntimeError(f"link failed: {event.reason}")
 
     total = len(lines)
-    queue_job, next_bytes, pending = core.queue_job, core.next_bytes, core.pending
+    queue_job, next_bytes, pending = core.queue_job, core.next_bytes, core.writer.pending
 
     def pump() -> None:
         if phase["streaming"]:
@@ -147,8 +147,9 @@ def run_core(
                 if now - gaps[0] > gaps[1] and gaps[0] > 0.0:
                     gaps[1] = now - gaps[0]
                 gaps[0] = now
-        if core._events:
-            handle(core.take_events())
+        events = core.take_events()
+        if events:
+            handle(events)
 
     def on_line(text: str) -> None:
         events = core.feed(text, clock.now)

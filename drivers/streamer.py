@@ -18,13 +18,12 @@ from drivers.linkconfig import (
     PAUSED,
     READY,
     RECONNECTING,
-    LinkError,
-    StreamCancelled,
     StreamerConfig,
     StreamStats,
 )
 from drivers.linkconnect import Connecting
 from drivers.linkcore import LinkCore
+from drivers.linkerrors import LinkError, PrinterLinkError, StreamCancelled, TransportError
 from drivers.linkevents import (
     Acked,
     Event,
@@ -41,7 +40,7 @@ from drivers.linkwaiters import Waiters
 from drivers.motionreport import PrinterMotion
 from drivers.protocol import Response
 from drivers.tasks import cancel_and_wait
-from drivers.transport import Transport, TransportError
+from drivers.transport import Transport
 
 __all__ = [
     "CANCELLED",
@@ -57,10 +56,12 @@ __all__ = [
     "AckChannel",
     "LinkError",
     "LinkState",
+    "PrinterLinkError",
     "StreamCancelled",
     "StreamStats",
     "Streamer",
     "StreamerConfig",
+    "TransportError",
 ]
 
 KILL_REPLY_S = 1.0  # an emergency stop out of band waits this long for the halt report
@@ -189,8 +190,7 @@ class Streamer(Connecting):
         self._tags.clear()
         self._progress.set()
         await self._transport.close()
-        if self.core.alive():
-            self.core.state = LinkState.DISCONNECTED
+        self.core.closed()
 
     # -- public API -----------------------------------------------------------------------
 
@@ -276,8 +276,7 @@ class Streamer(Connecting):
         self._wake.set()
         if settle:
             await self.drain()
-        if self.core.alive():
-            self.core.state = LinkState.CANCELLED
+        self.core.cancel_done()
 
     def begin_job(self) -> None:
         """Accept job lines again after ``cancel()`` (the link itself stays connected)."""

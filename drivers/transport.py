@@ -11,11 +11,9 @@ from types import TracebackType
 
 import serial
 
+from drivers.linkerrors import TransportError
+
 _READ_CHUNK = 4096
-
-
-class TransportError(ConnectionError):
-    """The port could not be opened, vanished, or failed while reading or writing."""
 
 
 class Transport:
@@ -48,6 +46,11 @@ class Transport:
     def name(self) -> str:
         """The port this transport was opened on."""
         return str(self._port.port)
+
+    @property
+    def baud(self) -> int:
+        """The speed the port was opened at (bits per second)."""
+        return int(getattr(self._port, "baudrate", 250000))
 
     @property
     def is_open(self) -> bool:

@@ -123,7 +123,7 @@ def test_the_ok_of_a_line_taken_after_a_spurious_refusal_is_its_own_not_a_copys(
     core.feed("ok", 0.05)
     acked = [e.number for e in core.feed("ok", 0.06) if isinstance(e, Acked)]  # 4 ran
     assert acked == [4]
-    assert core.last_acked_number == 4
+    assert core.acks.last_acked_number == 4
 
 
 PROBE_ANSWER = "ok T:20.00 /0.00 B:20.00 /0.00 @:0 B@:0"
@@ -172,7 +172,7 @@ def test_a_probe_acknowledged_ahead_of_its_answer_then_refused_is_replayed():
     core = connected_core(LINK)
     for i in range(30):
         core.queue_job(f"G1 X{i}", 10 + i)
-    while core.last_acked_number < 12:
+    while core.acks.last_acked_number < 12:
         for _ in _write_all(core, 0.01):
             core.feed("ok", 0.02)
     assert _write_all(core, 0.02) == [13, 14, 15, 16]
@@ -187,7 +187,7 @@ def test_a_probe_acknowledged_ahead_of_its_answer_then_refused_is_replayed():
     core.feed(f"Error:{ERR_CHECKSUM}17", 0.15)
     core.feed("Resend: 18", 0.15)
     core.feed("ok", 0.15)
-    assert core.last_acked_number == 17  # 18's acknowledgement taken back
+    assert core.acks.last_acked_number == 17  # 18's acknowledgement taken back
     assert _write_all(core, 0.15)[:2] == [18, 19]  # 18 replayed, then the rest
 
 
@@ -207,9 +207,9 @@ def test_a_boot_fragment_run_as_an_unknown_command_while_renumbering_answers_not
     assert core.next_bytes(0.05) == frame(1, "M110 N1")
     core.feed(f'echo:Unknown command: "{echo}"', 0.06)
     core.feed("ok", 0.06)
-    assert core.renumber is not None  # that ok was the fragment's
+    assert core.writer.renumber is not None  # that ok was the fragment's
     core.feed("ok", 0.07)
-    assert core.renumber is None
+    assert core.writer.renumber is None
     assert _write_all(core, 0.07)[:1] == [2]
     assert _acked(core.feed("ok", 0.08)) == [2]
 
@@ -249,13 +249,13 @@ def test_a_line_110_run_as_an_unknown_command_is_not_taken_for_an_m110():
     core = connected_core(LINK)
     for i in range(130):
         core.queue_job(f"G1 X{i}", 10 + i)
-    while core.last_acked_number < 109:
+    while core.acks.last_acked_number < 109:
         _write_all(core, 0.01)
         core.feed("ok", 0.02)
     assert core.window.numbers()[0] == 110
     core.feed('echo:Unknown command: "^110 G1 X109"', 0.03)
     assert _acked(core.feed("ok", 0.03)) == []
-    assert core.last_acked_number == 109
+    assert core.acks.last_acked_number == 109
 
 
 def test_an_error_whose_last_line_noise_changed_takes_back_no_acknowledgement():
@@ -271,7 +271,7 @@ def test_an_error_whose_last_line_noise_changed_takes_back_no_acknowledgement():
     core.feed(f"Error:{ERR_CHECKSUM}1\x93", 0.03)
     core.feed("Resend: \x11", 0.03)
     core.feed("ok", 0.03)
-    assert core.last_acked_number == 2
+    assert core.acks.last_acked_number == 2
     assert 2 not in _write_all(core, 0.03)
 
 
@@ -289,7 +289,7 @@ def test_an_unknown_command_echo_garbled_still_marks_its_ok_as_nobodys():
         assert _acked(core.feed("ok", 0.02)) == [1]
         core.feed(echo, 0.02)
         assert _acked(core.feed("ok", 0.02)) == []
-        assert core.last_acked_number == 1
+        assert core.acks.last_acked_number == 1
 
 
 @pytest.mark.parametrize("echo", ['\x0e1r M110 N12', '\x0e12 M11\x10 N12'])
@@ -304,15 +304,15 @@ def test_an_m110_run_as_an_unknown_command_answers_its_write_once(echo):
     core.config = NO_OK_LINK
     for i in range(20):
         core.queue_job(f"G1 X{i}", 10 + i)
-    while core.last_acked_number < 12:
+    while core.acks.last_acked_number < 12:
         _write_all(core, 0.01)
         core.feed("ok", 0.02)
     core.feed("start", 0.03)  # lines 13... still in flight are lost
     core.tick(0.05)
-    assert core.next_bytes(0.05) == frame(core.renumber.line, "M110 N12")
+    assert core.next_bytes(0.05) == frame(core.writer.renumber.line, "M110 N12")
     core.feed(f'echo:Unknown command: "{echo}"', 0.06)
     core.feed("ok", 0.06)
-    assert core.renumber is None  # the M110's write answered: renumbered
+    assert core.writer.renumber is None  # the M110's write answered: renumbered
     assert _write_all(core, 0.07)[:1] == [13]
     assert _acked(core.feed("ok", 0.08)) == [13]  # the first line's ok is its own
 
@@ -537,7 +537,7 @@ def test_an_m112_waits_for_room_in_the_receive_buffer_and_no_job_line_follows_it
     assert core.next_bytes(t) is None
     core.feed("ok", t + 0.001)  # one line taken: room for the M112, and nothing after it
     assert _write_all(core, t + 0.001) == [written[-1] + 1]
-    assert core.history[written[-1] + 1] == ("M112", False)
+    assert core.writer.history[written[-1] + 1] == ("M112", False)
     assert core.window.bytes_in_flight <= LINK.rx_buffer
     core.queue_job("G1 X1", 99)  # the shell refuses these; the core would not write them
     core.feed("ok", t + 0.002)
@@ -585,10 +585,10 @@ def test_a_probe_passes_lines_waiting_for_room_when_the_oks_were_lost():
     assert _write_all(core, t) == []  # no room: the end G-code waits
     probes, t = _probe_after_silence(core, t)  # the oks are lost: silence
     assert probes == [in_flight[-1] + 1]
-    assert core.history[probes[0]] == ("M105", True)
+    assert core.writer.history[probes[0]] == ("M105", True)
     core.feed("ok T:20.0 /0.0 B:20.0 /0.0 @:0 B@:0", t)  # every line before it was done
-    assert [core.history[n][0] for n in _write_all(core, t)] == end
-    assert core.probes_unanswered == 0
+    assert [core.writer.history[n][0] for n in _write_all(core, t)] == end
+    assert core.watchdog.probes_unanswered == 0
 
 
 def test_an_out_of_band_m108_takes_its_own_ok_not_the_next_lines():
@@ -636,7 +636,7 @@ def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
     t = 0.01
     assert _write_all(core, t) == [1, 2, 3, 4]
     for _ in range(30):
-        t += LINK.probe_after_s * (core.probes_unanswered + 1)
+        t += LINK.probe_after_s * (core.watchdog.probes_unanswered + 1)
         core.tick(t)
         _write_all(core, t)
     # the probes of the silence, numbered (as many as the receive buffer holds, the lines
@@ -646,12 +646,12 @@ def test_a_probe_due_during_a_replay_lets_one_line_past_the_window():
     core.feed(f"Error:{ERR_CHECKSUM}4", t)
     core.feed("Resend: 5", t)
     core.feed("ok", t)
-    assert core.replay_next == 5
+    assert core.writer.replay_next == 5
     replayed: list[bytes] = []
     while (data := core.next_bytes(t)) is not None:
         replayed.append(data)
     for _ in range(3):  # silence again: probes due, each lets a receive buffer's worth out
-        t += LINK.probe_after_s * (core.probes_unanswered + 1)
+        t += LINK.probe_after_s * (core.watchdog.probes_unanswered + 1)
         core.tick(t)
         burst = []
         while (data := core.next_bytes(t)) is not None:

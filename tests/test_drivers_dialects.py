@@ -74,7 +74,7 @@ def test_a_request_for_the_next_line_not_yet_sent_goes_on_without_a_silence():
             taken.append(number)
             core.feed(PROBE_ANSWER if command == "M105" else "ok", t)
     assert taken == sorted(set(taken))  # each line once, in order
-    assert core.last_acked_number == taken[-1]
+    assert core.acks.last_acked_number == taken[-1]
     assert len(core.window) == 0
     assert core.stats.probes == 0  # no probe after silence: none was needed
 
@@ -111,8 +111,8 @@ def test_a_copy_of_a_line_the_printer_took_dropped_without_an_ok_ends_no_stream(
             last_n = number
             core.feed(PROBE_ANSWER if command == "M105" else "ok", t)
     # every job line went through on the printer's answers alone, no tick
-    assert not core.pending
-    assert core.last_acked_number == last_n == core.next_number - 1
+    assert not core.writer.pending
+    assert core.acks.last_acked_number == last_n == core.next_number - 1
     assert len(core.window) == 0
 
 
@@ -185,7 +185,7 @@ def test_a_probe_answer_after_a_held_probe_acknowledges_no_job_line_before_its_o
             acked = [e.number for e in core.feed("ok", t) if isinstance(e, Acked)]
             assert acked == [number]
         core.feed(PROBE_ANSWER, t)
-        assert core.last_acked_number == 7
+        assert core.acks.last_acked_number == 7
         assert len(core.window) == 0
         return
     # the board resets before running 4: they are written again after the M110

@@ -536,8 +536,8 @@ def test_emergency_stop_halts_the_printer_at_once(parser):
         # line written after it (out of band, the parser reads it even from an overrun)
         assert stats.rx_overflow_bytes == 0
         assert stats.errors == 0
-        stop_number = max(n for n, (cmd, _) in link.core.history.items() if cmd == "M112")
-        assert all(internal for n, (_, internal) in link.core.history.items()
+        stop_number = max(n for n, (cmd, _) in link.core.writer.history.items() if cmd == "M112")
+        assert all(internal for n, (_, internal) in link.core.writer.history.items()
                    if n > stop_number)
     body = job_lines(executed)
     stop = body.index("M112")

@@ -9,6 +9,7 @@ import tty
 import pytest
 from waiting import until
 
+from drivers.linkerrors import LinkError, PrinterLinkError, StreamCancelled
 from drivers.transport import TransportError, open_transport
 
 
@@ -114,3 +115,13 @@ def test_close_fails_pending_reads():
             os.close(master)
 
     asyncio.run(run())
+
+
+def test_link_errors_share_one_base() -> None:
+    """A caller catches any error of the printer link as one, and the port's failures
+    still as the ``ConnectionError`` (an ``OSError``) they are."""
+    for kind in (LinkError, TransportError, StreamCancelled):
+        assert issubclass(kind, PrinterLinkError)
+    assert issubclass(LinkError, OSError)
+    assert issubclass(TransportError, OSError)
+    assert not issubclass(StreamCancelled, OSError)
