@@ -35,6 +35,7 @@ from drivers.simconfig import SimulatorConfig  # noqa: E402
 from drivers.simulator import SimulatedPrinter  # noqa: E402
 from drivers.streamer import Streamer, StreamerConfig  # noqa: E402
 from drivers.transport import open_transport  # noqa: E402
+from hostd.joblife import JobLife  # noqa: E402
 from hostd.jobstore import JobStore  # noqa: E402
 from hostd.runner import JobRunner, open_output  # noqa: E402
 from hostd.schedule import LayerSchedule  # noqa: E402
@@ -97,7 +98,7 @@ async def print_once(plan: SlicePlan, settings: SliceSettings, folder: Path, del
             await link.connect()
             source = SlicedSource(LayerSchedule(plan, settings), 0, 3, executor, resume=False)
             output = open_output(folder / "out.gcode.part", 0)
-            runner = JobRunner(job, source, link, store, StatusHub(), output, 0,
+            runner = JobRunner(job, source, link, JobLife(store, StatusHub()), output, 0,
                                write_preamble=True)
             acked: list[float] = []
             on_ack = runner.on_ack

@@ -101,6 +101,7 @@ EVENTS = (
     "interrupted",
     "object_cancelled",
     "object_restored",
+    "retuned",
     "error",
     "repaired",
 )

@@ -11,40 +11,38 @@ and ``estimate {"settings": {...}}`` (see :mod:`hostd.layerview`);
 
 from __future__ import annotations
 
-import asyncio
 from collections.abc import Awaitable, Callable
 from typing import Any
 
-from hostd import layerview
+from hostd.activejob import ActiveJob
 from hostd.intake import Intake
 from hostd.joblife import JobLife
-from hostd.jobstate import ObjectCancelled, ObjectRestored
-from hostd.jobstore import JobStore, JobStoreError
-from hostd.printjob import PrintJob
-from hostd.status import CommandError, StatusHub
-from slicer.settings import SettingsError
+from hostd.jobstore import JobStoreError
+from hostd.status import CommandError
 
 
 class DaemonController:
     """Implements ``hostd.status.Controller`` for the daemon.
 
-    ``current`` returns the job being printed (or None); ``changed`` is called
-    after the queue or the set of interrupted jobs changed.
+    ``current`` returns the print in progress (its :class:`~hostd.activejob.ActiveJob`,
+    or None); ``changed`` is called after the queue or the set of interrupted jobs
+    changed. The controller reads the commands' arguments; what they do to the print
+    is the active job's (its methods), and to the queue the job store's and the
+    job's life's.
     """
 
     def __init__(
         self,
-        store: JobStore,
-        hub: StatusHub,
+        life: JobLife,
         intake: Intake,
-        current: Callable[[], PrintJob | None],
+        current: Callable[[], ActiveJob | None],
         changed: Callable[[], None],
         emergency_stop: Callable[[], Awaitable[bool]] | None = None,
     ) -> None:
         """``emergency_stop()`` sends ``M112`` to the printer; False when none is connected."""
-        self.store = store
-        self.hub = hub
-        self.life = JobLife(store, hub)
+        self.life = life
+        self.store = life.store
+        self.hub = life.hub
         self.intake = intake
         self.current = current
         self.changed = changed
@@ -60,9 +58,9 @@ class DaemonController:
         except JobStoreError as exc:
             raise CommandError(str(exc)) from exc
 
-    def _printing(self) -> PrintJob:
+    def _printing(self) -> ActiveJob:
         job = self.current()
-        if job is None or job.runner is None:
+        if job is None or not job.printing:
             raise CommandError("no job is printing")
         return job
 
@@ -71,21 +69,17 @@ class DaemonController:
 
     async def _cmd_pause(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
-        if job.runner.paused:
-            raise CommandError("already paused")
-        await job.runner.pause()
+        await job.pause()
         return {"job": job.job.id}
 
     async def _cmd_resume(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
-        if not job.runner.paused:
-            raise CommandError("not paused")
-        await job.runner.resume()
+        await job.resume()
         return {"job": job.job.id}
 
     async def _cmd_cancel(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
-        await job.runner.cancel()
+        await job.cancel()
         return {"job": job.job.id}
 
     async def _cmd_emergency_stop(self, args: dict[str, Any]) -> dict[str, Any]:
@@ -115,19 +109,7 @@ class DaemonController:
         raw = args.get("object", args.get("body"))
         if isinstance(raw, bool) or not isinstance(raw, int):
             raise CommandError("cancel_object needs \"object\": a body number from 0")
-        if job.schedule is None or job.source is None:
-            raise CommandError("a G-code job has no objects to cancel")
-        count = int(job.schedule.base_plan.body_count)
-        if not 0 <= raw < count:
-            raise CommandError(f"object {raw} does not exist: the model has {count} bodies")
-        if raw in job.schedule.excluded_at(job.schedule.layer_count):
-            raise CommandError(f"object {raw} is already cancelled")
-        if len(job.schedule.excluded_at(job.schedule.layer_count)) + 1 >= count:
-            raise CommandError("that would leave no object: cancel the job instead")
-        first = job.source.next_unsliced
-        job.schedule.cancel_body(raw, first)
-        self.store.record_cancelled_object(job.job.id, raw, first)
-        self.life.publish(ObjectCancelled(job.job.id, job.job.name, raw, first))
+        first = job.cancel_object(raw)
         return {"job": job.job.id, "object": raw, "from_layer": first}
 
     async def _cmd_restore_object(self, args: dict[str, Any]) -> dict[str, Any]:
@@ -135,35 +117,16 @@ class DaemonController:
         raw = args.get("object", args.get("body"))
         if isinstance(raw, bool) or not isinstance(raw, int):
             raise CommandError("restore_object needs \"object\": a body number from 0")
-        if job.schedule is None or job.source is None:
-            raise CommandError("a G-code job has no objects to restore")
-        found = [first for body, first in job.schedule.cancelled if body == raw]
-        if not found:
-            raise CommandError(f"object {raw} is not cancelled")
-        first = job.source.next_unsliced
-        if found[-1] < first:
-            raise CommandError(f"object {raw} is already left out of sliced layers (from layer "
-                               f"{found[-1] + 1} on): too late to bring it back")
-        job.schedule.cancelled = [item for item in job.schedule.cancelled if item[0] != raw]
-        self.store.forget_cancelled_object(job.job.id, raw)
-        self.life.publish(ObjectRestored(job.job.id, job.job.name, raw))
+        job.restore_object(raw)
         return {"job": job.job.id, "object": raw}
 
-    def _sliced(self) -> PrintJob:
-        job = self._printing()
-        if job.schedule is None or job.source is None:
-            raise CommandError("a G-code job has no toolpaths to show")
-        return job
-
     async def _cmd_layer(self, args: dict[str, Any]) -> dict[str, Any]:
-        job = self._sliced()
-        runner, schedule = job.runner, job.schedule
-        index = args.get("layer", min(runner.completed + 1, schedule.layer_count - 1))
-        if isinstance(index, bool) or not isinstance(index, int):
+        job = self._printing()
+        if job.schedule is None:
+            raise CommandError("a G-code job has no toolpaths to show")
+        index = args.get("layer")
+        if index is not None and (isinstance(index, bool) or not isinstance(index, int)):
             raise CommandError("layer needs \"layer\": a layer index from 0")
-        if not 0 <= index < schedule.layer_count:
-            raise CommandError(f"layer {index} does not exist: the job has layers "
-                               f"0..{schedule.layer_count - 1}")
         tolerance = args.get("tolerance", 0.2)
         field = args.get("field")
         if not isinstance(tolerance, int | float) or not 0 <= tolerance <= 50:
@@ -173,32 +136,17 @@ class DaemonController:
             and all(isinstance(v, int) and 0 < v <= 1000 for v in field)
         ):
             raise CommandError("\"field\" must be [columns, rows], each 1..1000")
-        stored = self.store.get(job.job.id)
-        held = job.source.held(index)  # the lines streamed or made ahead, when there are
-        reply = await asyncio.to_thread(
-            layerview.layer_view, schedule, index, float(tolerance),
-            tuple(field) if field else None, held,
-        )
-        reply["job"] = job.job.id
-        reply["acked_before"] = layerview.acked_before(schedule, runner, job.source, stored, index)
-        reply["next_unsliced"] = job.source.next_unsliced
-        return reply
+        shape = (field[0], field[1]) if field else None
+        return await job.layer_view(index, float(tolerance), shape)
 
     async def _cmd_estimate(self, args: dict[str, Any]) -> dict[str, Any]:
-        job = self._sliced()
+        job = self._printing()
+        if job.schedule is None:
+            raise CommandError("a G-code job has no toolpaths to show")
         changes = args.get("settings")
         if changes is not None and (not isinstance(changes, dict) or not changes):
             raise CommandError("estimate takes \"settings\": {KEY: VALUE, ...}")
-        status = job.runner.status()
-        try:
-            reply = await asyncio.to_thread(
-                layerview.estimate, job.schedule, job.runner.completed + 1,
-                job.source.next_unsliced, status.eta_s, changes,
-            )
-        except SettingsError as exc:
-            raise CommandError(str(exc)) from exc
-        reply["job"] = job.job.id
-        return reply
+        return await job.estimate(changes)
 
     async def _cmd_set(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
@@ -210,14 +158,7 @@ class DaemonController:
             changes = {_text(args, "key"): args["value"]}
         else:
             raise CommandError("set needs \"settings\" or \"key\" and \"value\"")
-        if job.schedule is None or job.source is None:
-            raise CommandError("a G-code job cannot be retuned")
-        first = job.source.next_unsliced
-        try:
-            job.schedule.retune(first, changes)
-        except SettingsError as exc:
-            raise CommandError(str(exc)) from exc
-        self.store.record_settings(job.job.id, first, changes)
+        first = job.retune(changes)
         return {"job": job.job.id, "from_layer": first, "settings": changes}
 
     async def _cmd_queue_move(self, args: dict[str, Any]) -> dict[str, Any]:

@@ -15,6 +15,7 @@ from pathlib import Path
 from drivers.backoff import Backoff, reconnect
 from drivers.responses import Response
 from drivers.streamer import HALTED, LinkError, Streamer
+from hostd.activejob import ActiveJob
 from hostd.addons import Addons
 from hostd.api import PrinterInfo, Snapshot, Temperature, Temps
 from hostd.config import Config
@@ -59,16 +60,17 @@ class Daemon:
             state=HubState.OFFLINE.value,
             printer=PrinterInfo(config.printer.id, config.printer.port),
         ))
+        # the one writer of the jobs' states, lent to whatever changes a job
         self.life = JobLife(self.store, self.hub)
         # the printer booted (a `start`) since a job last streamed: its buffers were lost
         self.printer_reset = False
-        self.intake = Intake(config, self.store, self.hub)
+        self.intake = Intake(config, self.life)
         self.addons = Addons(config, self.store, self.hub)
-        self.current: PrintJob | None = None
+        self.current: ActiveJob | None = None  # the print in progress: what it owns
         self.link: Streamer | None = None
         self.speculation = Speculation()
         self.controller = DaemonController(
-            self.store, self.hub, self.intake, lambda: self.current, self.queue_changed,
+            self.life, self.intake, lambda: self.current, self.queue_changed,
             self.emergency_stop,
         )
         self._wake = asyncio.Event()
@@ -232,11 +234,11 @@ class Daemon:
                 continue
             replay = self.config.runner.replay_lines if self.printer_reset else 0
             self.printer_reset = False
-            self.current = PrintJob(job, self.config, self.store, self.hub, self.intake, executor,
-                                    replay=replay, speculation=self.speculation)
+            active = self.current = ActiveJob(job, self.life)
             self.queue_changed()
             try:
-                await self.current.run(link)
+                await PrintJob(active, self.config, self.intake, executor, replay=replay,
+                               speculation=self.speculation).run(link)
             except (LinkError, asyncio.CancelledError):
                 raise
             except Exception as exc:  # a bug met by one job must not stop the service
@@ -244,7 +246,8 @@ class Daemon:
                 with contextlib.suppress(Exception):
                     self.intake.fail(self.store.get(job.id), f"internal error: {exc!r}")
             finally:
-                self.current = None
+                active.release()  # whoever still holds it, nothing of the print stays
+                self.current = active = None
                 release_after_job()  # see hostd.memory: RSS stays flat job after job
                 self.life.idle()
                 self.queue_changed()

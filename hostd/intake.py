@@ -14,11 +14,11 @@ from pathlib import Path
 from hostd.config import Config
 from hostd.filecheck import Fingerprint, fingerprint, open_for_writing
 from hostd.jobfolder import LOAD_SUFFIX, free_stem, leaves_folder, move, split_name
+from hostd.joblife import JobLife
 from hostd.jobstate import Queued
-from hostd.jobstore import Job, JobStore
+from hostd.jobstore import Job
 from hostd.loadcheck import LoadChecks, load_analysis_modules
 from hostd.outcomes import Outcomes
-from hostd.status import StatusHub
 from slicer.fea.material import file_settings
 from slicer.settings import SettingsError
 
@@ -32,13 +32,14 @@ class Rejected(Exception):
 class Intake:
     """Turns settled files into queued jobs, and moves finished jobs to their outcome."""
 
-    def __init__(self, config: Config, store: JobStore, hub: StatusHub) -> None:
+    def __init__(self, config: Config, life: JobLife) -> None:
+        """``life``: the daemon's one writer of job states (the store and snapshot's)."""
         self.config = config
-        self.store = store
-        self.hub = hub
+        self.store = life.store
+        self.life = life
         self.jobs_folder = config.jobs.folder
         self.area = config.state.folder / "jobs"
-        self.outcomes = Outcomes(self.jobs_folder, self.area, store, hub)
+        self.outcomes = Outcomes(self.jobs_folder, self.area, life)
         self.load_checks = LoadChecks(config.state.folder / "fea")
 
     async def take(self, path: Path) -> Job | None:
@@ -79,7 +80,7 @@ class Intake:
         job = self.store.set_path(job.id, str(home / path.name))
         log.info("job %s: %s queued (%d bytes, sha256 %s)", job.id, job.name, digest.size,
                  digest.sha256[:12])
-        self.outcomes.life.publish(Queued(job.id, job.name))
+        self.life.publish(Queued(job.id, job.name))
         return job
 
     def check_ahead(self, path: Path) -> None:

@@ -30,6 +30,10 @@ class JobLife:
     and :meth:`show`, when the store is written in another thread: the
     checkpoint writer's). The snapshot's state without a job
     (offline, idle) is written by :meth:`printer_offline` and :meth:`idle`.
+
+    The daemon builds one and hands it to what changes jobs: the intake and its
+    outcomes, the command controller, the farm agent and each print's
+    :class:`~hostd.activejob.ActiveJob` (which lends it to its runner).
     """
 
     def __init__(self, store: JobStore, hub: StatusHub) -> None:
@@ -71,6 +75,10 @@ class JobLife:
             if status is not None:
                 changes["job"] = status
             self.hub.update(**changes)
+
+    def show_job(self, status: JobStatus) -> None:
+        """The snapshot's job part, its state unchanged (progress between moves)."""
+        self.hub.update(job=status)
 
     def interrupt(self, job_id: str, note: str) -> Job | None:
         """Leave an active job interrupted at its checkpoint, or queued if it printed nothing.

@@ -89,6 +89,7 @@ class EventKind(StrEnum):
     INTERRUPTED = "interrupted"
     OBJECT_CANCELLED = "object_cancelled"
     OBJECT_RESTORED = "object_restored"
+    RETUNED = "retuned"
     ERROR = "error"
     REPAIRED = "repaired"
 
@@ -214,6 +215,17 @@ class ObjectRestored(Event):
     id: str
     name: str
     object: int
+
+
+@dataclass(frozen=True)
+class Retuned(Event):
+    """The layers from ``from_layer`` on are sliced with ``settings`` (flat keys)."""
+
+    kind: ClassVar[EventKind] = EventKind.RETUNED
+    id: str
+    name: str
+    from_layer: int
+    settings: dict[str, Any]
 
 
 @dataclass(frozen=True)

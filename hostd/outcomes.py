@@ -9,8 +9,7 @@ from pathlib import Path
 from hostd.jobfolder import free_stem, move, split_name, write_text
 from hostd.joblife import JobLife
 from hostd.jobstate import FINAL_STATES, Done, JobState, ended
-from hostd.jobstore import Job, JobStore
-from hostd.status import StatusHub
+from hostd.jobstore import Job
 
 log = logging.getLogger("hostd.outcomes")
 
@@ -24,12 +23,11 @@ class Outcomes:
     next start under the recorded name. Nothing is ever overwritten.
     """
 
-    def __init__(self, jobs_folder: Path, area: Path, store: JobStore, hub: StatusHub) -> None:
+    def __init__(self, jobs_folder: Path, area: Path, life: JobLife) -> None:
         self.jobs_folder = jobs_folder
         self.area = area
-        self.store = store
-        self.hub = hub
-        self.life = JobLife(store, hub)
+        self.store = life.store
+        self.life = life
 
     def fail(
         self, job: Job, reason: str, extra: list[Path] | None = None, state: str = "failed"

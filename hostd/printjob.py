@@ -14,6 +14,7 @@ from pathlib import Path
 
 from drivers.motionreport import PrinterMotion
 from drivers.streamer import LinkError, Streamer
+from hostd.activejob import ActiveJob
 from hostd.api import JobStatus
 from hostd.config import Config
 from hostd.endgcode import CANCEL_GCODE
@@ -21,16 +22,14 @@ from hostd.eta import slicer_totals
 from hostd.filecheck import Fingerprint, fingerprint, wait_complete
 from hostd.intake import Intake
 from hostd.jobfolder import split_name, write_text
-from hostd.joblife import JobLife
 from hostd.jobstate import JobError, JobState, ModelRepaired, Started
-from hostd.jobstore import Job, JobStore
+from hostd.jobstore import Job
 from hostd.printermotion import with_printer_motion
 from hostd.reentry import resume_line
 from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
 from hostd.speculate import MadeAhead, Speculation
-from hostd.status import StatusHub
 from slicer.annotate import annotate_file
 from slicer.arcs import for_printer
 from slicer.errors import ModelError
@@ -46,10 +45,8 @@ class PrintJob:
 
     def __init__(
         self,
-        job: Job,
+        active: ActiveJob,
         config: Config,
-        store: JobStore,
-        hub: StatusHub,
         intake: Intake,
         executor: concurrent.futures.Executor,
         replay: int = 0,
@@ -57,20 +54,17 @@ class PrintJob:
     ) -> None:
         """``replay``: commands a resume goes back within its layer (0: the printer kept
         power, continue at the first command it did not acknowledge); ``speculation``:
-        where a whole-model pass begun while the file settled may wait."""
-        self.job = job
+        where a whole-model pass begun while the file settled may wait. What the print
+        owns (schedule, source, runner) goes to ``active``, which commands reach."""
+        self.active = active
+        job = self.job = active.job
         self.speculation = speculation
         self.replay = replay
-        self.emergency = False  # an emergency stop was ordered: the job fails
-        self.life = JobLife(store, hub)
+        self.life = active.life
         self.config = config
-        self.store = store
-        self.hub = hub
+        self.store = active.life.store
         self.intake = intake
         self.executor = executor
-        self.runner: JobRunner | None = None
-        self.schedule: LayerSchedule | None = None
-        self.source: LayerSource | None = None
         self.warned: list[str] = []  # the model's warnings logged so far
         self.tailoring: Tailoring | None = None  # the analysis and equal mass, for the summary
         self.analysis_file = ""  # the field file an analysis beside the print is writing
@@ -81,6 +75,21 @@ class PrintJob:
         self.home = Path(job.path).parent
         self.partial = self.home / f"{stem}.gcode.part"
         self.final = self.home / f"{stem}.gcode"
+
+    @property
+    def schedule(self) -> LayerSchedule | None:
+        """The print's layer schedule (None for a G-code file, or before the pass)."""
+        return self.active.schedule
+
+    @property
+    def source(self) -> LayerSource | None:
+        """Where the print's layers come from, once the whole-model pass made it."""
+        return self.active.source
+
+    @property
+    def runner(self) -> JobRunner | None:
+        """The print's runner, once it streams."""
+        return self.active.runner
 
     async def run(self, link: Streamer) -> str:
         """Print the job on ``link``; returns its final state (done, failed, cancelled).
@@ -95,8 +104,8 @@ class PrintJob:
 
     async def _run(self, link: Streamer) -> str:
         job = self.store.get(self.job.id)
-        job = self.life.enter(job.id, JobState.SLICING,
-                              status=JobStatus(id=job.id, name=job.name, layer=max(job.layer, 0)))
+        job = self.active.enter(JobState.SLICING, JobStatus(id=job.id, name=job.name,
+                                                            layer=max(job.layer, 0)))
         first = job.resume_from or 0
         skip = 0
         if job.resume_from is not None and job.layer == first - 1 and job.kind == "stl":
@@ -104,7 +113,8 @@ class PrintJob:
         resume = first > 0 or skip > 0
         try:
             first = job.resume_from if resume else 0
-            self.source = await self._source(job, first or 0, resume, link)
+            schedule, source = await self._source(job, first or 0, resume, link)
+            self.active.attach(schedule, source)
             output = await asyncio.to_thread(
                 open_output, self.partial, job.gcode_bytes if resume else 0
             )
@@ -115,28 +125,29 @@ class PrintJob:
             self._interrupted("stopped during the whole-model pass")
             raise
         try:
-            self.runner = JobRunner(job, self.source, link, self.store, self.hub, output,
-                                    first, write_preamble=not resume, park=self._park(),
-                                    skip=skip, end_gcode=CANCEL_GCODE)
-            self.runner.waiting = self._waiting
+            runner = JobRunner(job, source, link, self.life, output,
+                               first, write_preamble=not resume, park=self._park(),
+                               skip=skip, end_gcode=CANCEL_GCODE)
+            runner.waiting = self._waiting
+            self.active.start(runner)
             link.begin_job()  # a link cancelled for the job before takes this one's lines
             verb = f"resumed at layer {first}, command {skip}" if resume else "started"
-            log.info("job %s %s: %s, %d layers", job.id, job.name, verb, self.source.layer_count)
-            self.life.publish(Started(job.id, job.name, self.source.layer_count,
+            log.info("job %s %s: %s, %d layers", job.id, job.name, verb, source.layer_count)
+            self.life.publish(Started(job.id, job.name, source.layer_count,
                                       first if resume else None))
             try:
-                await self.runner.run()
+                await runner.run()
             except JobCancelled as exc:
                 await self._cancelled(link, str(exc))
                 return "cancelled"
             except (asyncio.CancelledError, LinkError) as exc:
-                if self.emergency:
+                if self.active.emergency:
                     self.intake.fail(self.store.get(job.id), "emergency stop (M112)")
                 else:
                     self._interrupted(f"stopped: {type(exc).__name__}")
                 raise
             finally:
-                self.source.close()
+                source.close()
         finally:
             with contextlib.suppress(OSError):  # a full disk fails the flush again
                 output.close()
@@ -180,12 +191,14 @@ class PrintJob:
                                            f"{digest.sha256[:12]})"))
         return job
 
-    async def _source(self, job: Job, first: int, resume: bool, link: Streamer) -> LayerSource:
+    async def _source(self, job: Job, first: int, resume: bool, link: Streamer
+                      ) -> tuple[LayerSchedule | None, LayerSource]:
+        """The print's layer schedule (None for a G-code file) and its layer source."""
         if job.kind == "gcode":
             if resume:
                 raise ModelError("a G-code job cannot be resumed mid-file")
             job = await self.check_model(job, resume)
-            return await asyncio.to_thread(FileSource, Path(job.path))
+            return None, await asyncio.to_thread(FileSource, Path(job.path))
         # the printer is known before slicing: arcs if its M115 reported Cap:ARCS:1
         # (gcode.arcs = "auto"), and the line budget of its wire (gcode.baud = 0)
         # and the acceleration its M503 reported, unless [slicing] or NAME.toml set one
@@ -231,14 +244,14 @@ class PrintJob:
         for warning in self.warned:
             log.warning("job %s %s: %s", job.id, job.name, warning)
             self.life.publish(ModelRepaired(job.id, job.name, warning))
-        self.schedule = LayerSchedule(
+        schedule = LayerSchedule(
             plan, settings, self.store.settings_changes(job.id),
             self.store.cancelled_objects(job.id),
         )
         if ahead is not None and ahead.plan is plan and ahead.first_layer is not None:
-            self.schedule.made_ahead(0, ahead.first_layer)
-        return SlicedSource(self.schedule, first, self.config.runner.lookahead, self.executor,
-                            resume, on_started=self.analysis_hold.set)
+            schedule.made_ahead(0, ahead.first_layer)
+        return schedule, SlicedSource(schedule, first, self.config.runner.lookahead,
+                                      self.executor, resume, on_started=self.analysis_hold.set)
 
     async def _made_ahead(self, job: Job, settings: SliceSettings) -> MadeAhead | None:
         """The whole-model pass (and layer 0) begun while the file settled, if it fits

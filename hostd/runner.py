@@ -23,10 +23,9 @@ from hostd.checkpoints import Checkpoint, CheckpointWriter
 from hostd.eta import EtaModel
 from hostd.joblife import JobLife
 from hostd.jobstate import JobError, JobState, LayerDone, Paused, Resumed
-from hostd.jobstore import Job, JobStore
+from hostd.jobstore import Job
 from hostd.reentry import reentry_moves
 from hostd.sources import LayerSource
-from hostd.status import StatusHub
 
 log = logging.getLogger("hostd.runner")
 
@@ -118,8 +117,7 @@ class JobRunner:
         job: Job,
         source: LayerSource,
         link: Link,
-        store: JobStore,
-        hub: StatusHub,
+        life: JobLife,
         output: IO[str],
         first: int,
         write_preamble: bool,
@@ -127,13 +125,13 @@ class JobRunner:
         skip: int = 0,
         end_gcode: tuple[str, ...] = (),
     ) -> None:
-        """``end_gcode``: sent after the lines in flight when the job is cancelled."""
+        """``life``: the one writer of the job's state (its print's, see
+        :class:`~hostd.activejob.ActiveJob`); ``end_gcode``: sent after the lines in
+        flight when the job is cancelled."""
         self.job = job
         self.source = source
         self.link = link
-        self.store = store
-        self.hub = hub
-        self.life = JobLife(store, hub)
+        self.life = life
         self.output = output
         self.first = first
         self.write_preamble = write_preamble
@@ -223,7 +221,8 @@ class JobRunner:
         drains it and calls ``begin_job()``); CancelledError propagates (the daemon
         stopping), leaving the last checkpoint in the store.
         """
-        self.writer = CheckpointWriter(self.store, self.job.id, self.output, self._writer_error)
+        self.writer = CheckpointWriter(self.life.store, self.job.id, self.output,
+                                       self._writer_error)
         try:
             with self.link.acknowledgements() as acks:
                 follower = asyncio.create_task(self._follow(acks), name="runner-acks")
@@ -426,7 +425,7 @@ class JobRunner:
     def _publish(self) -> JobStatus:
         self._last_publish = time.monotonic()
         status = self.status()
-        self.hub.update(job=status)
+        self.life.show_job(status)
         return status
 
     def _set_state_off_loop(self, state: JobState) -> None:
@@ -450,10 +449,13 @@ class JobRunner:
             await self.writer.states_written()
 
     def _set_state(self, state: JobState) -> None:
-        if state != self.state or self.store.get(self.job.id).state != state:
+        """Move to ``state`` (recorded and shown by the job's life), or only show the
+        progress when the job is in it already: the runner's ``state`` is the move last
+        handed to its life, never read back from the store."""
+        if state != self.state:
             self.life.enter(self.job.id, state, status=self.status(), layers=self.layers)
         else:
-            self.hub.update(job=self.status())
+            self.life.show_job(self.status())
         self.state = state
 
 

@@ -145,6 +145,10 @@ class LayerSchedule:
         """Leave body ``body`` out from layer ``first`` on."""
         self.cancelled.append((body, first))
 
+    def restore_body(self, body: int) -> None:
+        """Slice body ``body`` again in the layers not sliced yet (its cancels forgotten)."""
+        self.cancelled = [item for item in self.cancelled if item[0] != body]
+
 
 def _retune_gcode(before: SliceSettings, after: SliceSettings, layer: int) -> list[str]:
     """Commands that apply a retune's temperatures and fan speed (no waiting)."""

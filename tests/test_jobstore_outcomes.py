@@ -8,6 +8,7 @@ from pathlib import Path
 
 from hostd.config import load_config
 from hostd.intake import Intake
+from hostd.joblife import JobLife
 from hostd.jobstore import JobStore
 from hostd.status import StatusHub
 
@@ -17,7 +18,7 @@ DATA = Path(__file__).parent / "data"
 def taken_job(tmp_path: Path, name: str = "part.stl"):
     config = load_config(None, cwd=tmp_path)
     store = JobStore(config.state.folder / "jobs.sqlite3")
-    intake = Intake(config, store, StatusHub())
+    intake = Intake(config, JobLife(store, StatusHub()))
     config.jobs.folder.mkdir(parents=True)
     shutil.copyfile(DATA / "cube20_xyz.stl", config.jobs.folder / name)
     job = asyncio.run(intake.take(config.jobs.folder / name))
@@ -37,7 +38,8 @@ def test_done_recorded_then_crash_before_moving_is_finished_at_start(tmp_path: P
     assert store.get(job.id).state == "done"
     assert list((config.jobs.folder / "done").glob("*")) == []
 
-    reopened = Intake(config, JobStore(config.state.folder / "jobs.sqlite3"), StatusHub())
+    reopened = Intake(config, JobLife(JobStore(config.state.folder / "jobs.sqlite3"),
+                                       StatusHub()))
     reopened.outcomes.settle()
     done = config.jobs.folder / "done"
     assert target == done / "part"

@@ -14,9 +14,11 @@ from pathlib import Path
 import pytest
 
 from hostd import intake as intake_module
+from hostd.activejob import ActiveJob
 from hostd.config import load_config
 from hostd.filecheck import fingerprint
 from hostd.intake import Intake
+from hostd.joblife import JobLife
 from hostd.jobstore import JobStore
 from hostd.printjob import PrintJob
 from hostd.status import StatusHub
@@ -24,6 +26,12 @@ from slicer.errors import ModelError
 
 DATA = Path(__file__).parent / "data"
 CUBE = DATA / "cube20_xyz.stl"
+
+
+def print_job(config, store: JobStore, hub: StatusHub, job) -> PrintJob:
+    """The daemon's run of ``job`` (not started)."""
+    life = JobLife(store, hub)
+    return PrintJob(ActiveJob(job, life), config, Intake(config, life), executor=None)
 
 
 def setup(tmp_path: Path, taken: bytes, state: Path | None = None):
@@ -48,7 +56,7 @@ def test_a_model_written_on_after_it_was_taken_is_waited_for_then_started_over(
     config, store, hub, model, job = setup(tmp_path, data[:half])
 
     async def main() -> tuple[str, bool]:
-        printjob = PrintJob(job, config, store, hub, Intake(config, store, hub), executor=None)
+        printjob = print_job(config, store, hub, job)
         with open(model, "ab") as writer:  # the copy goes on after the file was taken
             check = asyncio.create_task(printjob.check_model(job, resume=False))
             writer.write(data[half:])
@@ -67,7 +75,7 @@ def test_a_model_written_on_after_it_was_taken_is_waited_for_then_started_over(
 def test_an_unchanged_model_passes_and_a_resumed_one_that_changed_fails(tmp_path: Path) -> None:
     data = CUBE.read_bytes()
     config, store, hub, model, job = setup(tmp_path, data)
-    printjob = PrintJob(job, config, store, hub, Intake(config, store, hub), executor=None)
+    printjob = print_job(config, store, hub, job)
     assert asyncio.run(printjob.check_model(job, resume=True)) == job
     model.write_bytes(data + b"\n")
     with pytest.raises(ModelError, match="changed after it was taken"):
@@ -80,7 +88,7 @@ def test_a_model_that_grew_after_its_hash_was_read_is_noticed_by_its_size(
 ) -> None:
     data = CUBE.read_bytes()
     config, store, hub, model, job = setup(tmp_path, data)
-    printjob = PrintJob(job, config, store, hub, Intake(config, store, hub), executor=None)
+    printjob = print_job(config, store, hub, job)
     read = fingerprint(model)  # hashed beside the whole-model pass: the bytes taken
     assert (read.size, read.sha256) == (job.size, job.sha256)
     with open(model, "ab") as writer:  # then the writer went on, and stopped
@@ -109,7 +117,7 @@ def test_across_filesystems_a_model_still_open_for_writing_is_not_taken(
 ) -> None:
     data = CUBE.read_bytes()
     config, store, hub, _model, _job = setup(tmp_path, b"", other_disk)
-    intake = Intake(config, store, hub)
+    intake = Intake(config, JobLife(store, hub))
     dropped = config.jobs.folder / "part.stl"
     dropped.parent.mkdir(parents=True, exist_ok=True)
     with open(dropped, "wb") as writer:  # a writer the settle time did not wait out
@@ -130,7 +138,7 @@ def test_across_filesystems_a_model_written_on_after_its_hash_is_not_taken(
 ) -> None:
     data = CUBE.read_bytes()
     config, store, hub, _model, _job = setup(tmp_path, b"", other_disk)
-    intake = Intake(config, store, hub)
+    intake = Intake(config, JobLife(store, hub))
     dropped = config.jobs.folder / "part.stl"
     dropped.parent.mkdir(parents=True, exist_ok=True)
     dropped.write_bytes(data[:1000])

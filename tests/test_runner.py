@@ -82,7 +82,8 @@ async def print_job(
             await link.connect()
             source = SlicedSource(schedule, 0, depth, executor, resume=False)
             output = open_output(output_path or tmp_path / "out.gcode.part", 0)
-            runner = JobRunner(job, source, link, store, hub, output, 0, write_preamble=True)
+            runner = JobRunner(job, source, link, JobLife(store, hub), output, 0,
+                               write_preamble=True)
             schedule.hub = hub
             runner.waiting = lambda: "analysis" if waited_for(FIELD_FILE) else None
             original_send = link.send
@@ -267,8 +268,8 @@ def test_a_resume_within_a_layer_sends_the_rest_of_it_after_lifted_moves_back(
                 await link.connect()
                 source = SlicedSource(schedule, layer + 1, 2, executor, resume=True)
                 output = open_output(partial, job.gcode_bytes)
-                runner = JobRunner(job, source, link, store, StatusHub(), output, layer + 1,
-                                   write_preamble=False, skip=done)
+                runner = JobRunner(job, source, link, JobLife(store, StatusHub()), output,
+                                   layer + 1, write_preamble=False, skip=done)
                 await runner.run()
                 output.close()
         finally:

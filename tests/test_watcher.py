@@ -15,6 +15,7 @@ from waiting import until
 from hostd.config import load_config
 from hostd.filecheck import open_for_writing
 from hostd.intake import Intake
+from hostd.joblife import JobLife
 from hostd.jobstore import JobStore
 from hostd.status import StatusHub
 from hostd.watcher import _STAMP_GRAIN_S, Watcher, _changed_at
@@ -41,7 +42,7 @@ async def watch_for(config, jobs: int, action, sentinel: bool = False,
     to be taken by then.
     """
     store = JobStore(config.state.folder / "jobs.sqlite3")
-    intake = Intake(config, store, StatusHub())
+    intake = Intake(config, JobLife(store, StatusHub()))
     taken: list[str] = []
 
     async def on_settled(path: Path) -> None:

@@ -75,8 +75,9 @@ class Host(Protocol):
     store: JobStore
     hub: StatusHub
     intake: Intake
+    life: JobLife
     link: Streamer | None
-    current: Any  # the job printing (a PrintJob), or None
+    current: Any  # the print in progress (an ActiveJob), or None
 
     def queue_changed(self) -> None: ...
 
@@ -99,7 +100,7 @@ class FarmAgent:
         self.host = host
         self.config = host.config
         self.printer = host.config.printer.id
-        self.life = JobLife(host.store, host.hub)
+        self.life = host.life
         self.held: Held | None = None
         self.queue: FarmQueue | None = None
         self._wake = asyncio.Event()
