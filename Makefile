@@ -50,10 +50,10 @@ test: $(STAMP) system-deps
 	wait $$checker; typed=$$?; cat $$report; rm -f $$report; \
 	[ $$suite -eq 0 ] && [ $$typed -eq 0 ]
 
-# The inner loop: the unit layer only (modules marked `unit`: no pty, no subprocess,
-# no broker, no daemon, no SQLite), in under a minute; `make test` runs everything
+# The inner loop: the unit layer only (tests/unit: no pty, no subprocess, no broker,
+# no daemon, no SQLite), in under a minute; `make test` runs every layer, unit first
 test-fast: $(STAMP)
-	$(BIN)/python -m pytest -q -n 2 -m "unit and not slow"
+	$(BIN)/python -m pytest -q -n 2 -m "not slow" tests/unit
 
 lint: $(STAMP)
 	$(BIN)/ruff check .

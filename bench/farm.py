@@ -37,10 +37,10 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from pathlib import Path
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
-from brokers import HOST, NatsCluster, start_nats_cluster  # noqa: E402
-from conftest import commands_of, executed_job_lines  # noqa: E402
+from support.brokers import HOST, NatsCluster, start_nats_cluster  # noqa: E402
+from support.gcode_lines import commands_of, executed_job_lines  # noqa: E402
 
 from hostd.config import FarmConfig  # noqa: E402
 from hostd.farm.needs import parse_needs  # noqa: E402

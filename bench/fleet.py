@@ -36,9 +36,9 @@ import aiomqtt
 
 from bench import proctree
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 sys.path.insert(0, str(ROOT / "tests"))
-from brokers import HOST, start_broker, start_nats_cluster  # noqa: E402
+from support.brokers import HOST, start_broker, start_nats_cluster  # noqa: E402
 
 from bench.fleet_term import Terminal  # noqa: E402
 from tui.mqtt_wire import WireClient  # noqa: E402

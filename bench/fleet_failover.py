@@ -34,7 +34,7 @@ from bench.fleet import MODEL, PYTHON_ENV, ROOT, wait_states
 from tui.mqtt_wire import WireClient, WireError
 
 sys.path.insert(0, str(ROOT / "tests"))  # the tests' broker helpers (bench.fleet does too)
-from brokers import (
+from support.brokers import (
     HOST,
     NatsCluster,
     NatsNode,

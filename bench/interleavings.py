@@ -18,13 +18,17 @@ from __future__ import annotations
 import argparse
 import itertools
 import random
+import sys
 import time
+from pathlib import Path
 
 from drivers.linkconfig import StreamerConfig
 from drivers.simconfig import DIALECTS, SimulatorConfig
 from drivers.simlinkrun import NoConvergence, run_core
 from drivers.simvirtual import VirtualPrinter
-from tests.test_drivers_core import (
+
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # support
+from tests.unit.test_drivers_core import (
     LINK,
     NO_OK_LINK,
     _once_but_boot_fragments,

@@ -42,7 +42,7 @@ from bench.slice_vs_peers import hostd_executable
 from hostd.api import ControlClient, ControlError
 
 sys.path.insert(0, str(ROOT / "tests"))
-from brokers import HOST, start_broker
+from support.brokers import HOST, start_broker
 
 SIZES = {"80x24": (80, 24), "200x60": (200, 60)}
 COLOURS = {"256": COLOUR_256, "truecolor": TRUECOLOUR}

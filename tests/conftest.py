@@ -1,121 +1,41 @@
-"""Shared fixtures: a daemon started as a real subprocess on a temporary job and state folder."""
+"""Shared fixtures, and the test layers: tests/unit, tests/integration, tests/e2e.
+
+Each test is marked with the name of its module's folder, so ``-m unit`` and
+``tests/unit`` select the same tests; the layers run in that order. The code
+they share is the ``support`` package beside this file (``from support.X import``).
+"""
 
 from __future__ import annotations
 
-import os
-import shutil
-import signal
-import subprocess
-import sys
-import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import pytest
 from hypothesis import settings as hypothesis_settings
+from support.daemon_process import DaemonProcess, sim_config
 
 # `pytest --hypothesis-profile long`: the benchmark's run of the property suites
 hypothesis_settings.register_profile("long", max_examples=500, deadline=None)
 
-ROOT = Path(__file__).resolve().parent.parent
-DATA = Path(__file__).resolve().parent / "data"
-# commands the streamer adds on its own (handshake, temperature reports)
-HOUSEKEEPING = ("M110", "M105", "M115", "M503", "M155")
-# the `hostd` console script, run by this interpreter
-HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+LAYERS = ("unit", "integration", "e2e")
+TESTS = Path(__file__).resolve().parent
 
 
-class DaemonProcess:
-    """`hostd run --config CFG` in a subprocess, with helpers to drop files and wait."""
-
-    def __init__(self, folder: Path, config_text: str) -> None:
-        self.folder = folder
-        self.jobs = folder / "jobs"
-        self.state = folder / "var"
-        self.config = folder / "hostd.toml"
-        self.config.write_text(config_text)
-        self.log_path = folder / "daemon.log"
-        self.proc: subprocess.Popen[bytes] | None = None
-        self.runs = 0
-
-    def start(self) -> DaemonProcess:
-        """Start (or restart) the daemon."""
-        self.runs += 1
-        log = open(self.log_path, "ab")  # noqa: SIM115 - kept open by the child
-        log.write(f"--- run {self.runs}\n".encode())
-        log.flush()
-        self.proc = subprocess.Popen(
-            [*HOSTD, "run", "--config", str(self.config)],
-            cwd=self.folder, stdout=log, stderr=log, env={**os.environ, "PYTHONPATH": str(ROOT)},
-        )
-        log.close()
-        self.wait_for(lambda: "printer connected" in self.run_log(), 20, "the printer link")
-        return self
-
-    def log(self) -> str:
-        """Everything every run of the daemon logged."""
-        return self.log_path.read_text(errors="replace")
-
-    def run_log(self) -> str:
-        """What the latest run logged."""
-        return self.log().split(f"--- run {self.runs}\n", 1)[-1]
-
-    def drop(self, source: Path | bytes, name: str) -> Path:
-        """Put a file into the job folder atomically (written aside as a dotfile, renamed)."""
-        self.jobs.mkdir(parents=True, exist_ok=True)
-        partial = self.jobs / f".{name}.part"
-        if isinstance(source, bytes):
-            partial.write_bytes(source)
-        else:
-            shutil.copyfile(source, partial)
-        os.replace(partial, self.jobs / name)
-        return self.jobs / name
-
-    def wait_for(self, check: Callable[[], object], timeout: float, what: str) -> object:
-        """Poll ``check`` until it returns something true; fail with the log on timeout."""
-        deadline = time.monotonic() + timeout
-        while time.monotonic() < deadline:
-            result = check()
-            if result:
-                return result
-            if self.proc is not None and self.proc.poll() is not None:
-                pytest.fail(f"daemon exited ({self.proc.returncode}) waiting for {what}:\n"
-                            + self.log()[-4000:])
-            time.sleep(0.05)
-        pytest.fail(f"timed out waiting for {what}:\n" + self.log()[-4000:])
-
-    def stop(self, timeout: float = 20) -> int:
-        """SIGINT, and wait for the exit code."""
-        assert self.proc is not None
-        self.proc.send_signal(signal.SIGINT)
-        try:
-            return self.proc.wait(timeout)
-        finally:
-            self.proc = None
-
-    def kill9(self) -> None:
-        assert self.proc is not None
-        self.proc.kill()
-        self.proc.wait()
-        self.proc = None
-
-    def close(self) -> None:
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+def layer_of(item: pytest.Item) -> str | None:
+    """The layer (a folder of ``LAYERS``) a test's module lives in, if any."""
+    path = item.path.resolve()
+    parts = path.relative_to(TESTS).parts if path.is_relative_to(TESTS) else ()
+    return parts[0] if len(parts) > 1 and parts[0] in LAYERS else None
 
 
-def sim_config(
-    time_scale: float = 0.0, settle_s: float = 0.2, extra: str = "", jobs_extra: str = ""
-) -> str:
-    """A daemon configuration on the simulated printer, ./jobs and ./var.
-
-    ``jobs_extra`` goes into ``[jobs]``; ``extra`` (whole sections) at the end.
-    """
-    return (
-        f"[jobs]\nsettle_s = {settle_s}\n{jobs_extra}\n"
-        f"[simulator]\ntime_scale = {time_scale}\nbaud = 0\n{extra}\n"
-    )
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    """Mark each test with its layer, and run the layers in order: unit first, e2e last."""
+    for item in items:
+        layer = layer_of(item)
+        if layer is not None:
+            item.add_marker(layer)
+    rank = {layer: n for n, layer in enumerate(LAYERS)}
+    items.sort(key=lambda item: rank.get(layer_of(item) or "", len(LAYERS)))
 
 
 @pytest.fixture
@@ -131,20 +51,3 @@ def daemon(tmp_path: Path) -> Iterator[Callable[..., DaemonProcess]]:
     yield start
     for process in started:
         process.close()
-
-
-def commands_of(path: Path) -> list[str]:
-    """The commands of a G-code file, comments, blank lines and the lines written for other
-    hosts (M73 progress, object labels; never streamed) dropped."""
-    from drivers.protocol import strip_comment
-    from slicer.annotate import is_annotation
-
-    with open(path, encoding="utf-8") as handle:
-        return [c for c in map(strip_comment, handle) if c and not is_annotation(c)]
-
-
-def executed_job_lines(log: Path) -> list[str]:
-    """The simulator's executed-line log without the streamer's housekeeping commands."""
-    with open(log, encoding="utf-8") as handle:
-        lines = [line.rstrip("\n") for line in handle]
-    return [line for line in lines if line and line.split()[0] not in HOUSEKEEPING]
