@@ -110,6 +110,34 @@ def _table(rows: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd farm``."""
+    p.add_argument("--config", metavar="FILE", help="take [farm] (and the state folder) from FILE")
+    p.add_argument("--servers", metavar="URL,...", help="the cluster's NATS URLs")
+    p.add_argument("--user", default="", help="NATS user name")
+    p.add_argument("--password", default=None,
+                   help="NATS password (default: $HOSTD_FARM_PASSWORD)")
+    p.add_argument("--tls", action="store_true", help="connect over TLS")
+    p.add_argument("--cafile", metavar="FILE", help="with --tls: the servers' CA (PEM)")
+    actions = p.add_subparsers(dest="action", required=True, metavar="ACTION")
+    submit = actions.add_parser("submit", help="offer a model to the farm's printers")
+    submit.add_argument("model", metavar="MODEL.stl")
+    submit.add_argument("--copies", type=int, default=1, metavar="N")
+    submit.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
+                        help="a slicing setting over each printer's own (repeatable)")
+    submit.add_argument("--needs", metavar="KEY=VALUE,...",
+                        help="material=PETG,nozzle=0.4,bed=220x220 (any of them)")
+    submit.add_argument("--json", action="store_true", help="the job ids as a JSON list")
+    listing = actions.add_parser("list", help="the queue: waiting, taken, printed, failed")
+    listing.add_argument("--json", action="store_true")
+    requeue = actions.add_parser("requeue", help="give a held or failed job back to the queue")
+    requeue.add_argument("job", metavar="ID")
+    requeue.add_argument("--force", action="store_true",
+                         help="also a job whose printer fell silent without reporting it")
+    material = actions.add_parser("material", help="the material loaded now (with --config)")
+    material.add_argument("material", metavar="NAME")
+
+
 def run(args: argparse.Namespace) -> int:
     """Carry out one farm action; exit 1 when the farm refuses it or cannot be reached."""
     from hostd.farm.model import Refused

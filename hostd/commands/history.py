@@ -33,6 +33,15 @@ def open_history(args: argparse.Namespace) -> History:
         raise UsageError(f"{exc}; the daemon writes it once it has run") from exc
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd history``."""
+    fmt = p.add_mutually_exclusive_group()
+    fmt.add_argument("--json", action="store_true", help="every field of every job, and totals")
+    fmt.add_argument("--csv", action="store_true", help="one row per job")
+    p.add_argument("--limit", type=int, metavar="N", help="the last N jobs only")
+    p.add_argument("--config", metavar="FILE", help="daemon configuration (its state folder)")
+
+
 def run(args: argparse.Namespace) -> int:
     """Print the last ``--limit`` jobs (newest first) and the totals."""
     if args.limit is not None and args.limit < 1:

@@ -2,9 +2,22 @@
 
 from __future__ import annotations
 
+import argparse
+
 from hostd.cli import UsageError
 from hostd.commands.slice import load_plan, load_settings
 from slicer.preview import render_layer
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd preview``."""
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("--layer", type=int, required=True, metavar="N",
+                   help="layer N of the model, counted from 1 as everywhere (-1: the last)")
+    p.add_argument("-o", "--output", metavar="OUT.png", required=True)
+    p.add_argument("--field", action="store_true", help="draw the infill field and its level sets")
+    p.add_argument("--config", metavar="FILE")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
 
 
 def run(args) -> int:

@@ -207,6 +207,18 @@ async def _send_all(link: Streamer, commands: AsyncIterator[str]) -> None:
         await link.send(command)
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd print``."""
+    p.add_argument("file", metavar="FILE")
+    p.add_argument("--port", required=True, metavar="PORT", help="serial device, or 'sim'")
+    p.add_argument("--baud", type=int, default=250000, metavar="N")
+    p.add_argument("--config", metavar="FILE", help="slicing settings for an STL")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
+    p.add_argument("--time-scale", type=float, default=0.0, metavar="X",
+                   help="simulated printer speed with --port sim (0 = instant)")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
 def run(args: argparse.Namespace) -> int:
     """Stream ``args.file`` to ``args.port`` (``sim``: the in-process simulated printer)."""
     path = Path(args.file)

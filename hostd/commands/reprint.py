@@ -15,6 +15,12 @@ from hostd.config import load_config
 from hostd.jobfolder import free_stem, split_name
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd reprint``."""
+    p.add_argument("job", metavar="JOB", help="job id, or name (the newest with that name)")
+    p.add_argument("--config", metavar="FILE", help="daemon configuration (TOML)")
+
+
 def run(args: argparse.Namespace) -> int:
     """Copy the model kept in done/ or failed/ back with a ``NAME.toml`` of its exact settings.
 

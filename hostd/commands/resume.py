@@ -7,8 +7,14 @@ import asyncio
 
 from hostd.api import ControlClient, ControlError
 from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
-from hostd.commands.target import socket_path
+from hostd.commands.target import add_target, socket_path
 from hostd.config import ConfigError
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd resume``."""
+    p.add_argument("job", metavar="JOB")
+    add_target(p)
 
 
 def run(args: argparse.Namespace) -> int:

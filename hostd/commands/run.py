@@ -30,6 +30,11 @@ def limit_malloc_arenas(arenas: int = MALLOC_ARENAS) -> bool:
         return False
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd run``."""
+    p.add_argument("--config", metavar="FILE", help="configuration file (TOML)")
+
+
 def run(args: argparse.Namespace) -> int:
     """Load the configuration (refusing bad keys with exit 2) and serve until a signal."""
     try:

@@ -29,6 +29,24 @@ def parse_faults(specs: list[str]) -> dict[str, float]:
     return faults
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd simulate``."""
+    p.add_argument("--time-scale", type=float, default=1.0, metavar="X")
+    p.add_argument("--baud", type=int, default=250000, metavar="N",
+                   help="wire speed to emulate (0 = unlimited)")
+    p.add_argument("--latency-ms", type=float, default=0.0, metavar="X",
+                   help="one-way link latency added to every byte in each direction"
+                        " (USB frames, firmware loop; e.g. 1, or 16 for an FTDI default)")
+    p.add_argument("--log", metavar="FILE", help="append every executed line to FILE")
+    p.add_argument("--advanced-ok", action="store_true", help="answer ok N.. P.. B..")
+    p.add_argument("--fault", metavar="KIND=P", action="append", default=[],
+                   help="inject a fault with probability P (repeatable): corrupt_rx, corrupt_tx,"
+                        " drop_ok, resend, busy, reset, disconnect")
+    p.add_argument("--seed", type=int, default=0, metavar="N", help="seed of the faults")
+    p.add_argument("--link", metavar="PATH",
+                   help="keep a symlink at PATH to the current pseudo-terminal")
+
+
 def run(args: argparse.Namespace) -> int:
     """Print the device path on the first line of stdout, then serve until SIGINT/SIGTERM."""
     try:

@@ -1,20 +1,28 @@
-"""`hostd slice MODEL -o OUT.gcode`: slice a whole model to a file, with a progress bar."""
+"""`hostd slice MODEL -o OUT.gcode`: slice a whole model to a file, with a progress bar.
+
+The module stays light, so that ``hostd slice --help`` and a usage error load no
+slicer: :func:`run` imports the slicer (numpy, shapely, trimesh) and ``hostd.api``
+with the collector paused, and the helpers the other commands share import what
+they need when called.
+"""
 
 from __future__ import annotations
 
+import argparse
 import os
 import sys
 import time
 from collections.abc import Iterator
 from contextlib import contextmanager
-from typing import TextIO
 
-from hostd.api import bar, duration
-from hostd.cli import UsageError
-from slicer.errors import ModelError
-from slicer.gcodefile import write_gcode
-from slicer.plan import SlicePlan
-from slicer.settings import SettingsError, SliceSettings, parse_assignment
+from hostd.cli import UsageError, collector_paused
+
+TYPE_CHECKING = False  # typing itself is not imported to show --help
+if TYPE_CHECKING:
+    from typing import TextIO
+
+    from slicer.plan import SlicePlan
+    from slicer.settings import SliceSettings
 
 DEFAULT_BED = (220.0, 220.0, 250.0)
 
@@ -26,6 +34,8 @@ def load_settings(config: str | None, assignments: list[str]) -> tuple[SliceSett
     refused); its ``[slicing]`` table and ``[printer].bed`` are used, and
     ``--set`` overrides them. Raises UsageError naming the bad key or file.
     """
+    from slicer.settings import SettingsError, SliceSettings, parse_assignment
+
     cfg = None
     if config:
         # the daemon's whole configuration (TOML, link settings) is read only when given
@@ -56,6 +66,10 @@ def load_tailored(
     """The model's plan with its load case's analysis (``load``, ``infill.load`` or
     ``NAME.load.toml`` beside the model) and equal mass applied, and the lines
     reporting them. A bad model or load case is bad input (UsageError)."""
+    from slicer.errors import ModelError
+    from slicer.plan import SlicePlan
+    from slicer.settings import SettingsError
+
     if not os.path.exists(model):
         raise UsageError(f"{model}: no such file")
     if not _tailoring_asked(model, settings, load):
@@ -103,6 +117,8 @@ class ProgressBar:
         self._last = 0.0
 
     def __call__(self, done: int, total: int) -> None:
+        from hostd.api import bar
+
         now = time.monotonic()
         if done < total and now - self._last < 0.1:
             return
@@ -140,9 +156,40 @@ def return_freed_memory() -> None:
     libc.mallopt(m_trim_threshold, 1024 * 1024)
 
 
+def _jobs(text: str) -> int:
+    """``--jobs N``: a whole number of processes, at least 1."""
+    try:
+        value = int(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a whole number") from None
+    if value < 1:
+        raise argparse.ArgumentTypeError(f"{value}: at least 1 process slices")
+    return value
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd slice``."""
+    p.add_argument("model", metavar="MODEL")
+    p.add_argument("-o", "--output", metavar="OUT.gcode", required=True)
+    p.add_argument("--config", metavar="FILE", help="take [slicing] and [printer] from FILE")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[],
+                   help="override one slicing setting (repeatable)")
+    p.add_argument("--load", metavar="FILE",
+                   help="load case (TOML): stress infill from the built-in analysis")
+    p.add_argument("--quiet", action="store_true", help="no progress bar")
+    p.add_argument("--profile", action="store_true",
+                   help="slice in one process and print the time of each stage")
+    p.add_argument("--jobs", type=_jobs, metavar="N",
+                   help="processes slicing layers (default: the CPUs; 1: this one only)")
+
+
 def run(args) -> int:
     """Slice ``args.model`` to ``args.output`` and print a summary (and the stage times
     with ``--profile``: one process then, so the stages add up to the whole)."""
+    with collector_paused():
+        # the slicer (slicer.plan with numpy, shapely, trimesh) and hostd.api, for slicing only
+        from hostd.api import duration
+        from slicer.gcodefile import write_gcode
     return_freed_memory()
     settings, bed = load_settings(args.config, args.set)
     profile = getattr(args, "profile", False)

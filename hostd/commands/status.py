@@ -10,7 +10,7 @@ from typing import Any
 
 from hostd.api import ControlClient, ControlError, Snapshot, duration
 from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
-from hostd.commands.target import socket_path
+from hostd.commands.target import add_target, socket_path
 
 
 async def fetch_status(path: str) -> dict[str, Any]:
@@ -52,6 +52,12 @@ def format_summary(snapshot: Snapshot) -> str:
     if snapshot.error:
         lines.append(f"error: {snapshot.error}")
     return "\n".join(lines)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd status``."""
+    p.add_argument("--json", action="store_true", help="print the raw JSON snapshot")
+    add_target(p)
 
 
 def run(args: argparse.Namespace) -> int:

@@ -8,6 +8,7 @@ grid and analysed).
 
 from __future__ import annotations
 
+import argparse
 import dataclasses
 import os
 import time
@@ -15,13 +16,14 @@ import tomllib
 from pathlib import Path
 
 from hostd.cli import UsageError
-from hostd.commands.slice import load_settings, write_gcode
+from hostd.commands.slice import load_settings
 from hostd.commands.tailor_pictures import write_pictures
 from slicer.errors import ModelError
 from slicer.fea.loadcase import LOAD_SUFFIX
 from slicer.fea.material import describe, file_settings
 from slicer.fea.predict import Prediction, TensionTest, predict_moduli, tension_test
 from slicer.fea.tailor import default_cache_dir, tailored_plan
+from slicer.gcodefile import write_gcode
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings, parse_assignment
 
@@ -87,6 +89,16 @@ class _Writer:
             os.replace(chosen, target)
         for path in self.files.values():
             path.unlink(missing_ok=True)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd tailor``."""
+    p.add_argument("folder", metavar="DIR", help="holds NAME.stl, NAME.load.toml (NAME.toml)")
+    p.add_argument("-o", "--output", metavar="OUTDIR", help="where to write (default DIR/out)")
+    p.add_argument("--optimal", action="store_true",
+                   help="also infill.stress = optimal (optimised density at equal mass)")
+    p.add_argument("--config", metavar="FILE", help="take [slicing] and [printer] from FILE")
+    p.add_argument("--set", metavar="KEY=VALUE", action="append", default=[])
 
 
 def run(args) -> int:

@@ -10,6 +10,30 @@ from hostd.cli import UsageError
 from hostd.commands.target import socket_path
 
 
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    """The arguments of ``hostd tui``."""
+    group = p.add_mutually_exclusive_group()
+    group.add_argument("--config", metavar="FILE")
+    group.add_argument("--socket", metavar="PATH")
+    group.add_argument("--mqtt", metavar="HOST[:PORT]",
+                       help="the fleet view on a broker (a cluster: HOST:PORT,HOST:PORT,...)")
+    p.add_argument("--username", default="", help="broker user name (with --mqtt)")
+    p.add_argument("--password", default=None,
+                   help="broker password (with --mqtt; default: $HOSTD_MQTT_PASSWORD)")
+    p.add_argument("--tls", action="store_true", help="connect to the broker over TLS")
+    p.add_argument("--cafile", metavar="FILE",
+                   help="with --tls: the CA (PEM) of the broker's certificate (default: system's)")
+    p.add_argument("--certfile", metavar="FILE",
+                   help="with --tls: this client's certificate (PEM), with --keyfile")
+    p.add_argument("--keyfile", metavar="FILE", help="with --tls: the key of --certfile (PEM)")
+    p.add_argument("--farm", metavar="URL,...",
+                   help="with --mqtt: the farm queue on these NATS servers beside the printers")
+    p.add_argument("--redraw-s", metavar="S", default=None,
+                   help="for a slow link: draw the layer picture and the event log (and the "
+                        "fleet table) at most once every S seconds (default: "
+                        "$HOSTD_TUI_REDRAW_S, else as the status comes)")
+
+
 def run(args: argparse.Namespace) -> int:
     """Open the dashboard on one printer's socket, or the fleet view on an MQTT broker."""
     from tui.app import redraw_seconds

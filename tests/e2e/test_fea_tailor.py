@@ -11,8 +11,8 @@ import pytest
 import trimesh
 from support.slicer_helpers import write_mesh
 
-from hostd.commands.slice import write_gcode
 from slicer.fea.predict import predict_moduli
+from slicer.gcodefile import write_gcode
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
