@@ -107,31 +107,33 @@ def _tailoring_asked(model: str, settings: SliceSettings, load: str | None) -> b
 
 
 class ProgressBar:
-    """A one-line text progress bar on a stream (stderr), redrawn at most 10 times a second."""
+    """``hostd slice``'s progress line on a stream (stderr): the label, the one bar
+    (:func:`hostd.liveline.fit_bar`) and the layer count on a :class:`hostd.liveline.LiveLine`
+    (never wider than the terminal, ``columns`` else), redrawn at most 10 times a second."""
 
-    def __init__(self, stream: TextIO, label: str, width: int = 30) -> None:
-        self.stream = stream
+    def __init__(self, stream: TextIO, label: str, width: int = 30,
+                 columns: int | None = None) -> None:
+        from hostd.liveline import LiveLine
+
+        self.line = LiveLine(stream, columns)
         self.label = label
         self.width = width
         self.started = time.monotonic()
         self._last = 0.0
 
     def __call__(self, done: int, total: int) -> None:
-        from hostd.api import bar
+        from hostd.liveline import fit_bar
 
         now = time.monotonic()
         if done < total and now - self._last < 0.1:
             return
         self._last = now
         frac = done / total if total else 1.0
-        drawn = bar(frac, self.width, ascii=True)
-        self.stream.write(
-            f"\r{self.label} [{drawn}] {100 * frac:5.1f}% layer {done}/{total} "
-            f"{now - self.started:5.1f}s"
-        )
+        head = f"{self.label} "
+        tail = f"{100 * frac:5.1f}% layer {done}/{total} {now - self.started:5.1f}s"
+        self.line.draw(head + fit_bar(frac, tail, self.line.width() + 1 - len(head), self.width))
         if done >= total:
-            self.stream.write("\n")
-        self.stream.flush()
+            self.line.end()
 
 
 def return_freed_memory() -> None:
@@ -187,7 +189,9 @@ def run(args) -> int:
     """Slice ``args.model`` to ``args.output`` and print a summary (and the stage times
     with ``--profile``: one process then, so the stages add up to the whole)."""
     with collector_paused():
-        # the slicer (slicer.plan with numpy, shapely, trimesh) and hostd.api, for slicing only
+        # the slicer (slicer.plan with numpy, shapely, trimesh), hostd.api and the progress
+        # line, for slicing only
+        import hostd.liveline  # noqa: F401  (the progress line's, loaded here)
         from hostd.api import duration
         from slicer.gcodefile import write_gcode
     return_freed_memory()
