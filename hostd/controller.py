@@ -6,7 +6,9 @@ index from 0, also accepted as ``"body"``); ``set {"settings": {KEY: VALUE, ...}
 ``queue_move {"job": ID, "index": N}`` (0 = next); ``queue_remove {"job": ID}``;
 ``restore_object {"object": N}``; ``layer {"layer": N, "tolerance": MM, "field": [COLS, ROWS]}``
 and ``estimate {"settings": {...}}`` (see :mod:`hostd.layerview`);
-``emergency_stop`` (``M112``: the printer halts, the job printing fails).
+``emergency_stop`` (``M112``: the printer halts, the job printing fails). The arguments
+are read into typed dataclasses by :mod:`hostd.commandargs` (one checker, the settings
+helper's fields); a wrong one is refused as ``CMD needs "KEY": REASON``.
 """
 
 from __future__ import annotations
@@ -15,6 +17,16 @@ from collections.abc import Awaitable, Callable
 from typing import Any
 
 from hostd.activejob import ActiveJob
+from hostd.commandargs import (
+    ArgumentError,
+    EstimateArgs,
+    JobArgs,
+    LayerArgs,
+    ObjectArgs,
+    QueueMoveArgs,
+    RetuneArgs,
+    read_args,
+)
 from hostd.intake import Intake
 from hostd.joblife import JobLife
 from hostd.jobstore import JobStoreError
@@ -55,7 +67,7 @@ class DaemonController:
             raise CommandError(f"unknown command {cmd!r}")
         try:
             return await handler(args)
-        except JobStoreError as exc:
+        except (JobStoreError, ArgumentError) as exc:
             raise CommandError(str(exc)) from exc
 
     def _printing(self) -> ActiveJob:
@@ -91,8 +103,7 @@ class DaemonController:
         return {"job": job.job.id if job is not None else None}
 
     async def _cmd_resume_job(self, args: dict[str, Any]) -> dict[str, Any]:
-        ref = _text(args, "job")
-        job = self.store.find(ref)
+        job = self.store.find(read_args("resume_job", JobArgs.read, args).job)
         if job.state != "interrupted":
             raise CommandError(f"job {job.id} ({job.name}) is {job.state}, not interrupted")
         if job.kind == "gcode" and job.layer >= 0:
@@ -106,84 +117,47 @@ class DaemonController:
 
     async def _cmd_cancel_object(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
-        raw = args.get("object", args.get("body"))
-        if isinstance(raw, bool) or not isinstance(raw, int):
-            raise CommandError("cancel_object needs \"object\": a body number from 0")
-        first = job.cancel_object(raw)
-        return {"job": job.job.id, "object": raw, "from_layer": first}
+        body = read_args("cancel_object", ObjectArgs.read, args).object
+        first = job.cancel_object(body)
+        return {"job": job.job.id, "object": body, "from_layer": first}
 
     async def _cmd_restore_object(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
-        raw = args.get("object", args.get("body"))
-        if isinstance(raw, bool) or not isinstance(raw, int):
-            raise CommandError("restore_object needs \"object\": a body number from 0")
-        job.restore_object(raw)
-        return {"job": job.job.id, "object": raw}
+        body = read_args("restore_object", ObjectArgs.read, args).object
+        job.restore_object(body)
+        return {"job": job.job.id, "object": body}
 
     async def _cmd_layer(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
         if job.schedule is None:
             raise CommandError("a G-code job has no toolpaths to show")
-        index = args.get("layer")
-        if index is not None and (isinstance(index, bool) or not isinstance(index, int)):
-            raise CommandError("layer needs \"layer\": a layer index from 0")
-        tolerance = args.get("tolerance", 0.2)
-        field = args.get("field")
-        if not isinstance(tolerance, int | float) or not 0 <= tolerance <= 50:
-            raise CommandError("\"tolerance\" must be a number of mm from 0 to 50")
-        if field is not None and not (
-            isinstance(field, list) and len(field) == 2
-            and all(isinstance(v, int) and 0 < v <= 1000 for v in field)
-        ):
-            raise CommandError("\"field\" must be [columns, rows], each 1..1000")
-        shape = (field[0], field[1]) if field else None
-        return await job.layer_view(index, float(tolerance), shape)
+        view = read_args("layer", LayerArgs.read, args)
+        return await job.layer_view(view.layer, view.tolerance, view.field)
 
     async def _cmd_estimate(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
         if job.schedule is None:
             raise CommandError("a G-code job has no toolpaths to show")
-        changes = args.get("settings")
-        if changes is not None and (not isinstance(changes, dict) or not changes):
-            raise CommandError("estimate takes \"settings\": {KEY: VALUE, ...}")
-        return await job.estimate(changes)
+        return await job.estimate(read_args("estimate", EstimateArgs.read, args).settings)
 
     async def _cmd_set(self, args: dict[str, Any]) -> dict[str, Any]:
         job = self._printing()
-        if "settings" in args:
-            changes = args["settings"]
-            if not isinstance(changes, dict) or not changes:
-                raise CommandError("set needs \"settings\": {KEY: VALUE, ...}")
-        elif "key" in args and "value" in args:
-            changes = {_text(args, "key"): args["value"]}
-        else:
-            raise CommandError("set needs \"settings\" or \"key\" and \"value\"")
+        changes = read_args("set", RetuneArgs.read, args).settings
         first = job.retune(changes)
         return {"job": job.job.id, "from_layer": first, "settings": changes}
 
     async def _cmd_queue_move(self, args: dict[str, Any]) -> dict[str, Any]:
-        job = self.store.find(_text(args, "job"))
-        index = args.get("index")
-        if isinstance(index, bool) or not isinstance(index, int) or index < 0:
-            raise CommandError("queue_move needs \"index\": 0 or more")
-        queue = self.store.move(job.id, index)
+        move = read_args("queue_move", QueueMoveArgs.read, args)
+        job = self.store.find(move.job)
+        queue = self.store.move(job.id, move.index)
         self.changed()
         return {"queue": [item.id for item in queue]}
 
     async def _cmd_queue_remove(self, args: dict[str, Any]) -> dict[str, Any]:
-        job = self.store.find(_text(args, "job"))
+        job = self.store.find(read_args("queue_remove", JobArgs.read, args).job)
         if job.state not in ("queued", "interrupted"):
             raise CommandError(f"job {job.id} is {job.state}; only queued or interrupted jobs "
                                "can be removed")
         self.intake.fail(job, "removed from the queue", state="cancelled")
         self.changed()
         return {"job": job.id}
-
-
-def _text(args: dict[str, Any], key: str) -> str:
-    value = args.get(key)
-    if isinstance(value, int) and not isinstance(value, bool):
-        value = str(value)
-    if not isinstance(value, str) or not value:
-        raise CommandError(f"missing \"{key}\"")
-    return value
