@@ -35,7 +35,8 @@ class UsageError(Exception):
 
 
 def build_parser(command: str | None = None) -> argparse.ArgumentParser:
-    """The argument parser of every subcommand, or, given ``command``, of that one alone.
+    """The argument parser of every subcommand, or, given ``command``, of that one alone
+    (``""``: of none, for ``hostd --help`` and a command line naming no subcommand).
 
     Every registered subcommand is listed (``hostd --help`` is the same either way);
     each gets its arguments from its module's ``add_arguments``, which is imported for
@@ -90,7 +91,7 @@ def main(argv: Sequence[str] | None = None) -> int:
         # before the command's module (and numpy with it) is imported for its arguments
         for variable in _BLAS_VARIABLES:
             os.environ.setdefault(variable, "1")
-    args = build_parser(named).parse_args(argv)
+    args = build_parser(named or "").parse_args(argv)
     module = _import_command(COMMANDS[args.command].module)
     try:
         return int(module.run(args))

@@ -57,8 +57,8 @@ import contextlib, io, sys
 from hostd import cli
 help_text = io.StringIO()
 with contextlib.suppress(SystemExit), contextlib.redirect_stdout(help_text):
-    cli.main(["slice", "--help"])
-assert "usage: hostd slice" in help_text.getvalue()
+    cli.main(sys.argv[1:])
+assert "usage: hostd" in help_text.getvalue()
 loaded = sorted(m for m in sys.modules if m.split(".")[0] in ("hostd", "slicer", "numpy"))
 print(" ".join(loaded))
 """
@@ -85,10 +85,16 @@ print(*frozen[0])
 def test_slice_help_loads_its_light_module_and_no_slicer() -> None:
     """``hostd slice --help`` imports the registry and the slice command's module, whose
     arguments it prints, but neither the slicer nor numpy."""
-    out = subprocess.run([sys.executable, "-c", _HELP_LOADS], capture_output=True, text=True,
-                         check=True, timeout=120)
+    out = subprocess.run([sys.executable, "-c", _HELP_LOADS, "slice", "--help"],
+                         capture_output=True, text=True, check=True, timeout=120)
     assert out.stdout.split() == ["hostd", "hostd.cli", "hostd.commands",
                                   "hostd.commands.slice"]
+
+
+def test_hostd_help_lists_every_command_and_imports_none() -> None:
+    out = subprocess.run([sys.executable, "-c", _HELP_LOADS, "--help"],
+                         capture_output=True, text=True, check=True, timeout=120)
+    assert out.stdout.split() == ["hostd", "hostd.cli", "hostd.commands"]
 
 
 def test_slice_imports_the_slicer_with_the_collector_paused_then_frozen() -> None:
