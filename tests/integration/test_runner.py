@@ -1,4 +1,10 @@
-"""The just-in-time runner on the real simulated printer: bounded lookahead, checkpoints."""
+"""The just-in-time runner on the real simulated printer: bounded lookahead, checkpoints.
+
+What needs the wire: the lookahead and the checkpoints under a real link and printer,
+renumbering, a slow SQLite store beside the serial reader. What the runner sends and
+records (pause, resume, cancel, a resume within a layer, a body cancelled, a full disk,
+a lost printer) is tests/unit/test_runner_link.py, against an in-memory link.
+"""
 
 from __future__ import annotations
 
@@ -230,77 +236,6 @@ def test_a_store_whose_commits_take_200_ms_does_not_hold_up_the_printer(tmp_path
     assert seen["job"].state == "printing"
     assert seen["checkpoints"][-1][0] == plan.layer_count - 1
     assert seen["job"].lines_acked == seen["checkpoints"][-1][1]
-
-
-def test_a_full_disk_stops_the_gcode_file_but_not_the_print(tmp_path: Path) -> None:
-    seen = asyncio.run(print_job(tmp_path, depth=2, output_path=Path("/dev/full")))
-    plan = seen["plan"]
-    expected = whole_program(plan)
-    assert job_lines(seen["executed"]) == expected
-    assert "No space left on device" in seen["output_error"]
-    assert seen["hub"].job.progress == 1.0
-
-
-def test_a_resume_within_a_layer_sends_the_rest_of_it_after_lifted_moves_back(
-    tmp_path: Path,
-) -> None:
-    settings = SliceSettings()
-    plan = SlicePlan.from_file(MODEL, settings)
-    schedule = LayerSchedule(plan, settings)
-    layer, done = 2, 150  # layer 2 complete; 150 commands of layer 3 carried out
-    text = [line for line in plan.start_gcode()]
-    for index in range(layer + 1):
-        text += plan.layer_gcode(index)
-    partial = tmp_path / "out.gcode.part"
-    partial.write_text("\n".join(text) + "\n")
-    store = RecordingStore(tmp_path / "jobs.sqlite3")
-    job = store.add("dogbone.stl", str(MODEL), str(MODEL), "stl", "00", settings.to_mapping())
-    store.transition(job.id, "slicing")
-    store.checkpoint(job.id, layer, 4000, partial.stat().st_size, done)
-    job = store.get(job.id)
-
-    async def main() -> list[str]:
-        printer = SimulatedPrinter(SimulatorConfig(time_scale=0.0, baud=0))
-        path = printer.start()
-        executor = concurrent.futures.ThreadPoolExecutor(2)
-        try:
-            async with Streamer(await open_transport(path, 250000), StreamerConfig()) as link:
-                await link.connect()
-                source = SlicedSource(schedule, layer + 1, 2, executor, resume=True)
-                output = open_output(partial, job.gcode_bytes)
-                runner = JobRunner(job, source, link, JobLife(store, StatusHub()), output,
-                                   layer + 1, write_preamble=False, skip=done)
-                await runner.run()
-                output.close()
-        finally:
-            executor.shutdown()
-            printer.stop()
-        return list(printer.executed)
-
-    executed = [c for c in asyncio.run(main()) if c.split()[0] not in HOUSEKEEPING]
-    commands = [c for c in map(strip_comment, plan.resume_gcode(layer + 1)) if c]
-    assert executed[:len(commands)] == commands
-    rest = [c for c in map(strip_comment, plan.layer_gcode(layer + 1)) if c]
-    carried_out, rest = rest[:done], rest[done:]
-    for index in range(layer + 2, plan.layer_count):
-        rest += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
-    rest += [c for c in map(strip_comment, plan.end_gcode()) if c]
-    assert executed[-len(rest):] == rest
-    back = executed[len(commands):-len(rest)]
-    # the moves back: the retraction in force, a travel at the lifted height, down to the
-    # layer's Z, the feed rate; no plastic laid
-    last_xy = next(c for c in reversed(carried_out) if " X" in c and " Y" in c)
-    x, y = (w for w in last_xy.split() if w[0] in "XY")
-    assert back[-3:-1] == [f"G0 F9000 {x} {y}", f"G0 F600 Z{plan.layer_z(layer + 1):.3f}"]
-    assert back[-1].startswith("G1 F")
-    assert len(back) <= 4
-    assert not any("E" in c and c.startswith("G1 X") for c in back)
-    # the G-code file is the uninterrupted print's
-    reference = [c for c in map(strip_comment, plan.start_gcode()) if c]
-    for index in range(plan.layer_count):
-        reference += [c for c in map(strip_comment, plan.layer_gcode(index)) if c]
-    reference += [c for c in map(strip_comment, plan.end_gcode()) if c]
-    assert [c for c in map(strip_comment, partial.read_text().splitlines()) if c] == reference
 
 
 def test_a_state_change_handed_to_the_checkpoint_writer_is_committed_off_the_loop_in_order(
