@@ -11,21 +11,23 @@ from types import FrameType
 from drivers.simconfig import FAULT_KINDS
 from drivers.simulator import SimulatedPrinter, SimulatorConfig
 from hostd.cli import UsageError
+from slicer.options import Choice, Number, SettingError, parse_assignment
 
 
 def parse_faults(specs: list[str]) -> dict[str, float]:
-    """``["drop_ok=0.01", ...]`` -> ``{"p_drop_ok": 0.01}``; raises UsageError when malformed."""
+    """``["drop_ok=0.01", ...]`` -> ``{"p_drop_ok": 0.01}``; raises UsageError when malformed
+    (KIND=P, KIND one of the simulator's fault kinds, P a probability: ``slicer.options``)."""
     faults: dict[str, float] = {}
     for spec in specs:
-        kind, sep, value = spec.partition("=")
-        if not sep or kind not in FAULT_KINDS:
+        if "=" not in spec:
             raise UsageError(f"--fault {spec!r}: expected KIND=P with KIND one of "
                              + ", ".join(FAULT_KINDS))
         try:
-            p = float(value)
-        except ValueError as exc:
-            raise UsageError(f"--fault {spec!r}: P must be a number in 0..1") from exc
-        faults[f"p_{kind}"] = p
+            kind, value = parse_assignment(spec)
+            kind = Choice(FAULT_KINDS).check(kind, kind)
+            faults[f"p_{kind}"] = Number(0.0, 1.0).check(kind, value)
+        except SettingError as exc:
+            raise UsageError(f"--fault {spec!r}: {exc.reason}") from exc
     return faults
 
 
