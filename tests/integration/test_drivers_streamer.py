@@ -436,7 +436,9 @@ def test_pause_parks_and_resume_continues_exactly_where_it_stopped():
     park = ("G91", "G1 Z5 F600", "G90")
     unpark = ("G91", "G1 Z-5 F600", "G90")
 
-    async def run(sim: SimulatedPrinter) -> tuple[int, int]:
+    # that nothing of the job runs while paused is proved on the virtual clock
+    # (tests/unit/test_drivers_pause.py); here the shell's pause and resume on the wire
+    async def run(sim: SimulatedPrinter) -> None:
         async with Streamer(await open_transport(sim.path, 250000), SLOW) as link:
             await link.connect()
 
@@ -447,19 +449,14 @@ def test_pause_parks_and_resume_continues_exactly_where_it_stopped():
             task = asyncio.create_task(producer(), name="producer")
             await _wait_acked(link, 100)
             await link.pause(park=park)
-            # the link's own lines (an M105 probe that fences the pause) may still run
-            at_pause = len(job_lines(list(sim.executed)))
-            await asyncio.sleep(0.3)
-            still = len(job_lines(list(sim.executed)))
+            assert link.state == "paused"
             await link.resume(unpark=unpark)
             await task
             await link.drain()
-            return at_pause, still
 
     with SimulatedPrinter(_slow_sim()) as sim:
-        at_pause, still = asyncio.run(run(sim))
+        asyncio.run(run(sim))
         executed = list(sim.executed)
-    assert at_pause == still  # nothing ran while paused
     body = job_lines(executed)
     cut = body.index("G91")
     assert body[cut:cut + 3] == list(park)
