@@ -140,7 +140,7 @@ def load_config(path: str | Path | None = None, cwd: Path | None = None) -> Conf
     """Read and check a TOML configuration file; ``None`` gives the embedded default.
 
     Relative folders resolve against ``cwd`` (the current directory when omitted).
-    Raises ``ConfigError`` naming the offending key.
+    Raises ``SettingError`` (``ConfigError``) naming the offending key.
     """
     data: dict[str, Any] = {}
     if path is not None:
@@ -148,9 +148,9 @@ def load_config(path: str | Path | None = None, cwd: Path | None = None) -> Conf
             with open(path, "rb") as handle:
                 data = tomllib.load(handle)
         except OSError as exc:
-            raise ConfigError("", f"cannot read {path}: {exc.strerror or exc}") from exc
+            raise SettingError("", f"cannot read {path}: {exc.strerror or exc}") from exc
         except tomllib.TOMLDecodeError as exc:
-            raise ConfigError("", f"{path} is not valid TOML: {exc}") from exc
+            raise SettingError("", f"{path} is not valid TOML: {exc}") from exc
     return config_from_mapping(data, cwd or Path.cwd())
 
 
@@ -160,9 +160,9 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
              "farm", "material"}
     for name, value in data.items():
         if name not in known:
-            raise ConfigError(name, "unknown section")
+            raise SettingError(name, "unknown section")
         if not isinstance(value, Mapping):
-            raise ConfigError(name, "expected a [table]")
+            raise SettingError(name, "expected a [table]")
     jobs = Table(data.get("jobs", {}), "jobs")
     state = Table(data.get("state", {}), "state")
     printer = Table(data.get("printer", {}), "printer")

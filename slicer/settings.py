@@ -103,13 +103,13 @@ class SliceSettings:
         for key, raw in flat.items():
             spec = _SPECS.get(key)
             if spec is None:
-                raise SettingsError(key, "unknown slicing setting")
+                raise SettingError(key, "unknown slicing setting")
             changes[key.replace(".", "_")] = spec.check(key, raw)
         merged = dataclasses.replace(base or cls(), **changes)
         if merged.first_layer_height <= 0:
-            raise SettingsError("first_layer_height", "must be positive")
+            raise SettingError("first_layer_height", "must be positive")
         if not _THUMBNAILS.fullmatch(merged.gcode_thumbnails):
-            raise SettingsError("gcode.thumbnails", f"{merged.gcode_thumbnails!r}: expected sizes"
+            raise SettingError("gcode.thumbnails", f"{merged.gcode_thumbnails!r}: expected sizes"
                                 " such as \"32x32,220x124\" (1..1024 px each), or \"\" for none")
         return merged
 
