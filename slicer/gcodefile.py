@@ -27,13 +27,16 @@ _PROBE = 8
 # walls took 0.30 s, and forked it finished in 0.34 s instead of 0.45 s; models
 # with less left were as fast either way (medians of 7, bench/.cache/corpus)
 _FORK_WORTH = 0.05
-# an outline cut estimated to take this long or more (s) is begun in a forked process
-# while the first layers are sliced here: below it the fork, the WKB sent back and
-# the pages copied cost more than the overlap gains. Cut alone, the 158-layer
-# lattice's 0.126 s cut took 0.090 s in two processes; the whole slice of a cone on
-# a sphere (0.02 s estimated) took 0.295-0.299 s with its cut sent away, 0.308-0.315 s
-# without (medians of 9); at 0.015-0.02 s (a bracket, a plate with holes, a grid of
-# parts) 0.97-0.99x
+# a model whose outline cut is estimated to take this long or more (s) is forked for
+# at once: its outlines are cut on two cores (the top half in a forked process, sent
+# back as WKB) and every layer goes to the workers, none is timed here first. Below
+# it the fork, the WKB sent back and the pages copied cost more than the overlap
+# gains (cut alone, the 158-layer lattice's 0.126 s cut took 0.090 s in two
+# processes; at 0.015-0.02 s, a bracket, a plate with holes, a grid of parts,
+# 0.97-0.99x). The lightest model above it, the panel clip (0.02 s, 50 layers), has
+# 0.11 s of layers left after the first 8: every such model forks anyway, and timing
+# 8 layers here first left the second core idle for them (the lower idler: 66 ms of
+# CPU in this process before the workers began, 24 ms now)
 _CUT_AWAY_WORTH = 0.015
 # tasks (of _CHUNK layers) a forked worker may have made or in hand beyond the one
 # being written: the window's depth in layers is _AHEAD * workers * _CHUNK
@@ -93,8 +96,10 @@ def iter_layer_texts(
     inherit the plan, no copy) slice tasks in parallel instead, at most
     ``_AHEAD * workers * _CHUNK`` layers ahead of the writer. Without ``fork``
     or with one core the layers are sliced in this thread, and so are small
-    models: the first layers are sliced here and timed, and workers are forked
-    only when the rest would take long enough to gain (:data:`_FORK_WORTH`).
+    models: unless the outlines alone are heavy (:data:`_CUT_AWAY_WORTH`, then
+    every layer goes to the workers at once), the first layers are sliced here
+    and timed, and workers are forked only when the rest would take long enough
+    to gain (:data:`_FORK_WORTH`).
     The bytes are the same either way. ``meanwhile``, when given, is called once
     here while forked workers slice (their first tasks handed out), so work of
     this process that the layers do not need (the file's header) overlaps
@@ -107,15 +112,24 @@ def iter_layer_texts(
         return _layer_texts(plan, lo, hi, labels)
 
     fork = workers >= 2 and hasattr(os, "fork")
+    if fork and plan.cut_estimate() >= _CUT_AWAY_WORTH:
+        # a model whose outlines take this long to cut has more than enough layers to
+        # gain from workers: no layer is timed here, the outlines are cut at once on
+        # two cores (from the top down in a forked process, from the bottom up here)
+        # and every layer goes to the workers, so the second core works from the start
+        away = plan.cut_away()
+        if away is not None:
+            try:
+                away.meet()
+            finally:
+                away.close()
+        plan.cut_all()
+        yield from _forked(plan, make, 0, n, workers, meanwhile)
+        return
     probe = min(_PROBE, n) if fork else 0
     tasks = list(_chunks(0, n))
     if fork:  # the layers timed here (0-3 and 4-7)
         tasks = [(lo, hi) for lo, hi in tasks if hi <= probe]
-    # outlines are cut lazily; with cores to spare, a heavy cut is begun in a forked
-    # process, from the top down, while the first layers are sliced here
-    away = None
-    if fork and plan.cut_estimate() >= _CUT_AWAY_WORTH:
-        away = plan.cut_away(probe + plan.settings.top_layers + 1)
     here: LayerWindow[tuple[str, float, float]] = LayerWindow(
         in_blocks(make, tasks), n, depth=1)
     try:
@@ -129,8 +143,6 @@ def iter_layer_texts(
             timed = here.taken - min(here.taken, _PROBE // 2)
             per_layer = (time.perf_counter() - started) / max(timed, 1)
             fork = per_layer * (n - here.taken) >= _FORK_WORTH
-        if away is not None:  # the rest cut here from the bottom up, the child's kept
-            away.meet()
         if not fork:
             if probe and here.taken < n:  # the rest, task by task
                 here.close()
@@ -142,10 +154,16 @@ def iter_layer_texts(
         # of each cutting the blocks its layers and their skins need
         plan.cut_all()
     finally:
-        if away is not None:
-            away.close()  # the child ended, when the layers here failed first
         here.close()
-    done = here.taken
+    yield from _forked(plan, make, here.taken, n, workers, meanwhile)
+
+
+def _forked(
+    plan: SlicePlan, make: Callable[[int, int], list[tuple[str, float, float]]],
+    done: int, n: int, workers: int, meanwhile: Callable[[], None] | None,
+) -> Iterator[tuple[str, float, float]]:
+    """Layers ``done..n-1`` made by ``workers`` forked processes, a task at a time,
+    in order; ``meanwhile`` is called here once their first tasks are handed out."""
     from slicer.forkslice import ForkedLayers
 
     with ForkedLayers(make, list(_chunks(done, n)), workers) as engine:

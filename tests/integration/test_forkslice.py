@@ -72,9 +72,10 @@ def test_one_and_two_workers_write_the_same_bytes(
 def test_outlines_cut_away_or_here_before_forking_give_the_same_bytes(
     tmp_path, monkeypatch, worth: float
 ) -> None:
-    """A fresh plan's outlines are all cut before the workers fork: a heavy cut begun
-    in a forked child while the first layers are sliced here, a light one here; the
-    file is the one process's, byte for byte."""
+    """A fresh plan's outlines are all cut before the workers fork: a heavy cut on two
+    cores (half in a forked child) and then every layer made by the workers, none
+    timed here; a light one here, after the first layers are timed here. The file is
+    the one process's, byte for byte."""
     path = box_stl(tmp_path / "box.stl", (12.0, 8.0, 40.0))
     write_gcode(SlicePlan.from_file(path, SliceSettings()), tmp_path / "one.gcode", workers=1)
     monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
@@ -87,9 +88,20 @@ def test_outlines_cut_away_or_here_before_forking_give_the_same_bytes(
         used.append("cut_away")
         return real(*args)
 
+    taken: list[str] = []
+    take = LayerWindow.take
+
+    def engine(self, index=None):
+        taken.append(type(self.submit.__self__).__name__ if hasattr(self.submit, "__self__")
+                     else "in_thread")
+        return take(self, index)
+
     monkeypatch.setattr(plan, "cut_away", counted)
+    monkeypatch.setattr(LayerWindow, "take", engine)
     write_gcode(plan, tmp_path / "two.gcode", workers=2)
     assert used == ([] if worth else ["cut_away"])
+    here = gcodefile._PROBE if worth else 0  # the layers timed here
+    assert taken == ["in_thread"] * here + ["ForkedLayers"] * (plan.layer_count - here)
     assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
 
 
