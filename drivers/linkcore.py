@@ -16,17 +16,15 @@ from drivers.linkevents import (
     Event,
     Failed,
     LinkState,
-    Probed,
     Report,
-    Started,
     Temperature,
 )
+from drivers.linkhandshake import Handshake
 from drivers.linkmodel import PrinterModel
 from drivers.linkoks import AckCounter
 from drivers.linkresync import Resync
 from drivers.linkwatch import Watchdog
 from drivers.linkwrite import LinkWriter, Renumber
-from drivers.numbering import NumberingProbe
 from drivers.resend import edit_distance, recover
 from drivers.responses import Response, parse_response
 from drivers.window import InFlight, SendWindow
@@ -69,18 +67,26 @@ class LinkCore:
         self._plain_oks: dict[str, Response] = {}  # parsed once: plain and advanced oks
         self._expect_resend_ok = False
         self._last_error: Response | None = None  # a line error just before this line
-        self.transcript: list[str] | None = None  # when a list, every line received goes in
-        self.numbering_probe: NumberingProbe | None = None  # out before the handshake
         self.writer = LinkWriter(self)
         self.acks = AckCounter(self)
         self.resync = Resync(self)
         self.watchdog = Watchdog(self)
+        self.handshake = Handshake(self)
 
     # -- what the parts tell each other through the core ----------------------------------
 
     def emit(self, event: Event) -> None:
         """One event for the shell (:meth:`take_events`)."""
         self._events.append(event)
+
+    def emit_acked(self, event: Acked) -> None:
+        """A line acknowledged: the handshake's own lines (negative tokens) are the
+        handshake's business, every other for the shell."""
+        token = event.token
+        if token is not None and token < 0:
+            self.handshake.acked(token)
+        else:
+            self._events.append(event)
 
     @property
     def acked(self) -> int:
@@ -147,8 +153,9 @@ class LinkCore:
 
     def feed(self, text: str, now: float) -> list[Event]:
         """One line received from the printer (without its line ending)."""
-        if self.transcript is not None:
-            self.transcript.append(text)
+        transcript = self.handshake.transcript
+        if transcript is not None:
+            transcript.append(text)
         response = self._plain_oks.get(text)
         if response is None:
             response = recover(parse_response(text))
@@ -192,15 +199,11 @@ class LinkCore:
 
     def handle(self, response: Response, now: float) -> None:
         """Act on one classified response."""
-        probe = self.numbering_probe
-        if probe is not None:
-            taken = probe.take(response)
-            if taken or probe.done:
-                self._events.append(Probed())
-            if taken:  # its answer is no line's of ours
-                if response.temperatures:
-                    self._events.append(Temperature(response))
-                return
+        if self.handshake.probe is not None and self.handshake.take(response, now):
+            # its answer is no line's of ours
+            if response.temperatures:
+                self._events.append(Temperature(response))
+            return
         kind = response.kind
         if kind == "other":
             # unreadable noise (a Resend garbled beyond repair): keep what came before;
@@ -244,7 +247,7 @@ class LinkCore:
             else:
                 self.capabilities[response.name] = response.value
         elif kind == "start":
-            self._on_start()
+            self._on_start(now)
 
     def _on_echo(self, response: Response) -> None:
         raw = response.raw
@@ -300,11 +303,11 @@ class LinkCore:
         top = self.writer.next_number - 1
         return any(history.get(n, ("",))[0] == text for n in range(top, max(0, top - 64), -1))
 
-    def _on_start(self) -> None:
+    def _on_start(self, now: float) -> None:
         if self.state == LinkState.CONNECTING and not self.handshaking:
             if not self.started:
                 self.started = True
-                self._events.append(Started())
+                self.handshake.banner(now)
         elif self.state == LinkState.RECONNECTING:
             self.state = LinkState.PAUSED if self.paused else LinkState.READY
             self.on_reset()
@@ -318,7 +321,7 @@ class LinkCore:
         assert renumber is not None
         value = renumber.value
         if renumber.token is not None:
-            self._events.append(Acked(value, f"M110 N{value}", False, renumber.token))
+            self.emit_acked(Acked(value, f"M110 N{value}", False, renumber.token))
         self.resync.clear()
         fresh = self.writer.end_renumber(value, renumber.keep_history)
         if fresh:
@@ -378,10 +381,19 @@ class LinkCore:
             self.window.max_lines = max(config.bufsize, 1)
         self.window.limit = self.window.max_lines
 
-    def begin_connect(self, now: float) -> None:
-        """The port is open: wait for ``start`` (the board's reset)."""
+    def begin_connect(self, now: float, *, probe_numbering: bool = False,
+                      identify: bool = True) -> None:
+        """The port is open: the handshake begins (:mod:`drivers.linkhandshake`), waiting
+        for ``start`` (the board's reset); ``Connected`` once it is done.
+
+        ``probe_numbering``: first find out whether the printer still counts the lines of
+        an earlier session (``handshake.numbering_kept``). ``identify``: ``M115`` (and
+        ``M503``, ``M155``) after the ``M110``; without, the link is ready once the
+        ``M110`` is answered.
+        """
         self.state = LinkState.CONNECTING
         self.watchdog.opened(now)
+        self.handshake.begin(probe_numbering, identify)
 
     def begin_handshake(self, reset_to: int, keep_history: bool, token: int) -> None:
         """``M110 N<reset_to>`` once nothing is in flight; ``token`` is acknowledged when
@@ -406,14 +418,15 @@ class LinkCore:
         self.stats.reconnects += 1
         self.watchdog.reopened(now)
         self.forget_in_flight(cut=True)
+        self.writer.queue_raw(b"\n")  # ends whatever partial line the printer kept
         self.model.lost()
         self.state = LinkState.RECONNECTING
 
-    def start_timed_out(self) -> None:
+    def start_timed_out(self, now: float) -> None:
         """No ``start`` banner within ``start_timeout_s`` of opening the port: a board that
-        did not reset on open (or prints no banner) is taken as ready (``Started``)."""
+        did not reset on open (or prints no banner) is taken as ready."""
         self.started = True
-        self._events.append(Started())
+        self.handshake.banner(now)
 
     def reconnect_timed_out(self) -> None:
         """No ``start`` after reopening: the printer kept its state; continue after the
@@ -440,13 +453,23 @@ class LinkCore:
         self.stopping = True
         return self.writer.drop_pending()
 
-    def out_of_band(self, command: str) -> None:
-        """``command`` was written unnumbered, straight after the lines already written
-        (``M108`` or ``M410`` to an emergency parser). Marlin acts on it at once and still
-        queues it, answering ``ok`` in its place in the stream: it is in flight like the
-        lines before it. Uncounted, its ``ok`` acknowledged the next line before the
-        printer had run it."""
-        self.window.push(InFlight(None, command, len(command) + 1, internal=True))
+    def urgent(self, command: str) -> tuple[bool, list[int]]:
+        """``command`` (``M112``, ``M108``, ``M410``) at once: unnumbered, before any line,
+        to a firmware with an emergency parser (``Cap:EMERGENCY_PARSER:1``), else as the
+        next line (:meth:`emergency`). Returns whether it went out of band, and the tokens
+        of the job lines dropped (an ``M112`` as a line), for the shell to fail.
+
+        Out of band, Marlin acts on ``M108`` and ``M410`` at once and still queues them,
+        answering ``ok`` in their place in the stream: each is in flight like the lines
+        before it (uncounted, its ``ok`` acknowledged the next line before the printer had
+        run it). ``M112`` kills the printer: no ``ok`` comes.
+        """
+        if "EMERGENCY_PARSER" not in self.capable:
+            return False, self.emergency(command)
+        entry = None if command == "M112" else InFlight(None, command, len(command) + 1,
+                                                        internal=True)
+        self.writer.queue_raw(f"{command}\n".encode(), entry)
+        return True, []
 
     def pause(self, park: list[str]) -> None:
         """Stop job lines after those written; ``park`` lines go out first."""

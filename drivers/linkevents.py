@@ -70,13 +70,8 @@ class Failed:
 
 
 @dataclass(frozen=True)
-class Started:
-    """The ``start`` banner of a board reset arrived while connecting."""
+class Connected:
+    """The handshake is done: the link is ready to stream (:mod:`drivers.linkhandshake`)."""
 
 
-@dataclass(frozen=True)
-class Probed:
-    """The line-number probe written before the handshake was answered (or given up)."""
-
-
-Event = Written | Acked | Temperature | Report | Failed | Started | Probed
+Event = Written | Acked | Temperature | Report | Failed | Connected

@@ -106,6 +106,8 @@ class Watchdog:
         elif self.core.state == LinkState.CONNECTING and not self.core.started:
             self._watch_start(now)
         else:
+            if self.core.state == LinkState.CONNECTING:
+                self.core.handshake.tick(now)
             self._watch_silence(now)
             self._watch_temperature(now)
         return self.core.take_events()
@@ -114,7 +116,7 @@ class Watchdog:
         """No ``start`` banner within ``start_timeout_s`` of opening the port: a board that
         did not reset on open (or prints no banner) is taken as ready (``Started``)."""
         if now - self.connect_at >= self.core.config.start_timeout_s:
-            self.core.start_timed_out()
+            self.core.start_timed_out(now)
 
     def _watch_reconnect(self, now: float) -> None:
         """No ``start`` after reopening: the printer kept its state; continue after the

@@ -73,6 +73,10 @@ class LinkWriter:
         self.force_replay = False  # a probe is due: one replayed line passes the window
         self.fenced = False  # a probe written after every other line has been answered
         self._framed: tuple[int, str, bytes] | None = None  # the next job line, framed
+        # bytes written as they are, before any line (unnumbered, outside the protocol:
+        # the newline and the numbering probe of the handshake, a line to an emergency
+        # parser), each with its entry in the window if the printer answers it
+        self.raw: deque[tuple[bytes, InFlight | None]] = deque()
 
     def queue_job(self, command: str, token: int) -> None:
         """A job command to write after those already queued; ``Written`` tells its number."""
@@ -93,8 +97,18 @@ class LinkWriter:
         self.pending.clear()
         return tokens
 
+    def queue_raw(self, data: bytes, entry: InFlight | None = None) -> None:
+        """``data`` to write before any line, whatever the link's state; ``entry`` goes in
+        the window when it is written (a line the printer answers in the stream's order)."""
+        self.raw.append((data, entry))
+
     def next_bytes(self, now: float) -> bytes | None:
-        """The next line to write now (recorded as written), or ``None``."""
+        """The next bytes to write now (recorded as written), or ``None``."""
+        if self.raw:
+            data, raw_entry = self.raw.popleft()
+            if raw_entry is not None:
+                self.window.push(raw_entry)
+            return data
         if self.core.state in STOPPED:
             return None
         out = self._next_line(now)

@@ -13,7 +13,7 @@ from typing import TypedDict
 
 from drivers.linkconfig import StreamerConfig, StreamStats
 from drivers.linkcore import LinkCore
-from drivers.linkevents import Acked, Event, Failed, Started, Written
+from drivers.linkevents import Acked, Connected, Event, Failed
 from drivers.protocol import frame
 from drivers.resend import recover
 from drivers.responses import Response, parse_response
@@ -94,7 +94,8 @@ def run_core(
     max_seconds: float = 1e7,
     printer_class: type[VirtualPrinter] = VirtualPrinter,
 ) -> LinkRun:
-    """Connect the core to a fresh virtual printer, stream ``lines``, wait for every ack.
+    """Connect the core to a fresh virtual printer (the core's own handshake, the
+    streamer's), stream ``lines``, wait for every ack.
 
     ``printer_hook`` may set the printer's ``split`` and its lanes' ``delay`` before the
     first byte. Raises :class:`NoConvergence` past ``max_seconds`` of virtual time and
@@ -106,25 +107,15 @@ def run_core(
     written = [0]
     phase: _Phase = {"next": 0, "streaming": False, "start": 0.0, "end": 0.0}
     gaps = [0.0, 0.0]  # the last write while streaming, the longest gap between two
-    handshake, identify = 1, 2
 
     def handle(events: list[Event]) -> None:
         for event in events:
-            kind = type(event)
-            if kind is Written:
-                continue
-            if kind is Started:
-                core.begin_handshake(0, keep_history=False, token=handshake)
-            elif isinstance(event, Acked):
+            if isinstance(event, Acked):
                 if event.job:
                     acked.append(event.command)
-                    continue
-                if event.token == handshake:
-                    core.queue_control("M115", internal=True, token=identify)
-                elif event.token == identify:
-                    core.connected(clock.now)
-                    phase["streaming"] = True
-                    phase["start"] = clock.now
+            elif isinstance(event, Connected):  # the link's own handshake is done
+                phase["streaming"] = True
+                phase["start"] = clock.now
             elif isinstance(event, Failed):
                 raise RuntimeError(f"link failed: {event.reason}")
 

@@ -21,7 +21,7 @@ from drivers.linkconfig import (
     StreamerConfig,
     StreamStats,
 )
-from drivers.linkconnect import Connecting
+from drivers.linkconnect import Reconnector, log_connection
 from drivers.linkcore import LinkCore
 from drivers.linkerrors import LinkError, PrinterLinkError, StreamCancelled, TransportError
 from drivers.linkevents import (
@@ -29,9 +29,7 @@ from drivers.linkevents import (
     Event,
     Failed,
     LinkState,
-    Probed,
     Report,
-    Started,
     Temperature,
     Written,
 )
@@ -70,7 +68,7 @@ KILL_REPLY_S = 1.0  # an emergency stop out of band waits this long for the halt
 KILL_QUEUED_S = 10.0
 
 
-class Streamer(Connecting):
+class Streamer:
     """Streams G-code commands to a Marlin-style printer, each executed once, in order.
 
     Use as an async context manager around a :class:`~drivers.transport.Transport` (closed
@@ -90,8 +88,9 @@ class Streamer(Connecting):
 
     Every protocol decision is the core's (:class:`~drivers.linkcore.LinkCore`); this shell
     runs three named tasks in one ``TaskGroup``: the reader feeds it received lines, the
-    writer writes what it hands out, the watchdog lets time pass. Connecting, the firmware's
-    defaults and reconnecting after a lost port are in :class:`~drivers.linkconnect.Connecting`.
+    writer writes what it hands out, the watchdog lets time pass. The handshake is the
+    core's too (:mod:`drivers.linkhandshake`); reopening a lost port is the
+    :class:`~drivers.linkconnect.Reconnector`'s.
     """
 
     def __init__(
@@ -102,30 +101,47 @@ class Streamer(Connecting):
         reopen: Callable[[], Awaitable[Transport]] | None = None,
     ) -> None:
         """``reopen`` opens the port again after it was lost (default: same port and speed)."""
-        self.config = config or StreamerConfig()
-        self.core = LinkCore(self.config)
+        self.core = LinkCore(config or StreamerConfig())
         self._acks: AckChannel | None = None
         self._tags = Tags()
         self.on_temperature: Callable[[Response], None] | None = None
         self.on_error: Callable[[str], None] | None = None
         self._transport = transport
-        self._reopen = reopen
+        self._reconnector = Reconnector(reopen)
         self._waiters = Waiters()
-        self._started = asyncio.Event()
-        self._probed = asyncio.Event()  # the line-number probe answered
-        # after connect(probe_numbering=True): whether the printer still counted the lines
-        # of an earlier session (None: not probed, or no answer)
-        self.numbering_kept: bool | None = None
-        self.numbering_last_line: int | None = None  # the printer's, before the handshake
         self._wake = asyncio.Event()
         self._progress = asyncio.Event()
         self._failed = asyncio.Event()  # set when the core reports the link failed or halted
         self._writing = False  # a write of what the core hands out is under way
         self._group: asyncio.Task[None] | None = None
-        self.profile: Profile | None = None  # the firmware defaults chosen at connect
-        self.motion = PrinterMotion()  # the motion settings M503 reported at connect
 
     # -- what the core knows ----------------------------------------------------------------
+
+    @property
+    def config(self) -> StreamerConfig:
+        """The link's settings (with the firmware's defaults once connected)."""
+        return self.core.config
+
+    @property
+    def profile(self) -> Profile | None:
+        """The firmware defaults chosen at connect (None before)."""
+        return self.core.handshake.profile
+
+    @property
+    def motion(self) -> PrinterMotion:
+        """The motion settings ``M503`` reported at connect."""
+        return self.core.handshake.motion
+
+    @property
+    def numbering_kept(self) -> bool | None:
+        """After ``connect(probe_numbering=True)``: whether the printer still counted the
+        lines of an earlier session (None: not probed, or no answer)."""
+        return self.core.handshake.numbering_kept
+
+    @property
+    def numbering_last_line(self) -> int | None:
+        """The printer's last line before the handshake, when probed."""
+        return self.core.handshake.numbering_last_line
 
     @property
     def state(self) -> LinkState:
@@ -193,6 +209,25 @@ class Streamer(Connecting):
         self.core.closed()
 
     # -- public API -----------------------------------------------------------------------
+
+    async def connect(self, probe_numbering: bool = False) -> None:
+        """The core's handshake (:mod:`drivers.linkhandshake`): wait for ``start`` (or a
+        timeout), a newline, then ``M110``, ``M115``, ``M503`` (the motion settings,
+        :attr:`motion`; with ``read_motion``) and auto-report.
+
+        ``probe_numbering``: first find out whether the printer still counts the lines
+        of an earlier session (:mod:`drivers.numbering`; :attr:`numbering_kept`).
+        Raises :class:`LinkError` if the printer does not answer in ``connect_timeout_s``.
+        """
+        self._start_tasks()
+        core = self.core
+        core.begin_connect(asyncio.get_running_loop().time(), probe_numbering=probe_numbering)
+        self._wake.set()
+        while not core.handshake.done:
+            self._check_alive()
+            self._progress.clear()
+            await self._progress.wait()
+        log_connection(core.handshake, core.config)
 
     @contextlib.contextmanager
     def acknowledgements(self, channel: AckChannel | None = None) -> Iterator[AckChannel]:
@@ -294,17 +329,14 @@ class Streamer(Connecting):
         (``on_error``); the link is halted either way.
         """
         self._failed.clear()
-        if "EMERGENCY_PARSER" in self.capable:
-            wait = KILL_REPLY_S
-            with contextlib.suppress(TransportError):
-                await self._transport.write(b"M112\n")
-        else:
-            wait = KILL_QUEUED_S
-            for token in self.core.emergency("M112"):
-                self._tags.dropped(token)
-                self._waiters.settle(token, error=LinkError("emergency stop"))
+        out_of_band, dropped = self.core.urgent("M112")
+        wait = KILL_REPLY_S if out_of_band else KILL_QUEUED_S
+        for token in dropped:
+            self._tags.dropped(token)
+            self._waiters.settle(token, error=LinkError("emergency stop"))
+        if not out_of_band:
             await asyncio.sleep(0)
-            await self._write_ready()
+        await self._write_ready()
         if self.core.alive():
             try:
                 async with asyncio.timeout(wait):
@@ -403,12 +435,8 @@ class Streamer(Connecting):
         return await waiter
 
     async def _urgent(self, command: str) -> None:
-        if "EMERGENCY_PARSER" in self.capable:
-            await self._transport.write(f"{command}\n".encode())
-            self.core.out_of_band(command)
-        else:
-            self.core.emergency(command)
-            self._wake.set()
+        self.core.urgent(command)
+        await self._write_ready()
 
     def _dispatch(self, events: list[Event], *, wake: bool = True) -> None:
         """Carry out what the core decided; ``wake`` the writer task after (not needed
@@ -436,13 +464,25 @@ class Streamer(Connecting):
                 self._tags.clear()
                 self._waiters.fail_all(LinkError(event.reason))
                 self._failed.set()
-            elif isinstance(event, Started):
-                self._started.set()
-            elif isinstance(event, Probed):
-                self._probed.set()
         if wake:
             self._wake.set()
         self._progress.set()
+
+    async def _link_lost(self, reason: str) -> bool:
+        """The port failed: report, then try to reopen it. True if the link is back."""
+        self.core.link_lost(reason)
+        self._dispatch(self.core.take_events())
+        transport = await self._reconnector.again(self._transport, self.config)
+        if transport is not None:
+            self._transport = transport
+            # the core writes a newline first: the end of whatever partial line the
+            # printer kept from before the cut
+            self.core.reopened(asyncio.get_running_loop().time())
+            self._wake.set()
+            return True
+        self.core.fail(f"link lost: {reason}")
+        self._dispatch(self.core.take_events())
+        return False
 
     def _check_alive(self) -> None:
         if not self.core.alive():

@@ -6,6 +6,7 @@ import asyncio
 import contextlib
 import errno
 import os
+import termios
 from collections import deque
 from types import TracebackType
 
@@ -197,7 +198,9 @@ async def open_transport(port: str, baud: int = 250000) -> Transport:
 
     try:
         handle = await loop.run_in_executor(None, _open)
-    except (serial.SerialException, OSError, ValueError) as exc:
+    except (serial.SerialException, OSError, ValueError, termios.error) as exc:
+        # (termios.error, no OSError: a pseudo-terminal whose other end closed while
+        # pyserial set it up; it failed the reconnecting link's task instead of an attempt)
         raise TransportError(f"{port}: cannot open: {exc}") from exc
     try:
         handle.fileno()

@@ -8,12 +8,13 @@ from drivers.protocol import frame
 
 
 def connected_core(config: StreamerConfig) -> LinkCore:
-    """A core that has connected at t=0 and had its `N0 M110 N0` acknowledged at 1 ms."""
+    """A core whose own handshake, without identifying the firmware, saw the banner at
+    t=0 and had its `N0 M110 N0` acknowledged at 1 ms: ready, the next line is N1."""
     core = LinkCore(config)
-    core.begin_connect(0.0)
+    core.begin_connect(0.0, identify=False)
     core.feed("start", 0.0)
-    core.begin_handshake(0, keep_history=False, token=1)
+    assert core.next_bytes(0.0) == b"\n"
     assert core.next_bytes(0.0) == frame(0, "M110 N0")
     core.feed("ok", 0.001)
-    core.connected(0.001)
+    assert core.handshake.done
     return core
