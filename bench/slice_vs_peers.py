@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import argparse
 import json
+import resource
 import shutil
 import statistics
 import sys
@@ -76,6 +77,7 @@ class Measured:
     layers: int | None = None
     filament_mm: float | None = None
     runs: list[float] = field(default_factory=list)
+    cpu_s: float | None = None  # median CPU time (user + system, every process of the run)
 
 
 @dataclass
@@ -207,20 +209,28 @@ def measure_model(
 ) -> Row:
     """Slice ``model`` with every runner ``repeat`` times, alternating; parse the G-code."""
     runs: dict[str, list[RunResult]] = {r.name: [] for r in runners}
+    cpus: dict[str, list[float]] = {r.name: [] for r in runners}
     outs = {r.name: gcode_dir / f"{model.stem}.{r.name}.gcode" for r in runners}
     for rep in range(repeat):
         order = runners[rep % len(runners):] + runners[:rep % len(runners)]
         for runner in order:
             outs[runner.name].unlink(missing_ok=True)
+            before = _children_cpu()
             result = runner.run(model, outs[runner.name], timeout, config)
+            cpu = _children_cpu() - before
             runs[runner.name].append(result)
+            if result.ok:
+                cpus[runner.name].append(cpu)
             print(f"  {model.stem:18s} {runner.name:12s} "
                   f"{'ok ' if result.ok else 'FAIL'} {result.wall_s:7.2f} s "
-                  f"{result.rss_mb or 0:7.1f} MB {result.reason()}", file=sys.stderr)
+                  f"(CPU {cpu:6.2f} s) {result.rss_mb or 0:7.1f} MB {result.reason()}",
+                  file=sys.stderr)
     row = Row(model=model.stem, faces=stl_faces(model), results={})
     moves: dict[str, gcodeparse.Moves] = {}
     for name, results in runs.items():
         row.results[name] = summarise(results)
+        if cpus[name]:
+            row.results[name].cpu_s = statistics.median(cpus[name])
         if row.results[name].ok and outs[name].exists():
             moves[name] = gcodeparse.read_moves(outs[name])
             st = gcodeparse.stats(moves[name])
@@ -229,6 +239,41 @@ def measure_model(
     if compare:
         compare_walls(row, moves)
     return row
+
+
+def _children_cpu() -> float:
+    """CPU seconds (user + system) of every child process waited for so far: a run's
+    is the difference around it (its own forked workers and threads included)."""
+    usage = resource.getrusage(resource.RUSAGE_CHILDREN)
+    return usage.ru_utime + usage.ru_stime
+
+
+def cpu_table(rows: list[Row]) -> str:
+    """Wall and CPU time of hostd against each peer, medians side by side: on a loaded
+    machine the CPU time is disturbed less than the wall time, and CuraEngine's two
+    threads turn CPU time into shorter wall time only where a core is free."""
+    peers = [name for name in ("curaengine", "prusaslicer")
+             if any(name in row.results for row in rows)]
+    head = "| model | hostd wall, CPU |" + "".join(
+        f" {name} wall, CPU | ours/{name} wall, CPU |" for name in peers)
+    lines = [head, "|" + "---|" * (2 + 2 * len(peers))]
+    for row in rows:
+        ours = row.results.get("hostd")
+        cells = [row.model, _times(ours)]
+        for name in peers:
+            peer = row.results.get(name)
+            cpu = "-"
+            if ours and peer and ours.cpu_s and peer.cpu_s:
+                cpu = f"{ours.cpu_s / peer.cpu_s:.2f}"
+            cells += [_times(peer), f"{_ratio(ours, peer)}, {cpu}"]
+        lines.append("| " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def _times(m: Measured | None) -> str:
+    if m is None or not m.ok:
+        return "-"
+    return f"{_fmt(m.wall_s, '.3f')} s, {_fmt(m.cpu_s, '.3f')} s"
 
 
 def compare_walls(row: Row, moves: dict[str, gcodeparse.Moves]) -> None:
@@ -375,6 +420,8 @@ def main(argv: list[str] | None = None) -> int:
                 for m in corpus_paths(args.models_dir, args.models)]
         after = machine_speed(sys.executable)
         print(corpus_table.table(rows))
+        print()
+        print(cpu_table(rows))
         print(f"before: {speed_line(before)}\nafter:  {speed_line(after)}")
         results["corpus"] = [asdict(r) for r in rows]
         results["machine_before"], results["machine_after"] = before, after
@@ -385,6 +432,8 @@ def main(argv: list[str] | None = None) -> int:
                               compare=m.stem != "bad_triangle_soup")
                 for m in model_paths(args.models_dir, args.models)]
         print(table(rows))
+        print()
+        print(cpu_table(rows))
         results["models"] = [asdict(r) for r in rows]
     if not args.no_scale:
         scale = make_scale_model(args.models_dir / SCALE_SOURCE)
