@@ -26,10 +26,9 @@ import signal
 import struct
 import threading
 from collections.abc import Callable, Sequence
+from concurrent.futures import Future, InvalidStateError
 from types import TracebackType
 from typing import BinaryIO
-
-from slicer.pipeline import Pending
 
 LayerText = tuple[str, float, float]  # (G-code text, filament mm, time s)
 # the layers lo..hi-1 of a task, made together
@@ -67,8 +66,8 @@ class ForkedLayers:
         self._first_of: dict[int, int] = {lo: k for k, (lo, _hi) in enumerate(tasks)}
         # each future is held here until submitted and by the task's list until made:
         # then only by the window, until taken
-        self._futures: dict[int, Pending[LayerText]] = {
-            i: Pending() for lo, hi in tasks for i in range(lo, hi)
+        self._futures: dict[int, Future[LayerText]] = {
+            i: Future() for lo, hi in tasks for i in range(lo, hi)
         }
         self._task_futures = [[self._futures[i] for i in range(lo, hi)] for lo, hi in tasks]
         self._lock = threading.Lock()
@@ -98,7 +97,7 @@ class ForkedLayers:
         with self._lock:
             return self._made == len(self._task_futures)
 
-    def submit(self, index: int) -> Pending[LayerText]:
+    def submit(self, index: int) -> Future[LayerText]:
         """Layer ``index``'s future; the first layer of a task hands the task out."""
         task = self._first_of.get(index)
         if task is not None:
@@ -137,7 +136,7 @@ class ForkedLayers:
             gone = error or RuntimeError("the slicing workers ended before sending their layers")
             for futures in self._task_futures:
                 for future in futures:
-                    future.set_exception(gone)  # ignored by the futures already made
+                    _fail(future, gone)  # not the futures already made or cancelled
 
 
 class _Worker:
@@ -149,7 +148,7 @@ class _Worker:
         self._reader: threading.Thread | None = None
 
     def start_reading(
-        self, task_futures: list[list[Pending[LayerText]]],
+        self, task_futures: list[list[Future[LayerText]]],
         ended: Callable[[int, BaseException | None], None],
     ) -> None:
         """Drain the worker's pipe into its tasks' futures on a thread; ``ended(tasks
@@ -161,7 +160,7 @@ class _Worker:
         self._reader.start()
 
     def _drain(
-        self, task_futures: list[list[Pending[LayerText]]],
+        self, task_futures: list[list[Future[LayerText]]],
         ended: Callable[[int, BaseException | None], None],
     ) -> None:
         """On a thread of the parent: read each task the worker sends (its number, then
@@ -170,7 +169,7 @@ class _Worker:
         a task, fail the layers of that task."""
         made = 0
         error: BaseException | None = None
-        futures: list[Pending[LayerText]] = []
+        futures: list[Future[LayerText]] = []
         try:
             with self._stream as stream:
                 while True:
@@ -194,13 +193,14 @@ class _Worker:
                     # the last first: the writer, waiting for the first, then finds
                     # the rest made
                     for future, layer in reversed(list(zip(futures, layers, strict=True))):
-                        future.set_result(layer)
+                        with contextlib.suppress(InvalidStateError):  # cancelled: dropped
+                            future.set_result(layer)
                     futures = []
                     made += 1
         except BaseException as exc:
             error = exc
             for future in futures:
-                future.set_exception(exc)
+                _fail(future, exc)
         ended(made, error)
 
     @classmethod
@@ -276,6 +276,12 @@ def _work(
             write_all(result_w, (b"" if taken else _TASK.pack(-1)) + _error_record(exc))
     finally:
         os._exit(code)
+
+
+def _fail(future: Future[LayerText], error: BaseException) -> None:
+    """Fail ``future`` with ``error`` unless it is made or cancelled already."""
+    with contextlib.suppress(InvalidStateError):
+        future.set_exception(error)
 
 
 def _error_record(exc: BaseException) -> bytes:

@@ -12,153 +12,56 @@ from __future__ import annotations
 import collections
 import threading
 from collections.abc import Callable, Iterator, Sequence
-from typing import Generic, Protocol, TypeVar
+from concurrent.futures import Future
+from typing import Generic, TypeVar
 
 T = TypeVar("T")
-T_co = TypeVar("T_co", covariant=True)
 
 
-class LayerFuture(Protocol[T_co]):
-    """What an engine's ``submit`` returns: a ``concurrent.futures.Future`` (a thread
-    pool's) or a :class:`Pending` (`hostd slice` never loads concurrent.futures)."""
+class Deferred(Future[T]):
+    """A ``concurrent.futures.Future`` made by the first thread that asks for its
+    :meth:`result` or :meth:`exception` (the in-thread engines): until then it is
+    pending and can be cancelled; once begun it runs to its end. Layers of other
+    engines are made by whoever holds their futures (a thread pool, forked workers)."""
 
-    def done(self) -> bool:
-        """True once made (or failed, or cancelled)."""
-        ...
-
-    def cancelled(self) -> bool:
-        """True if cancelled before it was made."""
-        ...
-
-    def cancel(self) -> bool:
-        """Drop it if not started; True if it was dropped."""
-        ...
-
-    def result(self, timeout: float | None = None) -> T_co:
-        """The layer, waiting until it is made; raises what making it raised."""
-        ...
-
-    def exception(self, timeout: float | None = None) -> BaseException | None:
-        """What making it raised, or None."""
-        ...
-
-    def add_done_callback(self, fn: Callable[[LayerFuture[T_co]], object]) -> None:
-        """Call ``fn(self)`` once it is done (at once if it is)."""
-        ...
-
-
-class CancelledLayer(Exception):
-    """The result of a :class:`Pending` that was cancelled."""
-
-
-class Pending(Generic[T]):
-    """A thread-safe future without concurrent.futures (and the logging it imports).
-
-    Set once by :meth:`set_result` or :meth:`set_exception` (later calls, and
-    calls after :meth:`cancel`, are ignored). Given ``make``, it is made by the
-    first thread that asks for its :meth:`result` (the in-thread engine).
-    """
-
-    def __init__(self, make: Callable[[], T] | None = None) -> None:
-        self._make = make
-        self._lock = threading.Lock()
-        self._event = threading.Event()
-        self._cancelled = False
-        self._started = False
-        self._result: T | None = None
-        self._error: BaseException | None = None
-        self._callbacks: list[Callable[[LayerFuture[T]], object]] = []
-
-    def done(self) -> bool:
-        """True once made, failed or cancelled."""
-        return self._event.is_set()
-
-    def cancelled(self) -> bool:
-        """True if cancelled before it was made."""
-        return self._cancelled
-
-    def cancel(self) -> bool:
-        """Drop it unless it is made or being made."""
-        with self._lock:
-            if self._event.is_set() or self._started:
-                return self._cancelled
-            self._cancelled = True
-        self._finish()
-        return True
-
-    def set_result(self, value: T) -> None:
-        """Its layer is made."""
-        with self._lock:
-            if self._event.is_set() or self._cancelled:
-                return
-            self._result = value
-        self._finish()
-
-    def set_exception(self, error: BaseException) -> None:
-        """Making it failed with ``error``."""
-        with self._lock:
-            if self._event.is_set() or self._cancelled:
-                return
-            self._error = error
-        self._finish()
-
-    def _finish(self) -> None:
-        self._event.set()
-        with self._lock:
-            callbacks, self._callbacks = self._callbacks, []
-        for callback in callbacks:
-            callback(self)
+    def __init__(self, make: Callable[[], T]) -> None:
+        super().__init__()
+        self._make: Callable[[], T] | None = make
+        self._once = threading.Lock()
 
     def _run_here(self) -> None:
-        with self._lock:
-            make = self._make
-            if make is None or self._started or self._event.is_set():
-                return
-            self._started = True
+        with self._once:
+            make, self._make = self._make, None
+        if make is None or not self.set_running_or_notify_cancel():
+            return  # begun by another thread, or cancelled
         try:
             value = make()
-        except BaseException as exc:
-            self._error = exc
+        except BaseException as exc:  # raised again by result(), as a pool's future does
+            self.set_exception(exc)
         else:
-            self._result = value
-        self._finish()
+            self.set_result(value)
 
     def result(self, timeout: float | None = None) -> T:
-        """The layer (made here first if it was deferred); raises what making it raised."""
+        """The layer, made here first if nobody began it; raises what making it raised
+        (``concurrent.futures.CancelledError`` when it was cancelled)."""
         self._run_here()
-        if not self._event.wait(timeout):
-            raise TimeoutError("the layer is not made yet")
-        if self._cancelled:
-            raise CancelledLayer()
-        if self._error is not None:
-            raise self._error
-        return self._result  # type: ignore[return-value]  # set whenever no error
+        return super().result(timeout)
 
     def exception(self, timeout: float | None = None) -> BaseException | None:
-        """What making it raised, or None."""
+        """What making it raised (made here first if nobody began it), or None."""
         self._run_here()
-        if not self._event.wait(timeout):
-            raise TimeoutError("the layer is not made yet")
-        return CancelledLayer() if self._cancelled else self._error
-
-    def add_done_callback(self, fn: Callable[[LayerFuture[T]], object]) -> None:
-        """Call ``fn(self)`` once done (here and now if it is)."""
-        with self._lock:
-            if not self._event.is_set():
-                self._callbacks.append(fn)
-                return
-        fn(self)
+        return super().exception(timeout)
 
 
-def in_thread(make: Callable[[int], T]) -> Callable[[int], Pending[T]]:
+def in_thread(make: Callable[[int], T]) -> Callable[[int], Future[T]]:
     """The in-thread engine: layer ``i`` is ``make(i)``, made when it is taken, by the
     thread taking it (nothing runs beside the consumer)."""
-    return lambda index: Pending(lambda: make(index))
+    return lambda index: Deferred(lambda: make(index))
 
 
 def in_blocks(
     make: Callable[[int, int], Sequence[T]], tasks: Sequence[tuple[int, int]]
-) -> Callable[[int], Pending[T]]:
+) -> Callable[[int], Future[T]]:
     """The in-thread engine by blocks: taking a layer of task ``[lo, hi)`` (``tasks``
     cover the layers, in order) makes the whole task at once, ``make(lo, hi)``, by the
     thread taking it; the task's other layers wait made until they are taken. A layer
@@ -166,14 +69,14 @@ def in_blocks(
     task_of = {i: (lo, hi) for lo, hi in tasks for i in range(lo, hi)}
     made: dict[int, T] = {}
 
-    def submit(index: int) -> Pending[T]:
+    def submit(index: int) -> Future[T]:
         def layer() -> T:
             if index not in made:
                 lo, hi = task_of.get(index, (index, index + 1))
                 made.update(zip(range(lo, hi), make(lo, hi), strict=True))
             return made.pop(index)
 
-        return Pending(layer)
+        return Deferred(layer)
 
     return submit
 
@@ -181,9 +84,9 @@ def in_blocks(
 class LayerWindow(Generic[T]):
     """Layers ``first..count-1`` made by ``submit(index)``, at most ``depth`` ahead.
 
-    ``submit`` is the engine: it starts making one layer and returns its future
-    (a :class:`LayerFuture`: :func:`in_thread`'s, a thread pool's, or forked
-    workers'). A layer is submitted only when one is taken, so memory holds at
+    ``submit`` is the engine: it starts making one layer and returns its
+    ``concurrent.futures.Future`` (:func:`in_thread`'s :class:`Deferred`, a thread
+    pool's, or forked workers'). A layer is submitted only when one is taken, so memory holds at
     most ``depth`` layers however many there are (backpressure). With ``alone``
     set, layers are made one at a time until one is "worth" something
     (``worth(result)`` true): the first layers a printer waits for do not compete
@@ -195,7 +98,7 @@ class LayerWindow(Generic[T]):
 
     def __init__(
         self,
-        submit: Callable[[int], LayerFuture[T]],
+        submit: Callable[[int], Future[T]],
         count: int,
         depth: int,
         first: int = 0,
@@ -207,7 +110,7 @@ class LayerWindow(Generic[T]):
         self.submit = submit
         self.count = count
         self.depth = depth
-        self._futures: collections.deque[tuple[int, LayerFuture[T]]] = collections.deque()
+        self._futures: collections.deque[tuple[int, Future[T]]] = collections.deque()
         self._next = first
         self._taken = 0
         self._closed = False
@@ -230,12 +133,12 @@ class LayerWindow(Generic[T]):
                 if self._alone:
                     future.add_done_callback(self._made_alone)
 
-    def _made_alone(self, future: LayerFuture[T]) -> None:
+    def _made_alone(self, future: Future[T]) -> None:
         if future.cancelled() or future.exception() is not None or self._worth(future.result()):
             self._alone = False  # from now on, the full window
         self._fill()
 
-    def _head(self, index: int | None) -> LayerFuture[T]:
+    def _head(self, index: int | None) -> Future[T]:
         with self._lock:
             if not self._futures:
                 self._fill()
@@ -262,11 +165,11 @@ class LayerWindow(Generic[T]):
         """:meth:`take` for a coroutine: the event loop runs on while the layer is made
         (the engine's futures must be ``concurrent.futures.Future``: a thread pool's)."""
         import asyncio  # only the daemon awaits layers: `hostd slice` never loads asyncio
-        import concurrent.futures
 
         future = self._head(index)
-        if not isinstance(future, concurrent.futures.Future):
-            raise TypeError("take_async needs an engine returning concurrent.futures futures")
+        if isinstance(future, Deferred):
+            raise TypeError("take_async needs an engine whose layers are made elsewhere "
+                            "(a thread pool or forked workers), not in the taking thread")
         result: T = await asyncio.wrap_future(future)
         self._pop()
         return result

@@ -8,7 +8,7 @@ import threading
 
 import pytest
 
-from slicer.pipeline import CancelledLayer, LayerWindow, Pending, in_thread
+from slicer.pipeline import Deferred, LayerWindow, in_thread
 
 
 class Maker:
@@ -100,9 +100,39 @@ def test_a_pending_layer_cancelled_is_never_made_and_its_error_is_raised() -> No
         window.take()
     window.close()  # layers 2 and 3 were submitted, never made
     assert calls == [0, 1]
-    pending: Pending[int] = Pending()
-    assert pending.cancel()
-    assert pending.cancelled()
-    pending.set_result(3)  # too late: ignored
-    with pytest.raises(CancelledLayer):
-        pending.result()
+    calls.clear()
+    deferred = Deferred(lambda: calls.append(9) or 9)
+    assert deferred.cancel()
+    assert deferred.cancelled()
+    with pytest.raises(concurrent.futures.CancelledError):
+        deferred.result()
+    assert calls == []  # cancelled before anyone asked: never made
+
+
+def test_a_deferred_layer_is_made_once_by_the_first_thread_that_asks() -> None:
+    calls: list[int] = []
+    begun, gate = threading.Event(), threading.Event()
+
+    def make() -> int:
+        calls.append(threading.get_ident())
+        begun.set()
+        gate.wait(10)
+        return 7
+
+    deferred = Deferred(make)
+    results: list[int] = []
+    asker = threading.Thread(target=lambda: results.append(deferred.result()))
+    asker.start()
+    assert begun.wait(10)  # the other thread began making it
+    assert not deferred.cancel()  # begun: runs to its end
+    gate.set()
+    assert deferred.result(10) == 7  # waits for the other thread's making
+    asker.join(10)
+    assert results == [7]
+    assert len(calls) == 1
+
+
+def test_take_async_refuses_layers_made_by_the_taker() -> None:
+    window = LayerWindow(in_thread(lambda i: [i]), 3, depth=1)
+    with pytest.raises(TypeError, match="made elsewhere"):
+        asyncio.run(window.take_async(0))
