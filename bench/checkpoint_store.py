@@ -31,10 +31,10 @@ ROOT = Path(__file__).resolve().parents[1]
 if __package__ in (None, ""):
     sys.path.insert(0, str(ROOT))
 
-from drivers.simconfig import SimulatorConfig  # noqa: E402
-from drivers.simulator import SimulatedPrinter  # noqa: E402
-from drivers.streamer import Streamer, StreamerConfig  # noqa: E402
-from drivers.transport import open_transport  # noqa: E402
+from drivers.link.streamer import Streamer, StreamerConfig  # noqa: E402
+from drivers.link.transport import open_transport  # noqa: E402
+from drivers.sim.config import SimulatorConfig  # noqa: E402
+from drivers.sim.printer import SimulatedPrinter  # noqa: E402
 from hostd.joblife import JobLife  # noqa: E402
 from hostd.jobstore import JobStore  # noqa: E402
 from hostd.runner import JobRunner, open_output  # noqa: E402

@@ -2,7 +2,7 @@
 against the time each print really had left, on the simulated Marlin's virtual clock.
 
 Each model is sliced with the benchmark settings; its G-code (start block, layers, end
-block) is fed to the simulated Marlin's planner (``drivers.feedsim``: 16 blocks, Marlin's
+block) is fed to the simulated Marlin's planner (``drivers.sim.feed``: 16 blocks, Marlin's
 acceleration and junction deviation, arcs cut as ``plan_arc`` cuts them) on a virtual
 clock, which gives the moment each line is acknowledged and the moment the print ends.
 The daemon's ETA (:class:`hostd.eta.EtaModel`) is then replayed on those moments as the
@@ -32,11 +32,12 @@ import numpy as np
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 from bench.slice_vs_peers import OUR_SETTINGS
-from drivers.feedsim import simulate_feed
-from drivers.motionreport import parse_motion_report, report_lines
-from drivers.planner import PlannerSettings
-from drivers.protocol import strip_comment
-from drivers.simconfig import SimulatorConfig
+from drivers.link.motion import parse_motion_report
+from drivers.link.protocol import strip_comment
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.feed import simulate_feed
+from drivers.sim.planner import PlannerSettings
+from drivers.sim.report import report_lines
 from hostd.config import config_from_mapping
 from hostd.eta import EtaModel
 from hostd.printermotion import with_printer_motion

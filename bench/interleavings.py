@@ -4,7 +4,7 @@ The hypothesis test in ``tests/test_drivers_core.py`` draws 40 new cases per run
 runs thousands the same way (each write cut in up to 3 places, each reply delayed by one
 of the test's delays, 8 % of every fault kind with resets and of the firmware dialect's
 own fault, 120 lines, both ``ok`` dialects, every firmware dialect of
-``drivers.simconfig.DIALECTS``), seeded, so a failure is replayed by its seed and
+``drivers.sim.config.DIALECTS``), seeded, so a failure is replayed by its seed and
 dialect. Prints one line per run that ran a line twice as a boot fragment (``FRAG``)
 or failed (``FAIL``), then the figures, with the printer's receive-buffer overruns
 (bytes lost past its 128 bytes: noise and resets cause none, only a host that writes
@@ -22,12 +22,13 @@ import sys
 import time
 from pathlib import Path
 
-from drivers.linkconfig import StreamerConfig
-from drivers.simconfig import DIALECTS, SimulatorConfig
-from drivers.simlinkrun import NoConvergence, run_core
-from drivers.simvirtual import VirtualPrinter
+from drivers.link.config import StreamerConfig
+from drivers.sim.config import DIALECTS, SimulatorConfig
+from drivers.sim.virtual import VirtualPrinter
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))  # support
+from support.linkrun import NoConvergence, run_core
+
 from tests.unit.test_drivers_core import (
     LINK,
     NO_OK_LINK,

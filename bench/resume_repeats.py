@@ -29,7 +29,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parents[1]
 sys.path.insert(0, str(ROOT))
 
-from drivers.protocol import strip_comment  # noqa: E402
+from drivers.link.protocol import strip_comment  # noqa: E402
 from slicer.plan import SlicePlan  # noqa: E402
 from slicer.settings import SliceSettings  # noqa: E402
 

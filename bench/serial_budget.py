@@ -3,7 +3,7 @@
 For each model, infill field and print speed it slices (a) ours with arcs and the
 line budget of the wire (``gcode.arcs=on``, ``gcode.baud`` = the wire's baud) and
 (b) ours without arcs, and takes (c) PrusaSlicer's G-code of the same model at
-the same speed. Each is fed to the simulated Marlin (``drivers.feedsim``, a
+the same speed. Each is fed to the simulated Marlin (``drivers.sim.feed``, a
 16-block planner with Marlin's defaults, on a virtual clock) over a wire of
 115200 and 250000 baud by our link (send-ahead window of 4 lines and 127
 bytes); PrusaSlicer's also by (d) a send-and-wait host. Per run: G-code lines
@@ -33,7 +33,7 @@ if __package__ in (None, ""):
 
 from bench import gcodeparse
 from bench.peers import prusaslicer
-from drivers.feedsim import simulate_feed
+from drivers.sim.feed import simulate_feed
 from slicer.gcodefile import iter_layer_texts
 from slicer.plan import SlicePlan
 from slicer.settings import INFILL_FIELDS, SliceSettings

@@ -1,7 +1,7 @@
 """Hunts stalls of pty streaming runs: many in parallel, under CPU load and pauses, with a
 watchdog that dumps every stack and the link's and the simulator's state on no progress.
 
-Each worker process streams a job through :class:`drivers.streamer.Streamer` to the
+Each worker process streams a job through :class:`drivers.link.streamer.Streamer` to the
 simulated printer over a real pseudo-terminal, run after run, exactly as
 ``tests/test_drivers_streamer.py`` does (the printer's threads in the worker, or in a
 forked child of it so that either side can be paused alone). The parent starts busy-loop
@@ -43,6 +43,7 @@ from pathlib import Path
 from typing import Any
 
 ROOT = Path(__file__).resolve().parent.parent
+sys.path.insert(0, str(ROOT / "tests"))  # support.linkrun: the virtual-clock hosts
 
 
 # -- the worker: streaming runs with a watchdog ----------------------------------------------
@@ -73,7 +74,7 @@ def _sim_state(sim: Any) -> str:
 
 def _sim_child(conn: Any, config: Any, log_path: str) -> None:
     """A forked child serving the printer; answers "dump" and "stop" on ``conn``."""
-    from drivers.simulator import SimulatedPrinter
+    from drivers.sim.printer import SimulatedPrinter
 
     sim = SimulatedPrinter(config)
     path = sim.start()
@@ -195,8 +196,8 @@ def _dump(probe: _Probe, path: Path, reason: str) -> None:
 
 
 async def _stream(probe: _Probe, lines: list[str], path: str, config: Any) -> Any:
-    from drivers.streamer import Streamer
-    from drivers.transport import open_transport
+    from drivers.link.streamer import Streamer
+    from drivers.link.transport import open_transport
 
     transport = await open_transport(path, 250000)
     probe.transport = transport
@@ -218,9 +219,10 @@ def _one_run(args: argparse.Namespace, worker: int, run: int, rng: random.Random
              out_dir: Path) -> dict[str, Any]:
     import multiprocessing
 
-    from drivers.simlinkrun import arc_job, job_commands
-    from drivers.simulator import SimulatedPrinter, SimulatorConfig
-    from drivers.streamer import StreamerConfig
+    from support.linkrun import arc_job, job_commands
+
+    from drivers.link.streamer import StreamerConfig
+    from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 
     config = StreamerConfig(probe_after_s=0.02, probe_retries=100, resync_quiet_s=0.01,
                             start_timeout_s=0.05, reconnect_attempts=200,

@@ -23,7 +23,7 @@ The wire table also runs against another revision's link, for comparisons on the
 machine and load: unpack that revision (``git archive REV | tar -x -C DIR``) and run this
 file by its path from DIR with ``PYTHONPATH=.`` (the simulated printer is DIR's too).
 
-A second table streams to the virtual-clock Marlin (``drivers.simvirtual``, the same rules
+A second table streams to the virtual-clock Marlin (``drivers.sim.virtual``, the same rules
 on simulated time: the figures do not depend on the machine's load) at 250000 baud with 1 ms
 of latency, with 2, 5 and 10 % of lines spuriously refused in both forms (Marlin's
 ``Error``/``Resend`` refusal of a line it took, and a bare ``Resend`` for a line already
@@ -54,12 +54,14 @@ import time
 from dataclasses import dataclass, replace
 from pathlib import Path
 
-from drivers.protocol import frame, parse_response
-from drivers.streamer import Streamer, StreamerConfig
-from drivers.transport import Transport, open_transport
+from drivers.link.protocol import frame, parse_response
+from drivers.link.streamer import Streamer, StreamerConfig
+from drivers.link.transport import Transport, open_transport
 
 # (the virtual-clock tables import what they need when they run, so that the wire table
 # also runs, file given by path, against an older revision's drivers on PYTHONPATH)
+# the virtual-clock hosts (the core and a send-and-wait host) are test support code
+sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
 
 def curved_perimeter(n: int, segment_mm: float = 0.3, radius_mm: float = 40.0) -> list[str]:
@@ -202,9 +204,10 @@ def measure(
 
 def noisy_table(lines: list[str]) -> list[str]:
     """Rows of core vs send-and-wait rates on the virtual clock, clean and noisy."""
-    from drivers.linkconfig import StreamerConfig as LinkConfig
-    from drivers.simconfig import DIALECTS, SimulatorConfig, dialect
-    from drivers.simlinkrun import run_core, run_send_and_wait
+    from support.linkrun import run_core, run_send_and_wait
+
+    from drivers.link.config import StreamerConfig as LinkConfig
+    from drivers.sim.config import DIALECTS, SimulatorConfig, dialect
 
     base = {"baud": 250000, "latency_s": 0.001, "seed": 3}
     rows = [f"{'noise':>24} {'ok after':>8} {'core l/s':>9} {'% clean':>8} "
@@ -244,9 +247,10 @@ def noisy_table(lines: list[str]) -> list[str]:
 
 def fault_suite_rate(count: int) -> str:
     """Wall-clock lines/s of the core through every fault kind at 1 % (virtual clock)."""
-    from drivers.linkconfig import StreamerConfig as LinkConfig
-    from drivers.simconfig import SimulatorConfig
-    from drivers.simlinkrun import run_core
+    from support.linkrun import run_core
+
+    from drivers.link.config import StreamerConfig as LinkConfig
+    from drivers.sim.config import SimulatorConfig
 
     kinds = ("corrupt_rx", "corrupt_tx", "drop_ok", "resend", "refuse", "busy")
     sim = SimulatorConfig(baud=250000, latency_s=0.001, keepalive_s=0.05, seed=5,

@@ -9,7 +9,7 @@ from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
-from drivers.linkconfig import StreamerConfig
+from drivers.link.config import StreamerConfig
 from slicer.fea.material import material_keys, material_settings
 from slicer.options import Flag, Number, SettingError, Table, Text, Texts, Whole
 from slicer.settings import SliceSettings

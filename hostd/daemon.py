@@ -12,9 +12,9 @@ import signal
 import time
 from pathlib import Path
 
-from drivers.backoff import Backoff, reconnect
-from drivers.responses import Response
-from drivers.streamer import HALTED, LinkError, Streamer
+from drivers.link.backoff import Backoff, reconnect
+from drivers.link.responses import Response
+from drivers.link.streamer import HALTED, LinkError, Streamer
 from hostd.activejob import ActiveJob
 from hostd.addons import Addons
 from hostd.api import PrinterInfo, Snapshot, Temperature, Temps
@@ -174,7 +174,7 @@ class Daemon:
     async def _print_loop(self, executor: concurrent.futures.Executor) -> None:
         """Keep the printer connected and print queued jobs one after another.
 
-        The link is opened through :func:`drivers.backoff.reconnect` (the one reconnect
+        The link is opened through :func:`drivers.link.backoff.reconnect` (the one reconnect
         loop, also the streamer's): at once at start, after a wait once a link failed.
         """
         rng = random.Random()

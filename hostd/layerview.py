@@ -16,7 +16,7 @@ from typing import Any
 import numpy as np
 import shapely
 
-from drivers.protocol import strip_comment
+from drivers.link.protocol import strip_comment
 from hostd.schedule import LayerSchedule
 from slicer.settings import INFILL_FIELDS, SliceSettings
 

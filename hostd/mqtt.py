@@ -17,8 +17,8 @@ from typing import Any, Protocol
 
 import aiomqtt
 
-from drivers.backoff import Backoff  # the one reconnect policy (also the printer link's)
-from drivers.tasks import cancel_requests, raise_if_cancelled_since
+from drivers.link.backoff import Backoff  # the one reconnect policy (also the printer link's)
+from drivers.link.tasks import cancel_requests, raise_if_cancelled_since
 from hostd.api import Snapshot
 from hostd.homeassistant import HA_STATUS_TOPIC, DeviceTopics, discovery_messages
 from hostd.mqtt_calls import publish, subscribe

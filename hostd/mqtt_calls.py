@@ -5,7 +5,7 @@ Python 3.11 that function returns the result when the acknowledgement and a
 cancellation arrive in the same loop iteration, and the cancellation is lost: a
 task stopped by its task group at that moment would publish on and then wait
 for ever (the daemon hung on SIGTERM). These wrappers raise it again
-(:func:`drivers.tasks.cancel_safe`).
+(:func:`drivers.link.tasks.cancel_safe`).
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any
 
 import aiomqtt
 
-from drivers.tasks import cancel_safe
+from drivers.link.tasks import cancel_safe
 
 
 async def publish(client: aiomqtt.Client, topic: str, payload: Any, *,

@@ -25,8 +25,8 @@ from typing import Protocol
 
 import aiomqtt
 
-from drivers.backoff import Backoff
-from drivers.tasks import cancel_requests, raise_if_cancelled_since
+from drivers.link.backoff import Backoff
+from drivers.link.tasks import cancel_requests, raise_if_cancelled_since
 from hostd.api import Snapshot
 from hostd.mqtt_calls import publish
 

@@ -6,10 +6,10 @@ import contextlib
 import logging
 from collections.abc import AsyncIterator, Callable
 
-from drivers.simconfig import SimulatorConfig
-from drivers.simulator import SimulatedPrinter
-from drivers.streamer import Streamer
-from drivers.transport import Transport, open_transport
+from drivers.link.streamer import Streamer
+from drivers.link.transport import Transport, open_transport
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.printer import SimulatedPrinter
 from hostd.config import Config
 from hostd.printermotion import motion_note
 
@@ -28,7 +28,7 @@ async def printer_link(
     a boot (``start``) while connecting (it reset on opening the port, or was just
     switched on), or its line numbering starts at 1 again although its banner went
     unread (it rebooted while no host had the port open: power cut, reset button;
-    :mod:`drivers.numbering`). A printer that kept its power is told by the lines of
+    :mod:`drivers.link.numbering`). A printer that kept its power is told by the lines of
     the last session it still counts.
 
     ``port = "sim"`` starts the simulated printer in-process on a pseudo-terminal,

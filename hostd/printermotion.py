@@ -3,7 +3,7 @@
 The slicer's time estimate (``;TIME:``, ``M73``, each layer's time, so the ETA) models
 the printer's planner with ``acceleration``. A printer owner rarely knows it, so the
 value the firmware reported at connect (``M503``: ``M204 P`` capped by ``M201 X`` and
-``Y``, :mod:`drivers.motionreport`) is used unless the configuration's ``[slicing]``
+``Y``, :mod:`drivers.link.motion`) is used unless the configuration's ``[slicing]``
 or the job's own ``NAME.toml`` set it.
 """
 
@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 
-from drivers.motionreport import PrinterMotion
+from drivers.link.motion import PrinterMotion
 from hostd.config import Config
 from slicer.settings import SliceSettings, setting_range
 

@@ -12,8 +12,8 @@ import time
 from collections.abc import Iterable, Iterator, Mapping
 from pathlib import Path
 
-from drivers.motionreport import PrinterMotion
-from drivers.streamer import LinkError, Streamer
+from drivers.link.motion import PrinterMotion
+from drivers.link.streamer import LinkError, Streamer
 from hostd.activejob import ActiveJob
 from hostd.api import JobStatus
 from hostd.config import Config

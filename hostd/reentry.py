@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from drivers.protocol import strip_comment
+from drivers.link.protocol import strip_comment
 
 # feed rates (mm/min) of the moves back, when the layer's own commands do not name one
 TRAVEL_FEED = 6000.0

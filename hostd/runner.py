@@ -13,11 +13,11 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import IO, Any, NamedTuple, Protocol
 
-from drivers.linkacks import Ack, AckChannel
-from drivers.protocol import strip_comment
-from drivers.streamer import LinkError, StreamCancelled
-from drivers.tasks import cancel_and_wait
-from drivers.transport import TransportError
+from drivers.link.acks import Ack, AckChannel
+from drivers.link.protocol import strip_comment
+from drivers.link.streamer import LinkError, StreamCancelled
+from drivers.link.tasks import cancel_and_wait
+from drivers.link.transport import TransportError
 from hostd.api import JobStatus, duration, layer_in_progress
 from hostd.checkpoints import Checkpoint, CheckpointWriter
 from hostd.eta import EtaModel
@@ -35,7 +35,7 @@ WAIT_POLL_S = 0.5  # while a layer is not ready, how often what it waits for is 
 
 
 class Link(Protocol):
-    """What the runner needs of the printer connection (a ``drivers.streamer.Streamer``):
+    """What the runner needs of the printer connection (a ``drivers.link.streamer.Streamer``):
     tagged sends, one channel of acknowledgements, and the link's own pause and cancel."""
 
     async def send(self, command: str, tag: Hashable | None = None) -> int: ...

@@ -11,7 +11,7 @@ from typing import Protocol
 
 import numpy as np
 
-from drivers.protocol import strip_comment
+from drivers.link.protocol import strip_comment
 from hostd.schedule import LayerSchedule
 from slicer.entry import last_xy
 from slicer.errors import ModelError

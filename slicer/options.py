@@ -1,7 +1,7 @@
 """The project's one settings helper: typed fields, TOML and ``KEY=VALUE`` parsing, one error.
 
 The daemon's configuration (``hostd.config``), the slicing settings
-(``slicer.settings``) and the printer link's settings (``drivers.linkconfig``)
+(``slicer.settings``) and the printer link's settings (``drivers.link.config``)
 all check their keys with these fields and raise :class:`SettingError`, whose
 message names the key. The module imports nothing of the project (and only the
 standard library), so that ``drivers`` may import it although it imports

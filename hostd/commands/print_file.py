@@ -15,10 +15,10 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TextIO
 
-from drivers.protocol import Response, strip_comment
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
-from drivers.streamer import AckChannel, LinkError, StreamCancelled, Streamer, StreamerConfig
-from drivers.transport import TransportError, open_transport
+from drivers.link.protocol import Response, strip_comment
+from drivers.link.streamer import AckChannel, LinkError, StreamCancelled, Streamer, StreamerConfig
+from drivers.link.transport import TransportError, open_transport
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 from hostd.api import layer_in_progress
 from hostd.cli import EXIT_FAILURE, EXIT_OK, UsageError
 from hostd.endgcode import CANCEL_GCODE

@@ -8,8 +8,8 @@ import sys
 import threading
 from types import FrameType
 
-from drivers.simconfig import FAULT_KINDS
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from drivers.sim.config import FAULT_KINDS
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 from hostd.cli import UsageError
 from slicer.options import Choice, Number, SettingError, parse_assignment
 

@@ -41,7 +41,7 @@ import nats.errors
 from nats.aio.msg import Msg
 from nats.js import JetStreamContext
 
-from drivers.streamer import HALTED, Streamer
+from drivers.link.streamer import HALTED, Streamer
 from hostd.config import Config, ConfigError, slicing_settings
 from hostd.farm.loaded import loaded_material
 from hostd.farm.needs import Needs, Station, misfit

@@ -13,7 +13,7 @@ from support.daemon_process import sim_config
 from support.gcode_lines import commands_of, executed_job_lines
 from support.paths import DATA, HOSTD, ROOT
 
-from drivers.protocol import strip_comment
+from drivers.link.protocol import strip_comment
 from hostd.api import ControlClient
 from slicer.arcs import for_printer
 from slicer.plan import SlicePlan

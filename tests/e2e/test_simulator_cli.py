@@ -11,7 +11,7 @@ import pytest
 import serial
 from support.waiting import wait_until
 
-from drivers.protocol import frame
+from drivers.link.protocol import frame
 
 
 @pytest.mark.parametrize("stop_signal", [signal.SIGTERM, signal.SIGINT])

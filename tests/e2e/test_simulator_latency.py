@@ -12,10 +12,10 @@ import pytest
 import serial
 from support.simhost import Host
 
-from drivers.protocol import frame
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
-from drivers.streamer import Streamer, StreamerConfig
-from drivers.transport import open_transport
+from drivers.link.protocol import frame
+from drivers.link.streamer import Streamer, StreamerConfig
+from drivers.link.transport import open_transport
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 
 
 def _open(sim: SimulatedPrinter) -> Host:

@@ -84,8 +84,8 @@ def test_dashboard_talks_only_through_the_control_api() -> None:
     ("module", "forbidden"),
     [
         ("slicer.plan", ("hostd", "tui", "drivers")),
-        ("drivers.streamer", ("hostd", "tui", "slicer")),
-        ("drivers.simulator", ("hostd", "tui", "slicer")),
+        ("drivers.link.streamer", ("hostd", "tui", "slicer")),
+        ("drivers.sim.printer", ("hostd", "tui", "slicer")),
     ],
 )
 def test_importing_a_library_loads_nothing_above_it(

@@ -7,12 +7,12 @@ import logging
 from pathlib import Path
 
 import pytest
+from support.linkrun import arc_job as job
 from support.streaming import FAST, job_lines, sim_config, stream_job
 
-from drivers.linkconfig import LinkSettingError, StreamerConfig
-from drivers.linkprofile import profile_for, tuned
-from drivers.simlinkrun import arc_job as job
-from drivers.simulator import SimulatedPrinter
+from drivers.link.config import LinkSettingError, StreamerConfig
+from drivers.link.profile import profile_for, tuned
+from drivers.sim.printer import SimulatedPrinter
 from hostd.config import ConfigError, config_from_mapping
 
 

@@ -7,12 +7,13 @@ import asyncio
 import pytest
 from support.streaming import INTERNAL, scripted, stream_scripted
 
-from drivers.linkconfig import StreamerConfig
-from drivers.motionreport import parse_motion_report, report_lines
-from drivers.simconfig import SimulatorConfig
-from drivers.simulator import SimulatedPrinter
-from drivers.streamer import Streamer
-from drivers.transport import open_transport
+from drivers.link.config import StreamerConfig
+from drivers.link.motion import parse_motion_report
+from drivers.link.streamer import Streamer
+from drivers.link.transport import open_transport
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.printer import SimulatedPrinter
+from drivers.sim.report import report_lines
 
 # Marlin 2.1 (M503): every line after echo:, headings as comments
 MARLIN_21 = """\

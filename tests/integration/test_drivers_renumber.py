@@ -5,12 +5,12 @@ from __future__ import annotations
 import asyncio
 
 import pytest
+from support.linkrun import arc_job as job
 from support.streaming import FAST, job_lines, sim_config
 
-from drivers.simlinkrun import arc_job as job
-from drivers.simulator import SimulatedPrinter
-from drivers.streamer import Streamer, StreamerConfig
-from drivers.transport import open_transport
+from drivers.link.streamer import Streamer, StreamerConfig
+from drivers.link.transport import open_transport
+from drivers.sim.printer import SimulatedPrinter
 
 LINES = 4500
 RENUMBER_AT = 1000  # the smallest StreamerConfig accepts: four renumbers in LINES

@@ -7,6 +7,7 @@ import threading
 from collections.abc import Callable
 
 import pytest
+from support.linkrun import arc_job as job
 from support.streaming import (
     FAST,
     INTERNAL,
@@ -19,9 +20,7 @@ from support.streaming import (
 )
 from support.waiting import until
 
-from drivers.simlinkrun import arc_job as job
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
-from drivers.streamer import (
+from drivers.link.streamer import (
     HALTED,
     Ack,
     AckChannel,
@@ -30,7 +29,8 @@ from drivers.streamer import (
     Streamer,
     StreamerConfig,
 )
-from drivers.transport import open_transport
+from drivers.link.transport import open_transport
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 
 # -- basic streaming -------------------------------------------------------------------------
 

@@ -14,12 +14,12 @@ import itertools
 import time
 
 import pytest
+from support.linkrun import arc_job as job
 from support.streaming import FAST, job_lines, sim_config, stream_job
 
-from drivers.simlinkrun import arc_job as job
-from drivers.simulator import SimulatedPrinter
-from drivers.streamer import Streamer, StreamerConfig
-from drivers.transport import open_transport
+from drivers.link.streamer import Streamer, StreamerConfig
+from drivers.link.transport import open_transport
+from drivers.sim.printer import SimulatedPrinter
 
 LINES = 4_000  # a kind the virtual-clock runs cover too
 LONG = 8_000  # disconnects (pty only) and the combinations

@@ -9,8 +9,8 @@ import tty
 import pytest
 from support.waiting import until
 
-from drivers.linkerrors import LinkError, PrinterLinkError, StreamCancelled
-from drivers.transport import TransportError, open_transport
+from drivers.link.errors import LinkError, PrinterLinkError, StreamCancelled
+from drivers.link.transport import TransportError, open_transport
 
 
 def _pty() -> tuple[int, str]:

@@ -8,9 +8,9 @@ import math
 import pytest
 from support.simhost import Host
 
-from drivers.feedsim import simulate_feed
-from drivers.planner import MarlinPlanner, PlannerSettings, arc_segments, move_block
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from drivers.sim.feed import simulate_feed
+from drivers.sim.planner import MarlinPlanner, PlannerSettings, arc_segments, move_block
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 
 SETTINGS = PlannerSettings()
 

@@ -6,8 +6,8 @@ from pathlib import Path
 
 import pytest
 
-from drivers.protocol import strip_comment
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from drivers.link.protocol import strip_comment
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 from hostd.cli import main
 
 DATA = Path(__file__).resolve().parents[1] / "data"

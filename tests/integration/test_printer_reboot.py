@@ -7,15 +7,15 @@ import asyncio
 import dataclasses
 from pathlib import Path
 
+from support.linkrun import arc_job as job
 from support.streaming import FAST, job_lines, sim_config
 from support.waiting import wait_until
 
-from drivers.numbering import NumberingProbe
-from drivers.responses import parse_response
-from drivers.simlinkrun import arc_job as job
-from drivers.simulator import SimulatedPrinter
-from drivers.streamer import Streamer
-from drivers.transport import open_transport
+from drivers.link.numbering import NumberingProbe
+from drivers.link.responses import parse_response
+from drivers.link.streamer import Streamer
+from drivers.link.transport import open_transport
+from drivers.sim.printer import SimulatedPrinter
 from hostd.config import config_from_mapping
 from hostd.printer import printer_link
 

@@ -20,11 +20,11 @@ from support.paths import DATA
 from support.stores import RecordingStore
 from support.waiting import wait_until
 
-from drivers.protocol import strip_comment
-from drivers.simconfig import SimulatorConfig
-from drivers.simulator import SimulatedPrinter
-from drivers.streamer import Streamer, StreamerConfig
-from drivers.transport import open_transport
+from drivers.link.protocol import strip_comment
+from drivers.link.streamer import Streamer, StreamerConfig
+from drivers.link.transport import open_transport
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.printer import SimulatedPrinter
 from hostd.checkpoints import CheckpointWriter
 from hostd.joblife import JobLife
 from hostd.jobstate import JobState

@@ -7,8 +7,8 @@ import re
 import pytest
 from support.simhost import Host, stream
 
-from drivers.protocol import checksum, frame
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from drivers.link.protocol import checksum, frame
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 
 TEMPS = re.compile(r"^ok T:\d+\.\d\d /\d+\.\d\d B:\d+\.\d\d /\d+\.\d\d @:\d+ B@:\d+$")
 

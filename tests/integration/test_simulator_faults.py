@@ -10,8 +10,8 @@ import re
 import pytest
 from support.simhost import Host, PortGone, stream
 
-from drivers.faults import FaultInjector
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from drivers.sim.faults import FaultInjector
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 
 P = 0.05
 LINES = 400

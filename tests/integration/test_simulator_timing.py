@@ -9,9 +9,9 @@ import pytest
 from support.simhost import Host
 from support.waiting import wait_until
 
-from drivers.heater import BED, HOTEND, Heater
-from drivers.protocol import frame
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
+from drivers.link.protocol import frame
+from drivers.sim.heater import BED, HOTEND, Heater
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 
 
 def _open(sim: SimulatedPrinter) -> Host:

@@ -11,7 +11,7 @@ import pytest
 from support.daemon_helpers import two_bodies
 from support.paths import DATA
 
-from drivers.protocol import strip_comment
+from drivers.link.protocol import strip_comment
 from hostd.layerview import estimate, field_samples, layer_view, parse_layer, sample_layers
 from hostd.schedule import LayerSchedule
 from hostd.sources import SlicedSource

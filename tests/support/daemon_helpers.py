@@ -11,7 +11,7 @@ from typing import Any
 
 import trimesh
 
-from drivers.protocol import strip_comment
+from drivers.link.protocol import strip_comment
 from hostd.api import ControlClient, Snapshot
 from slicer.entry import entered, last_xy
 from slicer.plan import SlicePlan

@@ -12,12 +12,12 @@ import asyncio
 from collections.abc import Hashable, Iterable, Iterator
 from contextlib import contextmanager
 
-from drivers.linkacks import Ack, AckChannel
-from drivers.linkerrors import LinkError, StreamCancelled
+from drivers.link.acks import Ack, AckChannel
+from drivers.link.errors import LinkError, StreamCancelled
 
 
 class FakeLink:
-    """Pause, resume, cancel and tagged acknowledgements as ``drivers.streamer.Streamer``
+    """Pause, resume, cancel and tagged acknowledgements as ``drivers.link.streamer.Streamer``
     gives them, on a printer that carries out every line at once."""
 
     def __init__(self, hold_at: int | None = None, fail_at: int | None = None) -> None:

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from drivers.protocol import strip_comment
+from drivers.link.protocol import strip_comment
 from slicer.annotate import is_annotation
 
 # commands the streamer adds on its own (handshake, temperature reports)

@@ -2,9 +2,9 @@
 
 from __future__ import annotations
 
-from drivers.linkconfig import StreamerConfig
-from drivers.linkcore import LinkCore
-from drivers.protocol import frame
+from drivers.link.config import StreamerConfig
+from drivers.link.core import LinkCore
+from drivers.link.protocol import frame
 
 
 def connected_core(config: StreamerConfig) -> LinkCore:

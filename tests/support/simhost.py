@@ -11,7 +11,7 @@ import time
 import tty
 from collections.abc import Callable
 
-from drivers.protocol import frame
+from drivers.link.protocol import frame
 from support.waiting import wait_until
 
 _RESEND = re.compile(r"(?:Resend|rs):?\s*(\d+)")

@@ -10,10 +10,10 @@ import threading
 import tty
 from collections.abc import Callable
 
-from drivers.protocol import checksum
-from drivers.simulator import SimulatedPrinter, SimulatorConfig
-from drivers.streamer import Streamer, StreamerConfig
-from drivers.transport import open_transport
+from drivers.link.protocol import checksum
+from drivers.link.streamer import Streamer, StreamerConfig
+from drivers.link.transport import open_transport
+from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
 
 INTERNAL = ("M110", "M115", "M503", "M155", "M105")
 

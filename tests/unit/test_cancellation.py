@@ -14,7 +14,7 @@ from typing import Any
 import pytest
 from support.waiting import until
 
-from drivers.tasks import cancel_and_wait
+from drivers.link.tasks import cancel_and_wait
 from hostd.mqtt_calls import publish
 
 

@@ -13,15 +13,15 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 from support.linkcores import connected_core
+from support.linkrun import run_core, run_send_and_wait
 
-from drivers.linkconfig import StreamerConfig
-from drivers.linkcore import LinkCore
-from drivers.linkevents import Acked, LinkState
-from drivers.protocol import frame
-from drivers.simconfig import DIALECTS, SimulatorConfig
-from drivers.simlines import ERR_CHECKSUM
-from drivers.simlinkrun import run_core, run_send_and_wait
-from drivers.simvirtual import VirtualPrinter
+from drivers.link.config import StreamerConfig
+from drivers.link.core import LinkCore
+from drivers.link.events import Acked, LinkState
+from drivers.link.protocol import frame
+from drivers.sim.config import DIALECTS, SimulatorConfig
+from drivers.sim.lines import ERR_CHECKSUM
+from drivers.sim.virtual import VirtualPrinter
 
 LINK = StreamerConfig(temperature_interval_s=0, probe_after_s=0.05, probe_retries=1000,
                       resync_quiet_s=0.01)
@@ -440,7 +440,7 @@ INTERLEAVING_KINDS = ("corrupt_rx", "corrupt_tx", "resend", "refuse", "busy", "r
 
 
 def dialect_faults(name: str, p: float) -> dict[str, object]:
-    """The settings of firmware dialect ``name`` (``drivers.simconfig.DIALECTS``) with
+    """The settings of firmware dialect ``name`` (``drivers.sim.config.DIALECTS``) with
     every fault kind of the interleaving runs and the dialect's own at ``p``. Two dialects
     are not reset: a board that prints no banner (its reset shows only as lost numbering
     when the next line arrives, or as silence), and one whose refusal of the next line
@@ -715,11 +715,11 @@ def test_the_core_does_no_io_and_reads_no_clock():
     import ast
     from pathlib import Path
 
-    root = Path(__file__).resolve().parents[2] / "drivers"
+    root = Path(__file__).resolve().parents[2] / "drivers" / "link"
     forbidden = {"asyncio", "serial", "threading", "time", "os", "select", "socket"}
-    for name in ("linkcore", "linkoks", "linkwrite", "linkresync", "linkwatch", "linkmodel",
-                 "linkevents", "linkconfig", "linkprofile", "window", "resend", "responses",
-                 "protocol"):
+    for name in ("core", "oks", "writer", "resync", "watchdog", "handshake", "model",
+                 "events", "config", "profile", "motion", "numbering", "window", "resend",
+                 "responses", "protocol"):
         tree = ast.parse((root / f"{name}.py").read_text(encoding="utf-8"))
         imported = set()
         for node in ast.walk(tree):

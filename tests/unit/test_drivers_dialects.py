@@ -4,7 +4,7 @@ answered from what the printer said, never by waiting out a silence.
 The scripted tests feed the core a firmware's answers line by line with no tick (a tick is
 the only way time alone makes the link act): the link must work out the next line from the
 answers alone. The runs stream to the virtual Marlin in each dialect of
-``drivers.simconfig.DIALECTS`` with its seeded fault, at the default ``probe_after_s`` (5 s),
+``drivers.sim.config.DIALECTS`` with its seeded fault, at the default ``probe_after_s`` (5 s),
 so a stall shows as a gap between writes.
 """
 
@@ -12,14 +12,14 @@ from __future__ import annotations
 
 import pytest
 from support.linkcores import connected_core
+from support.linkrun import run_core, run_send_and_wait
 
-from drivers.linkconfig import StreamerConfig
-from drivers.linkcore import LinkCore
-from drivers.linkevents import Acked
-from drivers.protocol import frame
-from drivers.simconfig import DIALECTS, dialect
-from drivers.simlines import ERR_CHECKSUM, ERR_LINE_NO
-from drivers.simlinkrun import run_core, run_send_and_wait
+from drivers.link.config import StreamerConfig
+from drivers.link.core import LinkCore
+from drivers.link.events import Acked
+from drivers.link.protocol import frame
+from drivers.sim.config import DIALECTS, dialect
+from drivers.sim.lines import ERR_CHECKSUM, ERR_LINE_NO
 
 # the link's defaults (5 s before a probe after silence), without temperature polls
 LINK = StreamerConfig(temperature_interval_s=0, resync_quiet_s=0.01)

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import asyncio
 
-from drivers.linkacks import Ack, AckChannel, Tags
+from drivers.link.acks import Ack, AckChannel, Tags
 
 
 def test_a_tag_follows_its_line_from_queue_to_acknowledgement() -> None:

@@ -1,5 +1,5 @@
 """A paused link sends nothing of the job, proved on the virtual clock: the protocol core
-(``drivers.linkcore``) and the virtual printer (``drivers.simvirtual``) share one clock,
+(``drivers.link.core``) and the virtual printer (``drivers.sim.virtual``) share one clock,
 so a pause can last two virtual minutes, probes and temperature polls included, in no
 wall time, and what ran when is read off that clock.
 
@@ -12,11 +12,11 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import replace
 
-from drivers.linkconfig import StreamerConfig
-from drivers.linkcore import LinkCore
-from drivers.linkevents import Acked, Connected, Failed
-from drivers.simconfig import SimulatorConfig
-from drivers.simvirtual import Clock, VirtualPrinter
+from drivers.link.config import StreamerConfig
+from drivers.link.core import LinkCore
+from drivers.link.events import Acked, Connected, Failed
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.virtual import Clock, VirtualPrinter
 
 INTERNAL = ("M110", "M115", "M503", "M155", "M105")  # the link's own lines
 PARK = ["G91", "G1 Z5 F600", "G90"]

@@ -6,13 +6,13 @@ from __future__ import annotations
 import math
 
 from support.linkcores import connected_core
+from support.linkrun import run_core
 
-from drivers.linkconfig import StreamerConfig
-from drivers.linkcore import LinkCore
-from drivers.linkevents import Failed, LinkState, Report
-from drivers.simconfig import SimulatorConfig
-from drivers.simlinkrun import run_core
-from drivers.simvirtual import VirtualPrinter
+from drivers.link.config import StreamerConfig
+from drivers.link.core import LinkCore
+from drivers.link.events import Failed, LinkState, Report
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.virtual import VirtualPrinter
 
 # the pty tests' and the stall harness's short probe interval: silence comes quickly
 LINK = StreamerConfig(temperature_interval_s=0, probe_after_s=0.02, probe_retries=1000,

@@ -8,9 +8,9 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.protocol import checksum, frame, parse_response, strip_comment
-from drivers.resend import edit_distance, recover, resolve_resend
-from drivers.window import InFlight, SendWindow
+from drivers.link.protocol import checksum, frame, parse_response, strip_comment
+from drivers.link.resend import edit_distance, recover, resolve_resend
+from drivers.link.window import InFlight, SendWindow
 
 KINDS = {"ok", "resend", "busy", "error", "temperature", "start", "wait", "capability", "echo",
          "other"}

@@ -8,7 +8,7 @@ import re
 import pytest
 import trimesh
 
-from drivers.feedsim import simulate_feed
+from drivers.sim.feed import simulate_feed
 from hostd.eta import EtaModel
 from hostd.layerview import estimate
 from hostd.schedule import LayerSchedule

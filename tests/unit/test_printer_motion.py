@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
-from drivers.motionreport import parse_motion_report
+from drivers.link.motion import parse_motion_report
 from hostd.config import config_from_mapping
 from hostd.printermotion import motion_note
 from hostd.printjob import printer_settings

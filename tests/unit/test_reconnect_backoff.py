@@ -8,7 +8,7 @@ import random
 
 import pytest
 
-from drivers.backoff import Backoff, reconnect
+from drivers.link.backoff import Backoff, reconnect
 from hostd import mqtt
 from hostd.daemon import RECONNECT
 

@@ -20,8 +20,8 @@ import trimesh
 from support.fake_link import FakeLink
 from support.memory_store import MemoryStore
 
-from drivers.linkerrors import LinkError
-from drivers.protocol import strip_comment
+from drivers.link.errors import LinkError
+from drivers.link.protocol import strip_comment
 from hostd.joblife import JobLife
 from hostd.reentry import reentry_moves
 from hostd.runner import ENDING, PREAMBLE, JobCancelled, JobLine, JobRunner, open_output, park_moves

@@ -9,7 +9,7 @@ import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from drivers.linkconfig import LinkSettingError, StreamerConfig
+from drivers.link.config import LinkSettingError, StreamerConfig
 from hostd.config import ConfigError, config_from_mapping
 from slicer.options import (
     Choice,

@@ -5,8 +5,8 @@ from __future__ import annotations
 from hypothesis import given
 from hypothesis import strategies as st
 
-from drivers.protocol import frame
-from drivers.simlines import (
+from drivers.link.protocol import frame
+from drivers.sim.lines import (
     ERR_CHECKSUM,
     ERR_LINE_NO,
     ERR_NO_CHECKSUM,

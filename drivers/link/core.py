@@ -3,15 +3,15 @@
 ``LinkCore`` is fed every line the printer sends (``feed(text, now)``), asked for the next
 bytes to write (``next_bytes(now)``) and ticked (``tick(now)``); each returns, or queues in
 ``take_events()``, what the shell must do: resolve waiters, report, fail. Reading is here;
-writing is in :mod:`drivers.linkwrite`, timers in :mod:`drivers.linkwatch`.
+writing is in :mod:`drivers.link.writer`, timers in :mod:`drivers.link.watchdog`.
 """
 
 from __future__ import annotations
 
 import re
 
-from drivers.linkconfig import StreamerConfig, StreamStats
-from drivers.linkevents import (
+from drivers.link.config import StreamerConfig, StreamStats
+from drivers.link.events import (
     Acked,
     Event,
     Failed,
@@ -19,15 +19,15 @@ from drivers.linkevents import (
     Report,
     Temperature,
 )
-from drivers.linkhandshake import Handshake
-from drivers.linkmodel import PrinterModel
-from drivers.linkoks import AckCounter
-from drivers.linkresync import Resync
-from drivers.linkwatch import Watchdog
-from drivers.linkwrite import LinkWriter, Renumber
-from drivers.resend import edit_distance, recover
-from drivers.responses import Response, parse_response
-from drivers.window import InFlight, SendWindow
+from drivers.link.handshake import Handshake
+from drivers.link.model import PrinterModel
+from drivers.link.oks import AckCounter
+from drivers.link.resend import edit_distance, recover
+from drivers.link.responses import Response, parse_response
+from drivers.link.resync import Resync
+from drivers.link.watchdog import Watchdog
+from drivers.link.window import InFlight, SendWindow
+from drivers.link.writer import LinkWriter, Renumber
 
 # Marlin's echo of a line it ran as an unknown command, and the rest of it for one of our
 # framed lines whose leading N noise turned into another character (its checksum may be
@@ -40,10 +40,10 @@ class LinkCore:
     """Everything the link knows and decides, as plain data; see the module docstring.
 
     Composed of four parts, each owning its own fields: :attr:`writer`
-    (:class:`~drivers.linkwrite.LinkWriter`), :attr:`acks`
-    (:class:`~drivers.linkoks.AckCounter`), :attr:`resync`
-    (:class:`~drivers.linkresync.Resync`) and :attr:`watchdog`
-    (:class:`~drivers.linkwatch.Watchdog`). The core itself keeps what they share: the
+    (:class:`~drivers.link.writer.LinkWriter`), :attr:`acks`
+    (:class:`~drivers.link.oks.AckCounter`), :attr:`resync`
+    (:class:`~drivers.link.resync.Resync`) and :attr:`watchdog`
+    (:class:`~drivers.link.watchdog.Watchdog`). The core itself keeps what they share: the
     settings, the counters, the window of lines in flight, the model of the printer's line
     bookkeeping, the link's state and the job's flags, and the events for the shell.
     """
@@ -104,7 +104,7 @@ class LinkCore:
 
     def queue_control(self, command: str, *, internal: bool, token: int | None = None,
                       probe: bool = False, force: bool = False, front: bool = False) -> None:
-        """A line outside the job (:meth:`~drivers.linkwrite.LinkWriter.queue_control`)."""
+        """A line outside the job (:meth:`~drivers.link.writer.LinkWriter.queue_control`)."""
         self.writer.queue_control(command, internal=internal, token=token, probe=probe,
                                   force=force, front=front)
 
@@ -383,7 +383,7 @@ class LinkCore:
 
     def begin_connect(self, now: float, *, probe_numbering: bool = False,
                       identify: bool = True) -> None:
-        """The port is open: the handshake begins (:mod:`drivers.linkhandshake`), waiting
+        """The port is open: the handshake begins (:mod:`drivers.link.handshake`), waiting
         for ``start`` (the board's reset); ``Connected`` once it is done.
 
         ``probe_numbering``: first find out whether the printer still counts the lines of

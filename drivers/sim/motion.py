@@ -6,7 +6,7 @@ import itertools
 import math
 from dataclasses import dataclass
 
-from drivers.planner import Move, PlannerSettings, arc_segments
+from drivers.sim.planner import Move, PlannerSettings, arc_segments
 
 AXES = ("X", "Y", "Z", "E")
 
@@ -28,7 +28,7 @@ class Motion:
     A move's *nominal* duration is its length divided by its feedrate (F in mm/min,
     modal), slowed so that no axis exceeds its maximum speed, and scaled by the M220
     feedrate percentage; acceleration and corners are the planner's
-    (``drivers.planner``), which gets each move's vector and speed.
+    (``drivers.sim.planner``), which gets each move's vector and speed.
     """
 
     def __init__(self, limits: MotionLimits | None = None) -> None:

@@ -7,8 +7,8 @@ import contextlib
 from collections.abc import Awaitable, Callable, Hashable, Iterable, Iterator
 from types import TracebackType
 
-from drivers.linkacks import Ack, AckChannel, Tags
-from drivers.linkconfig import (
+from drivers.link.acks import Ack, AckChannel, Tags
+from drivers.link.config import (
     CANCELLED,
     CONNECTING,
     DISCONNECTED,
@@ -21,10 +21,10 @@ from drivers.linkconfig import (
     StreamerConfig,
     StreamStats,
 )
-from drivers.linkconnect import Reconnector, log_connection
-from drivers.linkcore import LinkCore
-from drivers.linkerrors import LinkError, PrinterLinkError, StreamCancelled, TransportError
-from drivers.linkevents import (
+from drivers.link.connect import Reconnector, log_connection
+from drivers.link.core import LinkCore
+from drivers.link.errors import LinkError, PrinterLinkError, StreamCancelled, TransportError
+from drivers.link.events import (
     Acked,
     Event,
     Failed,
@@ -33,12 +33,12 @@ from drivers.linkevents import (
     Temperature,
     Written,
 )
-from drivers.linkprofile import Profile
-from drivers.linkwaiters import Waiters
-from drivers.motionreport import PrinterMotion
-from drivers.protocol import Response
-from drivers.tasks import cancel_and_wait
-from drivers.transport import Transport
+from drivers.link.motion import PrinterMotion
+from drivers.link.profile import Profile
+from drivers.link.protocol import Response
+from drivers.link.tasks import cancel_and_wait
+from drivers.link.transport import Transport
+from drivers.link.waiters import Waiters
 
 __all__ = [
     "CANCELLED",
@@ -71,7 +71,7 @@ KILL_QUEUED_S = 10.0
 class Streamer:
     """Streams G-code commands to a Marlin-style printer, each executed once, in order.
 
-    Use as an async context manager around a :class:`~drivers.transport.Transport` (closed
+    Use as an async context manager around a :class:`~drivers.link.transport.Transport` (closed
     on exit)::
 
         async with Streamer(await open_transport(port, baud), StreamerConfig()) as link:
@@ -81,16 +81,16 @@ class Streamer:
             await link.drain()
 
     Acknowledgements come through one typed channel: ``with link.acknowledgements() as
-    acks`` attaches an :class:`~drivers.linkacks.AckChannel` that receives an
-    :class:`~drivers.linkacks.Ack` for every job line acknowledged, in order, carrying the
+    acks`` attaches an :class:`~drivers.link.acks.AckChannel` that receives an
+    :class:`~drivers.link.acks.Ack` for every job line acknowledged, in order, carrying the
     ``tag`` given to ``send()``. Callbacks (attributes): ``on_temperature(response)`` for
     every temperature report; ``on_error(text)`` for printer errors and link failures.
 
-    Every protocol decision is the core's (:class:`~drivers.linkcore.LinkCore`); this shell
+    Every protocol decision is the core's (:class:`~drivers.link.core.LinkCore`); this shell
     runs three named tasks in one ``TaskGroup``: the reader feeds it received lines, the
     writer writes what it hands out, the watchdog lets time pass. The handshake is the
-    core's too (:mod:`drivers.linkhandshake`); reopening a lost port is the
-    :class:`~drivers.linkconnect.Reconnector`'s.
+    core's too (:mod:`drivers.link.handshake`); reopening a lost port is the
+    :class:`~drivers.link.connect.Reconnector`'s.
     """
 
     def __init__(
@@ -145,7 +145,7 @@ class Streamer:
 
     @property
     def state(self) -> LinkState:
-        """The link's state (a :class:`~drivers.linkevents.LinkState`, equal to its name)."""
+        """The link's state (a :class:`~drivers.link.events.LinkState`, equal to its name)."""
         return self.core.state
 
     @property
@@ -211,12 +211,12 @@ class Streamer:
     # -- public API -----------------------------------------------------------------------
 
     async def connect(self, probe_numbering: bool = False) -> None:
-        """The core's handshake (:mod:`drivers.linkhandshake`): wait for ``start`` (or a
+        """The core's handshake (:mod:`drivers.link.handshake`): wait for ``start`` (or a
         timeout), a newline, then ``M110``, ``M115``, ``M503`` (the motion settings,
         :attr:`motion`; with ``read_motion``) and auto-report.
 
         ``probe_numbering``: first find out whether the printer still counts the lines
-        of an earlier session (:mod:`drivers.numbering`; :attr:`numbering_kept`).
+        of an earlier session (:mod:`drivers.link.numbering`; :attr:`numbering_kept`).
         Raises :class:`LinkError` if the printer does not answer in ``connect_timeout_s``.
         """
         self._start_tasks()

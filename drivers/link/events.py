@@ -7,7 +7,7 @@ from enum import StrEnum
 from typing import TYPE_CHECKING, NamedTuple
 
 if TYPE_CHECKING:  # an annotation only: reading a configuration needs no response parser
-    from drivers.responses import Response
+    from drivers.link.responses import Response
 
 
 class LinkState(StrEnum):
@@ -71,7 +71,7 @@ class Failed:
 
 @dataclass(frozen=True)
 class Connected:
-    """The handshake is done: the link is ready to stream (:mod:`drivers.linkhandshake`)."""
+    """The handshake is done: the link is ready to stream (:mod:`drivers.link.handshake`)."""
 
 
 Event = Written | Acked | Temperature | Report | Failed | Connected

@@ -6,11 +6,11 @@ import re
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from drivers.motionreport import report_lines
+from drivers.sim.report import report_lines
 
 if TYPE_CHECKING:
-    from drivers.heater import Heater
-    from drivers.simfirmware import Firmware
+    from drivers.sim.firmware import Firmware
+    from drivers.sim.heater import Heater
 
 FIRMWARE_NAME = "Marlin 2.1.2 (hostd simulator)"
 

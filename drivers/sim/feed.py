@@ -6,7 +6,7 @@ either ahead of the printer within a window (``window_lines`` commands and
 Marlin's 128-byte receive buffer and 4-command queue allow) or one line at a
 time, waiting for each ``ok`` (a send-and-wait host). The printer executes
 commands in order: a move is done once its blocks are in the planner
-(:class:`drivers.planner.MarlinPlanner`), an arc is cut into chords first,
+(:class:`drivers.sim.planner.MarlinPlanner`), an arc is cut into chords first,
 and ``ok`` goes back over the wire. Dwells, homing and heater waits
 synchronize the planner (their own durations are left out: the figures are
 about motion). A print of hours is judged in seconds of computing.
@@ -17,10 +17,10 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from drivers.planner import MarlinPlanner, Move, PlannerSettings, move_block
-from drivers.protocol import strip_comment
-from drivers.simcommands import parse
-from drivers.simmotion import Motion, MotionLimits
+from drivers.link.protocol import strip_comment
+from drivers.sim.commands import parse
+from drivers.sim.motion import Motion, MotionLimits
+from drivers.sim.planner import MarlinPlanner, Move, PlannerSettings, move_block
 
 # commands that wait for the planner to empty before they run
 _SYNC = frozenset({"G4", "G28", "G29", "M109", "M190", "M400"})
@@ -32,7 +32,7 @@ _OK_BYTES = 3
 class FeedResult:
     """What a print fed over a wire did: lines and framed bytes sent, the time the
     print took (s, virtual), the planner's underruns, starved time (s) and stalls (see
-    ``drivers.planner``), moves and arcs executed, and the blocks planned."""
+    ``drivers.sim.planner``), moves and arcs executed, and the blocks planned."""
 
     lines: int
     bytes: int

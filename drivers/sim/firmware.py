@@ -14,20 +14,20 @@ import time
 from collections import Counter, defaultdict, deque
 from collections.abc import Callable
 
-from drivers import simcommands
-from drivers.faults import FaultInjector
-from drivers.heater import BED, HOTEND, Heater, format_temperatures
-from drivers.planner import MarlinPlanner, Move, move_block
-from drivers.simclock import SimClock
-from drivers.simconfig import SimulatorConfig
-from drivers.simlines import (
+from drivers.sim import commands as simcommands
+from drivers.sim.clock import SimClock
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.faults import FaultInjector
+from drivers.sim.heater import BED, HOTEND, Heater, format_temperatures
+from drivers.sim.lines import (
     RESEND_OK,
     check_line,
     m110_value,
     silently_dropped,
     spurious_replies,
 )
-from drivers.simmotion import Motion
+from drivers.sim.motion import Motion
+from drivers.sim.planner import MarlinPlanner, Move, move_block
 
 ERR_KILLED = "Error:Printer halted. kill() called!"
 BUSY = "echo:busy: processing"

@@ -1,6 +1,6 @@
 """The streamer's connection helpers: reopening a lost port, and what the handshake learnt.
 
-The handshake itself is the core's (:mod:`drivers.linkhandshake`): every byte of it comes
+The handshake itself is the core's (:mod:`drivers.link.handshake`): every byte of it comes
 out of the core, the shell only moves them.
 """
 
@@ -10,11 +10,11 @@ import contextlib
 import logging
 from collections.abc import Awaitable, Callable
 
-from drivers.backoff import Backoff, reconnect
-from drivers.linkconfig import StreamerConfig
-from drivers.linkerrors import TransportError
-from drivers.linkhandshake import Handshake
-from drivers.transport import Transport, open_transport
+from drivers.link.backoff import Backoff, reconnect
+from drivers.link.config import StreamerConfig
+from drivers.link.errors import TransportError
+from drivers.link.handshake import Handshake
+from drivers.link.transport import Transport, open_transport
 
 log = logging.getLogger("drivers.link")
 
@@ -22,7 +22,7 @@ log = logging.getLogger("drivers.link")
 class Reconnector:
     """Opens the port again after it was lost: ``reopen`` (default: the same port at the
     same speed), tried ``reconnect_attempts`` times with the backoff of
-    :mod:`drivers.backoff`."""
+    :mod:`drivers.link.backoff`."""
 
     def __init__(self, reopen: Callable[[], Awaitable[Transport]] | None) -> None:
         """``reopen``: how to open the port again (None: the lost transport's port)."""

@@ -3,7 +3,7 @@
 :class:`Watchdog` owns the link's clocks (when a line last came, when one last answered
 the link, when the port was opened or reopened, the last poll and probe) and what it
 counts of the silence (probes unanswered, auto-reports meanwhile, lines let past the
-modelled receive buffer). The core (:class:`~drivers.linkcore.LinkCore`) holds it.
+modelled receive buffer). The core (:class:`~drivers.link.core.LinkCore`) holds it.
 """
 
 from __future__ import annotations
@@ -11,13 +11,13 @@ from __future__ import annotations
 import math
 from typing import TYPE_CHECKING
 
-from drivers.linkconfig import LONG_COMMANDS
-from drivers.linkevents import Event, LinkState
-from drivers.protocol import frame
-from drivers.responses import Response
+from drivers.link.config import LONG_COMMANDS
+from drivers.link.events import Event, LinkState
+from drivers.link.protocol import frame
+from drivers.link.responses import Response
 
 if TYPE_CHECKING:  # the core holds the watchdog; the watchdog asks it (one-way at run time)
-    from drivers.linkcore import LinkCore
+    from drivers.link.core import LinkCore
 
 # silence after which a probe goes when a line the printer has read may never get its ok
 # (a refusal named it as the last line; some firmware's ok after the Resend stood in for

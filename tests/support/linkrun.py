@@ -1,6 +1,6 @@
 """Hosts on the virtual clock: the protocol core, and a send-and-wait host to compare with.
 
-Both stream a job to a :class:`~drivers.simvirtual.VirtualPrinter` with no real time
+Both stream a job to a :class:`~drivers.sim.virtual.VirtualPrinter` with no real time
 passing, for deterministic fault tests and for the throughput benchmark's noisy rows.
 """
 
@@ -11,14 +11,14 @@ from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import TypedDict
 
-from drivers.linkconfig import StreamerConfig, StreamStats
-from drivers.linkcore import LinkCore
-from drivers.linkevents import Acked, Connected, Event, Failed
-from drivers.protocol import frame
-from drivers.resend import recover
-from drivers.responses import Response, parse_response
-from drivers.simconfig import SimulatorConfig
-from drivers.simvirtual import Clock, VirtualPrinter
+from drivers.link.config import StreamerConfig, StreamStats
+from drivers.link.core import LinkCore
+from drivers.link.events import Acked, Connected, Event, Failed
+from drivers.link.protocol import frame
+from drivers.link.resend import recover
+from drivers.link.responses import Response, parse_response
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.virtual import Clock, VirtualPrinter
 
 # commands the link adds on its own
 INTERNAL = ("M110", "M115", "M503", "M155", "M105")

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, fields, replace
 
-from drivers.planner import PlannerSettings
+from drivers.sim.planner import PlannerSettings
 
 # names of the fault probabilities, in the order they are documented
 FAULT_KINDS = (

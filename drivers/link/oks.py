@@ -3,7 +3,7 @@
 :class:`AckCounter` owns the count (the last line acknowledged, the job lines acknowledged,
 the acknowledgements reported), what makes an ``ok`` uncertain (oks lost to a cut port,
 late oks of an ``M110`` written again, answers owed to probes, a refusal's probe awaited)
-and the waiters of the link's own lines. The core (:class:`~drivers.linkcore.LinkCore`)
+and the waiters of the link's own lines. The core (:class:`~drivers.link.core.LinkCore`)
 holds it.
 """
 
@@ -11,12 +11,12 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from drivers.linkevents import Acked
-from drivers.responses import Response
-from drivers.window import InFlight
+from drivers.link.events import Acked
+from drivers.link.responses import Response
+from drivers.link.window import InFlight
 
 if TYPE_CHECKING:  # the core holds the counter; the counter asks it (one-way at run time)
-    from drivers.linkcore import LinkCore
+    from drivers.link.core import LinkCore
 
 # most oks awaited for an M110 written several times
 MAX_LATE_OKS = 8

@@ -7,14 +7,14 @@ each answer an event it is fed; every byte comes out of the core's writer:
    ``start_timeout_s`` without one (a board that kept its power, or prints none).
 2. A newline, ending whatever noise the printer has half a line of.
 3. ``NUMBERING`` (when asked): ``N1 M105`` before any ``M110``, whose answer tells
-   whether the board still counts an earlier session's lines (:mod:`drivers.numbering`);
+   whether the board still counts an earlier session's lines (:mod:`drivers.link.numbering`);
    awaited ``connect_timeout_s``, then the rest of a refusal ``resync_quiet_s``.
 4. ``RENUMBER``: ``N0 M110 N0`` (the form both readings of ``M110`` accept), nothing
    after it until its ``ok``.
 5. ``IDENTIFY``: ``M115``; the firmware's name and capabilities choose the link's
-   defaults (:mod:`drivers.linkprofile`).
+   defaults (:mod:`drivers.link.profile`).
 6. ``MOTION`` (``read_motion``): ``M503``, whose answer gives the motion settings
-   (:mod:`drivers.motionreport`).
+   (:mod:`drivers.link.motion`).
 7. ``AUTOREPORT``: ``M155 S<n>`` when the firmware offers temperature auto-reports.
 
 Steps 4 to 7 must be answered within ``connect_timeout_s`` of step 4, or the link fails.
@@ -26,14 +26,14 @@ import math
 from enum import StrEnum
 from typing import TYPE_CHECKING, Any
 
-from drivers.linkevents import Connected
-from drivers.linkprofile import Profile, profile_for, tuned
-from drivers.motionreport import PrinterMotion, parse_motion_report
-from drivers.numbering import NumberingProbe, probe_line
-from drivers.responses import Response
+from drivers.link.events import Connected
+from drivers.link.motion import PrinterMotion, parse_motion_report
+from drivers.link.numbering import NumberingProbe, probe_line
+from drivers.link.profile import Profile, profile_for, tuned
+from drivers.link.responses import Response
 
 if TYPE_CHECKING:  # the core holds the handshake; the handshake asks it
-    from drivers.linkcore import LinkCore
+    from drivers.link.core import LinkCore
 
 # tokens of the handshake's own lines (the shell's tokens are positive)
 _RENUMBER, _IDENTIFY, _MOTION, _AUTOREPORT = -1, -2, -3, -4

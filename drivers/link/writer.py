@@ -2,7 +2,7 @@
 
 :class:`LinkWriter` owns what is queued (job lines, the link's own lines), the line
 numbering (the next number, the lines kept for resends, an ``M110`` in progress) and the
-replay after a refusal. The core (:class:`~drivers.linkcore.LinkCore`) holds it.
+replay after a refusal. The core (:class:`~drivers.link.core.LinkCore`) holds it.
 """
 
 from __future__ import annotations
@@ -11,12 +11,12 @@ from collections import deque
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
-from drivers.linkevents import STOPPED, Written
-from drivers.protocol import frame
-from drivers.window import InFlight
+from drivers.link.events import STOPPED, Written
+from drivers.link.protocol import frame
+from drivers.link.window import InFlight
 
 if TYPE_CHECKING:  # the core holds the writer; the writer asks it (one-way at run time)
-    from drivers.linkcore import LinkCore
+    from drivers.link.core import LinkCore
 
 
 @dataclass
@@ -309,7 +309,7 @@ class LinkWriter:
     def urge_probe(self) -> None:
         """A probe is due: the replay's next line may pass the window (as the probe would),
         and the probe goes out past it, ahead of the lines waiting for room (see
-        :meth:`~drivers.linkwatch.Watchdog.probe`)."""
+        :meth:`~drivers.link.watchdog.Watchdog.probe`)."""
         if self.replay_next is not None:
             self.force_replay = True
         queued = next((c for c in self.control if c.probe), None)

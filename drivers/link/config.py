@@ -6,7 +6,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, fields
 from typing import Any
 
-from drivers.linkevents import LinkState
+from drivers.link.events import LinkState
 from slicer.options import Flag, Number, SettingError, Texts, Whole
 
 LONG_COMMANDS = frozenset(
@@ -53,9 +53,9 @@ class StreamerConfig:
       2.1); set False for builds that send none. A wrong guess costs time, not lines.
     - ``reconnect_attempts`` / ``reconnect_delay_s``: after the port is lost.
     - ``firmware_defaults``: at connect, the firmware's name and ``M115`` capabilities
-      choose defaults for the settings not in ``explicit`` (:mod:`drivers.linkprofile`).
+      choose defaults for the settings not in ``explicit`` (:mod:`drivers.link.profile`).
     - ``read_motion``: at connect, ``M503`` asks the printer for its motion settings
-      (accelerations, maximum feedrates, junction deviation: :mod:`drivers.motionreport`).
+      (accelerations, maximum feedrates, junction deviation: :mod:`drivers.link.motion`).
     - ``explicit``: settings the user chose (``[printer.link]``); never overridden.
     """
 

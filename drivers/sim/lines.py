@@ -8,7 +8,7 @@ from functools import reduce
 from operator import xor
 from typing import NamedTuple
 
-from drivers.protocol import xor_bytes
+from drivers.link.protocol import xor_bytes
 
 ERR_LINE_NO = "Line Number is not Last Line Number+1, Last Line: "
 ERR_CHECKSUM = "checksum mismatch, Last Line: "

@@ -7,7 +7,7 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
-from drivers.linkconfig import StreamerConfig
+from drivers.link.config import StreamerConfig
 
 # Marlin's receive ring when XON/XOFF is offered (only built with RX_BUFFER_SIZE >= 1024)
 _XON_XOFF_RX = 1023

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 
-from drivers.responses import Response, parse_response
+from drivers.link.responses import Response, parse_response
 
 
 def edit_distance(a: str, b: str) -> int:

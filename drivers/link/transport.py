@@ -12,7 +12,7 @@ from types import TracebackType
 
 import serial
 
-from drivers.linkerrors import TransportError
+from drivers.link.errors import TransportError
 
 _READ_CHUNK = 4096
 

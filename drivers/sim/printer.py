@@ -8,9 +8,9 @@ from dataclasses import dataclass
 from types import TracebackType
 from typing import IO
 
-from drivers.simconfig import FAULT_KINDS, SimulatorConfig
-from drivers.simfirmware import Firmware
-from drivers.simwire import PtyWire
+from drivers.sim.config import FAULT_KINDS, SimulatorConfig
+from drivers.sim.firmware import Firmware
+from drivers.sim.wire import PtyWire
 
 __all__ = ["FAULT_KINDS", "SimStats", "SimulatedPrinter", "SimulatorConfig"]
 
@@ -61,7 +61,7 @@ class SimulatedPrinter:
     off), and ``log_path`` gets the same, one line each, flushed per line. Usable as a
     context manager.
 
-    How it behaves, in brief (details in ``drivers.simfirmware``):
+    How it behaves, in brief (details in ``drivers.sim.firmware``):
 
     - Opening the port resets the printer (``reset_on_open``): after ``boot_delay_s`` it
       prints ``start``; bytes sent before that are lost. A reopen is noticed when the port

@@ -1,8 +1,8 @@
 """The simulated Marlin on a virtual clock: the pty simulator's rules as discrete events.
 
-Same line checks (:func:`drivers.simlines.check_line`), same seeded faults
-(:class:`drivers.faults.FaultInjector`, every kind but ``disconnect``), same receive buffer,
-command queue, drain on error and message order as :mod:`drivers.simfirmware`, but nothing
+Same line checks (:func:`drivers.sim.lines.check_line`), same seeded faults
+(:class:`drivers.sim.faults.FaultInjector`, every kind but ``disconnect``), same receive buffer,
+command queue, drain on error and message order as :mod:`drivers.sim.firmware`, but nothing
 runs in real time: a :class:`VirtualWire` carries bytes both ways at ``baud / 10`` bytes per
 second plus a one-way latency, and the caller advances one shared clock event by event. A
 host (the protocol core, or anything else) talks to it through ``write`` and ``on_line``.
@@ -15,10 +15,10 @@ import itertools
 from collections import deque
 from collections.abc import Callable
 
-from drivers.faults import FaultInjector
-from drivers.simcommands import FIRMWARE_NAME
-from drivers.simconfig import SimulatorConfig
-from drivers.simlines import (
+from drivers.sim.commands import FIRMWARE_NAME
+from drivers.sim.config import SimulatorConfig
+from drivers.sim.faults import FaultInjector
+from drivers.sim.lines import (
     RESEND_OK,
     check_line,
     m110_value,

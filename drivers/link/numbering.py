@@ -13,8 +13,8 @@ host left in the printer's queue.
 
 from __future__ import annotations
 
-from drivers.protocol import frame
-from drivers.responses import Response
+from drivers.link.protocol import frame
+from drivers.link.responses import Response
 
 PROBE_COMMAND = "M105"  # harmless wherever the printer is: a temperature report
 

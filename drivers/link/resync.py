@@ -2,20 +2,20 @@
 
 :class:`Resync` owns what it counts of the requests themselves (a request not announced
 by an ``Error``, one for an implausible line, awaiting confirmation by repetition); the
-model of the printer's line bookkeeping it reasons on (:mod:`drivers.linkmodel`) is the
+model of the printer's line bookkeeping it reasons on (:mod:`drivers.link.model`) is the
 core's, shared with the writer and the counter. The core
-(:class:`~drivers.linkcore.LinkCore`) holds it.
+(:class:`~drivers.link.core.LinkCore`) holds it.
 """
 
 from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from drivers.resend import resolve_resend
-from drivers.responses import Response
+from drivers.link.resend import resolve_resend
+from drivers.link.responses import Response
 
 if TYPE_CHECKING:  # the core holds the resync; the resync asks it (one-way at run time)
-    from drivers.linkcore import LinkCore
+    from drivers.link.core import LinkCore
 
 
 class Resync:

@@ -7,7 +7,7 @@ import random
 import threading
 from collections import Counter
 
-from drivers.simconfig import FAULT_KINDS, SimulatorConfig
+from drivers.sim.config import FAULT_KINDS, SimulatorConfig
 
 NEVER = 1 << 62  # a countdown that never runs out
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from functools import reduce
 from operator import xor
 
-from drivers.responses import Response, parse_response
+from drivers.link.responses import Response, parse_response
 
 __all__ = ["Response", "checksum", "frame", "parse_response", "strip_comment"]
 
