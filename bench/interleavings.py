@@ -1,6 +1,6 @@
 """Seeded loop over the core's interleaving test: random cuts and reply delays per seed.
 
-The hypothesis test in ``tests/test_drivers_core.py`` draws 40 new cases per run; this
+The hypothesis test in ``tests/unit/test_drivers_core.py`` draws 40 new cases per run; this
 runs thousands the same way (each write cut in up to 3 places, each reply delayed by one
 of the test's delays, 8 % of every fault kind with resets and of the firmware dialect's
 own fault, 120 lines, both ``ok`` dialects, every firmware dialect of

@@ -3,7 +3,7 @@ watchdog that dumps every stack and the link's and the simulator's state on no p
 
 Each worker process streams a job through :class:`drivers.link.streamer.Streamer` to the
 simulated printer over a real pseudo-terminal, run after run, exactly as
-``tests/test_drivers_streamer.py`` does (the printer's threads in the worker, or in a
+``tests/integration/test_drivers_streamer.py`` does (the printer's threads in the worker, or in a
 forked child of it so that either side can be paused alone). The parent starts busy-loop
 processes (some ``nice``d) and pauses workers and printers for a few milliseconds at
 random (``SIGSTOP``/``SIGCONT``), as an overloaded scheduler would. A watchdog thread in
