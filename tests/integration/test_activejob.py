@@ -11,8 +11,8 @@ from typing import Any
 
 import pytest
 import trimesh
-from hostd.activejob import ActiveJob
 
+from hostd.activejob import ActiveJob
 from hostd.joblife import JobLife
 from hostd.jobstore import JobStore
 from hostd.schedule import LayerSchedule

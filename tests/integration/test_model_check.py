@@ -12,9 +12,9 @@ import tempfile
 from pathlib import Path
 
 import pytest
-from hostd.activejob import ActiveJob
 
 from hostd import intake as intake_module
+from hostd.activejob import ActiveJob
 from hostd.config import load_config
 from hostd.filecheck import fingerprint
 from hostd.intake import Intake
