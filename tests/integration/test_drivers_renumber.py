@@ -38,7 +38,11 @@ def _check(sim: SimulatedPrinter, lines: list[str], link: Streamer, acks: list,
     executed = list(sim.executed)
     assert job_lines(executed) == lines  # every line executed once, in order
     assert link.stats.renumbers >= 4
-    assert executed.count("M110 N0") == 1 + link.stats.renumbers
+    # every renumbering's M110 ran; one whose ok was lost is written again after
+    # renumber_retry_s of silence (counted as a probe) and runs again, harmlessly: how
+    # often depends on the load (an exact count failed on a loaded machine)
+    assert 1 + link.stats.renumbers <= executed.count("M110 N0") \
+        <= 1 + link.stats.renumbers + link.stats.probes
     # one Ack per job line, in order, with its command and the number it was sent as
     assert [command for _, command in acks] == lines
     assert [number for number, _ in acks] == numbers
