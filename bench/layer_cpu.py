@@ -38,7 +38,7 @@ def model_path(name: str) -> Path:
 
 def measure(name: str, passes: int) -> tuple[int, float, float, str]:
     """(layers, toolpaths ms/layer, toolpaths + G-code ms/layer, G-code digest) for a model."""
-    from slicer import islands
+    from slicer.paths import islands
     from slicer.plan import SlicePlan
     from slicer.settings import SliceSettings
 

@@ -34,7 +34,7 @@ if __package__ in (None, ""):
 from bench import gcodeparse
 from bench.peers import prusaslicer
 from drivers.sim.feed import simulate_feed
-from slicer.gcodefile import iter_layer_texts
+from slicer.output.gcodefile import iter_layer_texts
 from slicer.plan import SlicePlan
 from slicer.settings import INFILL_FIELDS, SliceSettings
 

@@ -3,7 +3,7 @@
 `--profile` times the stages by the wall clock, which a loaded machine makes
 mean little; here the same stage timers read the process's CPU time instead.
 The first run of each model only warms the imports (its figures are not
-kept); each run after it starts with no island kept (:mod:`slicer.islands`),
+kept); each run after it starts with no island kept (:mod:`slicer.paths.islands`),
 as a new process does. Compare two versions of the slicer by running this with
 ``PYTHONPATH`` pointing at an exported tree of the other version.
 """
@@ -34,7 +34,7 @@ def run_once(name: str, out: str) -> dict[str, float]:
     from hostd import cli
 
     try:
-        from slicer import islands
+        from slicer.paths import islands
 
         islands.forget()
     except ImportError:  # a version without the island cache

@@ -53,7 +53,7 @@ def child_analysis(model: str, load: str, size: float) -> dict:
     """In a fresh process: analyse ``model`` under ``load``; time and peak RSS."""
     from slicer.fea.field import analyse_arrays
     from slicer.fea.loadcase import read_load_case
-    from slicer.mesh import read_stl
+    from slicer.input.mesh import read_stl
 
     started = time.perf_counter()
     vertices, faces = read_stl(model)

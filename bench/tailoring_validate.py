@@ -302,7 +302,7 @@ def dogbone_gage(out: Path, size: float = 0.125, size_z: float = 0.2,
     from slicer.fea.roadstiff import box_elasticity
     from slicer.fea.solve import analyse
     from slicer.fea.voxel import VoxelGrid
-    from slicer.mesh import read_stl
+    from slicer.input.mesh import read_stl
     from slicer.plan import SlicePlan
     from slicer.settings import SliceSettings
 

@@ -10,8 +10,8 @@ from typing import Any
 import numpy as np
 
 from hostd.etaguess import Geometry, calibrated, measure, sample_layers
-from slicer.gcode import END_LIFT, GcodeSummary, filament_grams
-from slicer.layertime import lift_time
+from slicer.output.gcode import END_LIFT, GcodeSummary, filament_grams
+from slicer.output.layertime import lift_time
 
 log = logging.getLogger("hostd.eta")
 
@@ -24,7 +24,7 @@ class EtaModel:
     """Remaining seconds of a sliced job from acknowledged progress.
 
     - Each sliced layer has the slicer's estimate (``schedule.estimates``, the
-      planner's time for its moves: :mod:`slicer.layertime`). A layer not sliced
+      planner's time for its moves: :mod:`slicer.output.layertime`). A layer not sliced
       yet is guessed from the model's geometry with its own settings, less its
       cancelled bodies (:mod:`hostd.etaguess`), times the ratio of estimate to
       guess interpolated between the layers sliced so far and a few layers

@@ -18,7 +18,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer.layer import fill_distance
+from slicer.paths.layer import fill_distance
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

@@ -19,7 +19,7 @@ import logging
 import time
 from collections.abc import Callable
 
-from slicer.islands import forget_everywhere
+from slicer.paths.islands import forget_everywhere
 
 log = logging.getLogger("hostd.memory")
 

@@ -30,11 +30,11 @@ from hostd.runner import JobCancelled, JobRunner, Park, open_output, park_moves
 from hostd.schedule import LayerSchedule
 from hostd.sources import FileSource, LayerSource, SlicedSource
 from hostd.speculate import MadeAhead, Speculation
-from slicer.annotate import annotate_file
-from slicer.arcs import for_printer
 from slicer.errors import ModelError
 from slicer.fea.tailor import Tailoring, find_load_case, tailored_plan
-from slicer.gcode import header_lines, summarize
+from slicer.output.annotate import annotate_file
+from slicer.output.gcode import header_lines, summarize
+from slicer.paths.arcs import for_printer
 from slicer.settings import SettingsError, SliceSettings
 
 log = logging.getLogger("hostd.job")

@@ -8,9 +8,9 @@ from typing import Any
 
 import numpy as np
 
-from slicer import gcode
-from slicer.entry import entered, last_xy
-from slicer.gcode import fan_command
+from slicer.output import gcode
+from slicer.output.entry import entered, last_xy
+from slicer.output.gcode import fan_command
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -113,7 +113,7 @@ class LayerSchedule:
     def entered(self, layer: int, lines: list[str], came_from: np.ndarray | None) -> list[str]:
         """Layer ``layer``'s ``lines`` with its first travel, from ``came_from`` ((2,) mm,
         where the layer before ended; None: unknown), around the bodies cancelled by then
-        (:mod:`slicer.entry`); the seconds added go into its estimate."""
+        (:mod:`slicer.output.entry`); the seconds added go into its estimate."""
         excluded = self.excluded_at(layer)
         if not excluded or came_from is None or layer <= 0:
             return lines

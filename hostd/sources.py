@@ -13,8 +13,8 @@ import numpy as np
 
 from drivers.link.protocol import strip_comment
 from hostd.schedule import LayerSchedule
-from slicer.entry import last_xy
 from slicer.errors import ModelError
+from slicer.output.entry import last_xy
 from slicer.pipeline import LayerWindow
 from slicer.plan import SlicePlan, load_on_demand_modules
 from slicer.settings import SliceSettings

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import NamedTuple
 
-from slicer.gcode import LayerCode
+from slicer.output.gcode import LayerCode
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

@@ -22,22 +22,23 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 import shapely
 
-from slicer import gcode, geom
-from slicer.detour import avoid_region
 from slicer.errors import ModelError
 from slicer.fields.base import InfillField, LayerContext, get_field
 from slicer.fields.linear import LinearField
-from slicer.geom import private_copy
-from slicer.islands import island_domains
-from slicer.labels import nearest_body
-from slicer.layer import LayerRegions, Path, fill_distance, layer_paths_many
-from slicer.lazycut import LazyOutlines
-from slicer.mesh import PlacedMesh, prepare, read_stl
+from slicer.geometry import geom
+from slicer.geometry.geom import private_copy
+from slicer.input.lazycut import LazyOutlines
+from slicer.input.mesh import PlacedMesh, prepare, read_stl
+from slicer.output import gcode
+from slicer.output.labels import nearest_body
+from slicer.paths.detour import avoid_region
+from slicer.paths.islands import island_domains
+from slicer.paths.layer import LayerRegions, Path, fill_distance, layer_paths_many
+from slicer.paths.skins import SkinCache
 from slicer.settings import SettingsError, SliceSettings
-from slicer.skins import SkinCache
 
 if TYPE_CHECKING:
-    from slicer.forkcut import CutAway
+    from slicer.input.forkcut import CutAway
 
 _EMPTY = np.empty(0, dtype=object)
 _NO_BODY = np.empty(0, dtype=np.int64)
@@ -50,7 +51,9 @@ _TOGETHER = 16
 
 # modules that some layers load on first use (a narrow skin's lines, curved paths'
 # ordering, supports): scipy.spatial alone takes 0.5 s or more to load on a small board
-ON_DEMAND_MODULES = ("scipy.spatial", "slicer.fields.paths", "slicer.order", "slicer.support")
+ON_DEMAND_MODULES = (
+    "scipy.spatial", "slicer.fields.paths", "slicer.paths.order", "slicer.paths.support"
+)
 
 
 def load_on_demand_modules() -> None:
@@ -299,7 +302,7 @@ class SlicePlan:
 
     def _toolpaths(self, layers: Sequence[int], excluded: frozenset[int]) -> list[list[Path]]:
         """The toolpaths of ``layers`` (checked indices), made together
-        (:func:`slicer.layer.layer_paths_many`)."""
+        (:func:`slicer.paths.layer.layer_paths_many`)."""
         inputs = []
         for i in layers:
             islands = self._islands(i, excluded)
@@ -326,7 +329,7 @@ class SlicePlan:
             inputs.append((regions, ctx))
         support_fn = None
         if self._support is not None:
-            from slicer.support import support_paths
+            from slicer.paths.support import support_paths
 
             support_fn = support_paths
         return layer_paths_many(inputs, self._field, support_fn)
@@ -344,7 +347,7 @@ class SlicePlan:
     ) -> list[gcode.LayerCode]:
         """:meth:`layer_code` of layers ``lo .. hi - 1``, the same bytes as one by one:
         their toolpaths and G-code are made a few layers at a time
-        (:meth:`_toolpath_chunks`, :func:`slicer.gcode.layer_codes`), which spends less
+        (:meth:`_toolpath_chunks`, :func:`slicer.output.gcode.layer_codes`), which spends less
         per layer on small layers."""
         made: list[gcode.LayerCode | None] = []
         first_of: dict[bytes, int] = {}  # a key's first layer to be made here
@@ -381,7 +384,7 @@ class SlicePlan:
     ) -> list[list[tuple[int, bytes | None, int]]]:
         """``wanted`` (slot, key, layer) in runs whose toolpaths are made together: at
         most :data:`_TOGETHER` layers, and no more outline points than
-        :data:`slicer.gcode.BATCH_POINTS` unless one layer alone has more (a layer of
+        :data:`slicer.output.gcode.BATCH_POINTS` unless one layer alone has more (a layer of
         thousands of loops is made alone: the block's paths are held together)."""
         chunks: list[list[tuple[int, bytes | None, int]]] = []
         points = 0
@@ -431,9 +434,9 @@ class SlicePlan:
         return self.layer_code(i, excluded_bodies).lines
 
     def entry_region(self, i: int, excluded_bodies: frozenset[int]) -> shapely.Geometry | None:
-        """The region the travel into layer ``i`` keeps out of (:mod:`slicer.entry`): the
+        """The region the travel into layer ``i`` keeps out of (:mod:`slicer.output.entry`): the
         ``excluded_bodies``' outlines on layer ``i`` and the layer below (where the travel
-        runs), grown by :data:`slicer.detour.MARGIN`; None without any."""
+        runs), grown by :data:`slicer.paths.detour.MARGIN`; None without any."""
         i = self._check(i)
         if not excluded_bodies:
             return None
@@ -482,7 +485,7 @@ class SlicePlan:
 
     def _avoid(self, i: int, excluded: frozenset[int]) -> shapely.Geometry | None:
         """The region of layer ``i``'s travels keep out of: its excluded bodies' outlines,
-        grown by :data:`slicer.detour.MARGIN` (None without any)."""
+        grown by :data:`slicer.paths.detour.MARGIN` (None without any)."""
         if not excluded:
             return None
         polys = shapely.get_parts(self._geo.outlines[i])
@@ -524,7 +527,7 @@ class SlicePlan:
         return polys
 
     def _plan_support(self) -> None:
-        from slicer.support import support_interfaces, support_regions
+        from slicer.paths.support import support_interfaces, support_regions
 
         outlines = [self.outline(i) for i in range(self.layer_count)]
         regions = support_regions(outlines, self.settings, self.settings.layer_height)

@@ -12,7 +12,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slicer.stl_binary import write_stl
+from slicer.input.stl_binary import write_stl
 
 LENGTH, WIDTH, THICKNESS = 80.0, 16.0, 6.0
 

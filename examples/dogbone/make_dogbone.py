@@ -14,7 +14,7 @@ from pathlib import Path
 
 import numpy as np
 
-from slicer.stl_binary import write_stl
+from slicer.input.stl_binary import write_stl
 
 LENGTH, WIDTH, THICKNESS, GAGE_WIDTH = 100.0, 30.0, 5.0, 10.0
 END = 25.0  # full-width end, mm

@@ -6,7 +6,7 @@ import argparse
 
 from hostd.cli import UsageError
 from hostd.commands.slice import load_plan, load_settings
-from slicer.preview import render_layer
+from slicer.output.preview import render_layer
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:

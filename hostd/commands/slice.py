@@ -193,7 +193,7 @@ def run(args) -> int:
         # line, for slicing only
         import hostd.liveline  # noqa: F401  (the progress line's, loaded here)
         from hostd.api import duration
-        from slicer.gcodefile import write_gcode
+        from slicer.output.gcodefile import write_gcode
     return_freed_memory()
     settings, bed = load_settings(args.config, args.set)
     profile = getattr(args, "profile", False)

@@ -23,7 +23,7 @@ from slicer.fea.loadcase import LOAD_SUFFIX
 from slicer.fea.material import describe, file_settings
 from slicer.fea.predict import Prediction, TensionTest, predict_moduli, tension_test
 from slicer.fea.tailor import default_cache_dir, tailored_plan
-from slicer.gcodefile import write_gcode
+from slicer.output.gcodefile import write_gcode
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings, parse_assignment
 
@@ -154,7 +154,7 @@ def _test_of(model: Path, load: Path, settings: SliceSettings, optimal: bool
     """The load case's test, and what the optimum was made for (None without it)."""
     from slicer.fea.loadcase import read_load_case
     from slicer.fea.optimal import objective_text
-    from slicer.mesh import read_stl
+    from slicer.input.mesh import read_stl
 
     vertices, faces = read_stl(model)
     case = read_load_case(load, settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio)

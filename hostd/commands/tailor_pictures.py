@@ -10,8 +10,8 @@ import shapely
 from PIL import Image, ImageDraw
 
 from slicer.fields.draw import colour_map
+from slicer.output.preview import render_layer
 from slicer.plan import SlicePlan
-from slicer.preview import render_layer
 
 SIDE_PX = 700  # width of each panel
 TITLE_PX = 22

@@ -106,7 +106,7 @@ def check_case(
     keys and values, then every region against the meshed model (a region that
     selects no face, a body held by nothing). Cheap enough to run when a job is
     taken. Raises LoadCaseError; a model that cannot be read raises ModelError."""
-    from slicer.mesh import read_stl
+    from slicer.input.mesh import read_stl
 
     model, load = Path(model), Path(load)
     if not model.is_file():
@@ -178,7 +178,7 @@ def field_path(
     """Where the analysis of ``model`` under ``load`` is cached (see :func:`field_key`),
     with the case, the model's vertices and faces and the mesh size it uses.
     ``optimal`` > 0: the optimised density of that mean instead of the stress."""
-    from slicer.mesh import read_stl
+    from slicer.input.mesh import read_stl
 
     model, load = Path(model), Path(load)
     if not model.is_file():

@@ -139,8 +139,8 @@ def predict_moduli(
     (fill and direction, :mod:`slicer.fea.roadstiff`); the masses use the
     settings' filament density.
     """
-    from slicer.gcode import filament_grams
-    from slicer.mesh import read_stl
+    from slicer.input.mesh import read_stl
+    from slicer.output.gcode import filament_grams
 
     vertices, faces = read_stl(model)
     case = read_load_case(load, settings.fea_youngs_modulus_mpa, settings.fea_poisson_ratio)

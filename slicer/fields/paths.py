@@ -7,7 +7,7 @@ import shapely
 from numpy.typing import NDArray
 from scipy.spatial import cKDTree
 
-from slicer import geom
+from slicer.geometry import geom
 
 LINESTRING = 1
 

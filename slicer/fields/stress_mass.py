@@ -7,7 +7,7 @@ import itertools
 from collections.abc import Callable
 from dataclasses import dataclass
 
-from slicer.gcode import filament_grams
+from slicer.output.gcode import filament_grams
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError
 

@@ -15,7 +15,7 @@ from support.paths import DATA, HOSTD, ROOT
 
 from drivers.link.protocol import strip_comment
 from hostd.api import ControlClient
-from slicer.arcs import for_printer
+from slicer.paths.arcs import for_printer
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

@@ -23,7 +23,7 @@ from support.waiting import wait_until
 
 from hostd.api import ControlError
 from hostd.jobstore import JobStore
-from slicer.arcs import for_printer
+from slicer.paths.arcs import for_printer
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

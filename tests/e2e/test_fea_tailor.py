@@ -12,7 +12,7 @@ import trimesh
 from support.slicer_helpers import write_mesh
 
 from slicer.fea.predict import predict_moduli
-from slicer.gcodefile import write_gcode
+from slicer.output.gcodefile import write_gcode
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

@@ -188,7 +188,7 @@ def test_moves_go_to_the_body_whose_polygon_holds_them(monkeypatch) -> None:
     import numpy as np
     import shapely
 
-    from slicer import labels
+    from slicer.output import labels
 
     rng = np.random.default_rng(5)
     centres = rng.uniform(0, 100, (30, 2))
@@ -224,7 +224,7 @@ def test_objects_defined_by_the_hull_of_their_sampled_outlines() -> None:
     import numpy as np
     import shapely
 
-    from slicer.labels import ObjectLabels
+    from slicer.output.labels import ObjectLabels
 
     class Layers:  # the three things the definitions read of a plan
         layer_count = 60

@@ -17,8 +17,8 @@ from support.paths import DATA
 
 from hostd.api import ControlClient
 from slicer.errors import ModelError
-from slicer.mesh import prepare, read_stl
-from slicer.repair import fix_winding, winding_flips
+from slicer.input.mesh import prepare, read_stl
+from slicer.input.repair import fix_winding, winding_flips
 
 BED = (200.0, 200.0, 200.0)
 
@@ -126,7 +126,7 @@ def test_ascii_refusals_name_what_is_wrong(tmp_path, text, words):
 def test_cubes_sharing_an_edge_are_reported():
     v, f = boxes(((20, 20, 20), (0, 0, 0)), ((20, 20, 20), (20, 20, 0)))
     # share the corners of the common edge, as an exporter writing one mesh does
-    from slicer.mesh import merge_corners
+    from slicer.input.mesh import merge_corners
 
     v, f = merge_corners(v[f].reshape(-1, 3))
     placed = prepare(v, f, BED)

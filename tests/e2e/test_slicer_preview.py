@@ -11,7 +11,7 @@ import pytest
 from PIL import Image
 from support.slicer_helpers import DATA
 
-from slicer.preview import COLOURS
+from slicer.output.preview import COLOURS
 
 HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
 

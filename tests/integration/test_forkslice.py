@@ -10,10 +10,10 @@ from collections.abc import Iterator
 import pytest
 from support.slicer_helpers import box_stl
 
-from slicer import gcodefile
 from slicer.errors import ModelError
 from slicer.forkslice import ForkedLayers, LayerText, per_layer
-from slicer.gcodefile import _chunks, _layer_text, write_gcode
+from slicer.output import gcodefile
+from slicer.output.gcodefile import _chunks, _layer_text, write_gcode
 from slicer.pipeline import LayerWindow
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings

@@ -11,9 +11,9 @@ import pytest
 import shapely
 from support.slicer_helpers import DATA
 
-from slicer import forkcut
-from slicer.lazycut import LazyOutlines
-from slicer.mesh import prepare, read_stl
+from slicer.input import forkcut
+from slicer.input.lazycut import LazyOutlines
+from slicer.input.mesh import prepare, read_stl
 from slicer.plan import cut_planes, layer_tops
 from slicer.settings import SliceSettings
 

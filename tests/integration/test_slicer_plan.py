@@ -8,8 +8,8 @@ import shapely
 import trimesh
 from support.slicer_helpers import DATA, box_stl, extrusions, layer_blocks
 
-from slicer.gcodefile import write_gcode
-from slicer.layer import WALL_OUTER
+from slicer.output.gcodefile import write_gcode
+from slicer.paths.layer import WALL_OUTER
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

@@ -13,7 +13,7 @@ import trimesh
 
 from drivers.link.protocol import strip_comment
 from hostd.api import ControlClient, Snapshot
-from slicer.entry import entered, last_xy
+from slicer.output.entry import entered, last_xy
 from slicer.plan import SlicePlan
 
 

@@ -5,7 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from drivers.link.protocol import strip_comment
-from slicer.annotate import is_annotation
+from slicer.output.annotate import is_annotation
 
 # commands the streamer adds on its own (handshake, temperature reports)
 HOUSEKEEPING = ("M110", "M105", "M115", "M503", "M155")

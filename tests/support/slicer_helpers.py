@@ -7,7 +7,7 @@ from pathlib import Path
 import numpy as np
 import trimesh
 
-from slicer.annotate import is_annotation
+from slicer.output.annotate import is_annotation
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

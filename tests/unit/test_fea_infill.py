@@ -221,7 +221,7 @@ def test_the_scaled_stress_hardly_changes_as_the_mesh_is_refined(tmp_path: Path)
     from slicer.fea.field import analyse_arrays, write_field
     from slicer.fea.loadcase import read_load_case
     from slicer.fields.stress import FLOOR, stress_scale
-    from slicer.mesh import read_stl
+    from slicer.input.mesh import read_stl
 
     vertices, faces = read_stl(DOGBONE)
     case = read_load_case(DOGBONE.with_name("dogbone.load.toml"))
@@ -289,7 +289,7 @@ def test_the_optimal_density_keeps_the_mass_and_beats_stress_b_on_the_gage() -> 
     from slicer.fea.optimal import FLOOR, optimal_density, strain_energy
     from slicer.fea.predict import measured, tension_test
     from slicer.fea.solve import analyse
-    from slicer.mesh import read_stl
+    from slicer.input.mesh import read_stl
 
     vertices, faces = read_stl(DOGBONE)
     case = read_load_case(DOGBONE.with_name("dogbone.load.toml"))

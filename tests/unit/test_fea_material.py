@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 
 from hostd.config import ConfigError, config_from_mapping
-from slicer.gcode import filament_grams
+from slicer.output.gcode import filament_grams
 from slicer.settings import SliceSettings
 
 

@@ -7,7 +7,7 @@ import io
 import numpy as np
 from PIL import Image
 
-from slicer.raster import Canvas
+from slicer.geometry.raster import Canvas
 
 ORANGE, BROWN = (235, 120, 30, 255), (120, 55, 10, 255)
 

@@ -8,7 +8,7 @@ import pytest
 import trimesh
 
 from hostd.schedule import LayerSchedule
-from slicer.gcode import LayerCode
+from slicer.output.gcode import LayerCode
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 

@@ -11,11 +11,11 @@ import shapely
 import trimesh
 
 from bench import gcodeparse
-from slicer.arcs import for_printer
-from slicer.budget import OUTER_ARC, OUTER_LINES, OUTER_LOOP, budget_moves, line_rate
 from slicer.fields.base import LayerContext, get_field
 from slicer.fields.wave import mean_stretch
-from slicer.gcode import _pack
+from slicer.output.budget import OUTER_ARC, OUTER_LINES, OUTER_LOOP, budget_moves, line_rate
+from slicer.output.gcode import _pack
+from slicer.paths.arcs import for_printer
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 

@@ -13,7 +13,7 @@ import trimesh
 
 from hostd.schedule import LayerSchedule
 from hostd.sources import SlicedSource
-from slicer.detour import MARGIN, detours
+from slicer.paths.detour import MARGIN, detours
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

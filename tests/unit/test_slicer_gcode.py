@@ -10,10 +10,10 @@ import shapely
 import trimesh
 from support.slicer_helpers import DATA, box_stl, extrusions, write_mesh
 
-from slicer.gcode import summarize
-from slicer.gcodefile import write_gcode
-from slicer.labels import ObjectLabels, extruding_moves
-from slicer.layer import WALL_INNER, WALL_OUTER
+from slicer.output.gcode import summarize
+from slicer.output.gcodefile import write_gcode
+from slicer.output.labels import ObjectLabels, extruding_moves
+from slicer.paths.layer import WALL_INNER, WALL_OUTER
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 
@@ -50,7 +50,7 @@ def test_header_totals_match_the_program(tmp_path) -> None:
 
 
 def test_time_model_charges_acceleration() -> None:
-    from slicer.motion import run_time
+    from slicer.output.motion import run_time
 
     straight = run_time(np.array([[0.0, 0.0], [100.0, 0.0]]), 50.0, 1000.0)
     assert straight == pytest.approx(100 / 50 + 50 / 1000)
@@ -66,7 +66,7 @@ def test_time_model_charges_acceleration() -> None:
 def test_rest_time_is_segment_times_to_the_bit() -> None:
     """The scalar rest-to-rest time equals the vectorised one exactly (trapezoids,
     triangles, zero lengths), so layer times and the header do not change by a bit."""
-    from slicer.motion import rest_time, segment_times
+    from slicer.output.motion import rest_time, segment_times
 
     rng = np.random.default_rng(7)
     short = long = 0

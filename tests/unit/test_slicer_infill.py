@@ -7,7 +7,7 @@ import pytest
 import shapely
 from support.slicer_helpers import box_stl, extrusions
 
-from slicer.layer import FILL, SKIN, fill_distance
+from slicer.paths.layer import FILL, SKIN, fill_distance
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -150,7 +150,7 @@ def test_skin_shared_out_to_the_islands_it_lies_in() -> None:
     """A layer's skin goes to the islands whose infill domains hold its parts, whole;
     a sliver outside every domain goes nowhere, and the result is what overlaying each
     domain with the skin gives where the parts lie inside."""
-    from slicer.layer import _skin_by_island
+    from slicer.paths.layer import _skin_by_island
 
     fill = np.array([shapely.box(0, 0, 10, 10), shapely.box(20, 0, 30, 10),
                      shapely.box(40, 0, 50, 10)], dtype=object)
@@ -174,7 +174,7 @@ def test_small_sparse_regions_become_skin_island_by_island() -> None:
     """Sparse regions under ``below`` mm^2 join their own island's skin (after its own
     parts, in order); an island left with no sparse region gets None; islands without a
     small region keep theirs as they were."""
-    from slicer.layer import _solid_small_regions
+    from slicer.paths.layer import _solid_small_regions
 
     box = shapely.box
     skin = np.array([shapely.MultiPolygon([box(0, 0, 4, 4)]), None, None,

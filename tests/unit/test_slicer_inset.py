@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import shapely
 
-from slicer.inset import _convex_insets, inset
+from slicer.geometry.inset import _convex_insets, inset
 
 
 def _half_planes(polygon: shapely.Polygon, d: float) -> shapely.Geometry:

@@ -12,8 +12,8 @@ import pytest
 import trimesh
 from support.slicer_helpers import DATA, box_stl, write_mesh
 
-from slicer import gcode
-from slicer.gcodefile import write_gcode
+from slicer.output import gcode
+from slicer.output.gcodefile import write_gcode
 from slicer.pipeline import LayerWindow, in_blocks
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings

@@ -8,8 +8,8 @@ import numpy as np
 import shapely
 from support.slicer_helpers import DATA
 
-from slicer.lazycut import LazyOutlines
-from slicer.mesh import prepare, read_stl
+from slicer.input.lazycut import LazyOutlines
+from slicer.input.mesh import prepare, read_stl
 from slicer.plan import SlicePlan, cut_planes, layer_tops
 from slicer.settings import SliceSettings
 
@@ -93,13 +93,13 @@ def test_light_blocks_are_cut_on_one_thread_heavy_ones_on_several(monkeypatch) -
     asked for, with the same outlines."""
     import threading
 
-    import slicer.lazycut
+    import slicer.input.lazycut
 
     mesh = prepare(*read_stl(DATA / "featuretype_mm.stl"), (220.0, 220.0, 250.0))
     planes = cut_planes(layer_tops(mesh.height, SETTINGS), SETTINGS)
 
     def cut_on(worth: float) -> tuple[int, set[str], list[bytes]]:
-        monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", worth)
+        monkeypatch.setattr(slicer.input.lazycut, "_THREADS_WORTH", worth)
         outlines = LazyOutlines(mesh.vertices, mesh.faces, mesh.face_body, planes, block=4)
         assert outlines.cut_threads(2) == 2  # nothing cut yet: nothing known
         outlines.outline(0)
@@ -132,9 +132,9 @@ def test_blocks_left_are_judged_by_their_faces_against_the_blocks_cut(monkeypatc
     a box's top block at 6 ms says its other blocks, alike, are light."""
     import trimesh
 
-    import slicer.lazycut
+    import slicer.input.lazycut
 
-    monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", 0.007)
+    monkeypatch.setattr(slicer.input.lazycut, "_THREADS_WORTH", 0.007)
     sphere = trimesh.creation.icosphere(subdivisions=4, radius=15.0)
     box = trimesh.creation.box(extents=(10.0, 10.0, 30.0))
     threads = []
@@ -154,8 +154,8 @@ def test_light_layers_are_cut_in_bigger_blocks_with_the_same_outlines(monkeypatc
     and a 64-layer block of 6 ms is judged as light as a 16-layer one of 1.5 ms."""
     import trimesh
 
-    import slicer.lazycut
-    from slicer.lazycut import BLOCK, LIGHT_BLOCK
+    import slicer.input.lazycut
+    from slicer.input.lazycut import BLOCK, LIGHT_BLOCK
 
     sphere = trimesh.creation.icosphere(subdivisions=5, radius=15.0)
     box = trimesh.creation.box(extents=(10.0, 10.0, 30.0))
@@ -168,7 +168,7 @@ def test_light_layers_are_cut_in_bigger_blocks_with_the_same_outlines(monkeypatc
         for i in range(len(planes)):
             assert shapely.to_wkb(auto[i]) == shapely.to_wkb(fixed[i])
     assert chosen == [BLOCK, LIGHT_BLOCK]
-    monkeypatch.setattr(slicer.lazycut, "_THREADS_WORTH", 0.007)
+    monkeypatch.setattr(slicer.input.lazycut, "_THREADS_WORTH", 0.007)
     mesh = prepare(np.asarray(box.vertices), np.asarray(box.faces), (220, 220, 250))
     planes = cut_planes(layer_tops(mesh.height * 5, SETTINGS), SETTINGS)
     outlines = LazyOutlines(mesh.vertices * [1, 1, 5], mesh.faces, mesh.face_body, planes)

@@ -8,10 +8,10 @@ import shapely
 import trimesh
 from support.slicer_helpers import DATA, write_mesh
 
-from slicer.mesh import merge_corners, read_stl
-from slicer.outline import close_open_chains
+from slicer.input.mesh import merge_corners, read_stl
+from slicer.input.outline import close_open_chains
+from slicer.input.section import cut_block, face_layer_ranges
 from slicer.plan import SlicePlan
-from slicer.section import cut_block, face_layer_ranges
 from slicer.settings import SliceSettings
 
 
@@ -168,7 +168,7 @@ def test_binary_and_ascii_read_the_same(tmp_path) -> None:
 
 
 def test_merge_survives_hash_collisions(monkeypatch) -> None:
-    import slicer.grouping as grouping
+    import slicer.input.grouping as grouping
 
     rng = np.random.default_rng(1)
     corners = rng.integers(0, 4, size=(300, 3)).astype(np.float32)

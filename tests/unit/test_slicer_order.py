@@ -3,9 +3,9 @@
 import numpy as np
 import shapely
 
-from slicer import order
 from slicer.fields.linear import hatch, hatch_many, line_frame
-from slicer.gcode import _travels_leave, format_moves
+from slicer.output.gcode import _travels_leave, format_moves
+from slicer.paths import order
 
 
 def _python_lines(xy: np.ndarray, e: np.ndarray) -> list[str]:
@@ -114,7 +114,7 @@ def test_islands_hatched_stacked_and_joined_at_once_match_one_at_a_time():
 def test_islands_ordered_alike_from_a_table_and_step_by_step(monkeypatch):
     """Nearest rear seam first, the same order whether the distances come from one table
     or one norm per step (ties and empty islands' NaN bounds included)."""
-    from slicer import layer
+    from slicer.paths import layer
 
     rng = np.random.default_rng(11)
     lo = rng.integers(0, 40, (300, 2)).astype(float)  # many equal seams: ties

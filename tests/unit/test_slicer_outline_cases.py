@@ -7,8 +7,8 @@ import numpy as np
 import shapely
 import trimesh
 
-from slicer.grouping import group_rows
-from slicer.outline import drop_collinear
+from slicer.input.grouping import group_rows
+from slicer.input.outline import drop_collinear
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

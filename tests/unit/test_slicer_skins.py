@@ -10,8 +10,8 @@ import numpy as np
 import pytest
 import shapely
 
-from slicer import skinfill
-from slicer.skins import _OPEN, SkinCache, _domains, skin_regions
+from slicer.paths import skinfill
+from slicer.paths.skins import _OPEN, SkinCache, _domains, skin_regions
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 
@@ -199,13 +199,13 @@ def test_a_band_geos_cannot_overlay_exactly_is_filled_on_the_precision_grid() ->
 
 def _island_domains(outlines: np.ndarray) -> np.ndarray:
     # the plan's domains: each island's own, walls of 0.4 mm, FILL mm in
-    from slicer.islands import island_domains
+    from slicer.paths.islands import island_domains
 
     return island_domains(outlines, 0.4, 2, FILL, "outer_first")
 
 
 def test_skins_from_the_islands_domains_are_the_skins_of_the_buffered_outlines() -> None:
-    from slicer import islands
+    from slicer.paths import islands
 
     outlines = _stack()
     islands.forget()
@@ -221,7 +221,7 @@ def test_skins_from_the_islands_domains_are_the_skins_of_the_buffered_outlines()
 
 
 def test_an_islands_domain_is_its_buffer_and_empty_inside_an_empty_wall() -> None:
-    from slicer.islands import island_domains, island_geometry
+    from slicer.paths.islands import island_domains, island_geometry
 
     wide = shapely.box(0, 0, 10, 4).difference(shapely.box(3, 1, 4, 3))
     strut = shapely.box(20, 0, 20.9, 8)  # its second wall level (0.6 mm in) is empty
@@ -240,7 +240,7 @@ def test_an_islands_domain_is_its_buffer_and_empty_inside_an_empty_wall() -> Non
 
 
 def test_a_large_outline_is_buffered_whole_to_the_same_domain(monkeypatch) -> None:
-    from slicer import islands
+    from slicer.paths import islands
 
     outlines = _stack()
     own = islands.island_domains(outlines, 0.4, 2, FILL, "outer_first")

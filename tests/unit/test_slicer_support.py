@@ -11,8 +11,8 @@ import shapely
 import trimesh
 
 from slicer.fields.base import LayerContext
+from slicer.paths.support import support_interfaces, support_paths, support_regions
 from slicer.settings import SliceSettings
-from slicer.support import support_interfaces, support_paths, support_regions
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 H = 0.2

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import shapely
 
-from slicer.layer import SKIN, WALL_OUTER, fill_distance
+from slicer.paths.layer import SKIN, WALL_OUTER, fill_distance
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

@@ -14,7 +14,7 @@ else can fill. Its outer wall is then the level set ``c_0 = W / 2``, extruded
 ``W`` wide, ``W`` the width whose beads lay the island's area (at most 1.375 w),
 so the two sides meet about the medial axis (as the variable-width walls of
 PrusaSlicer 2.5 and Cura 5 lay two wider lines there). Walls and domains are
-made per island by :mod:`slicer.islands`, once for an island that repeats.
+made per island by :mod:`slicer.paths.islands`, once for an island that repeats.
 
 Hatched solid fill lays no more than its region's area: in a region a few
 lines across (a thin tower's corners), chords and the joints between them
@@ -30,10 +30,11 @@ from typing import Any
 import numpy as np
 import shapely
 
-from slicer import geom, loops, order, skinfill
 from slicer.fields.base import InfillField, LayerContext
 from slicer.fields.linear import LinearField, hatch_many, line_frame
-from slicer.islands import island_geometry
+from slicer.geometry import geom
+from slicer.paths import loops, order, skinfill
+from slicer.paths.islands import island_geometry
 from slicer.settings import SliceSettings
 
 WALL_OUTER = loops.WALL_OUTER
@@ -42,7 +43,7 @@ SKIN = "SKIN"
 FILL = "FILL"
 SUPPORT = "SUPPORT"
 
-# slicer.support.support_paths: (support region, part outline, context, interface region or
+# slicer.paths.support.support_paths: (support region, part outline, context, interface region or
 # None) -> support paths by kind ("wall", "interface", "infill")
 SupportPaths = Callable[
     [shapely.Geometry, shapely.Geometry, LayerContext, shapely.Geometry | None],
@@ -120,7 +121,7 @@ def layer_paths(
 ) -> list[Path]:
     """Every toolpath of one layer, in print order.
 
-    ``support_paths`` is :func:`slicer.support.support_paths` when support is
+    ``support_paths`` is :func:`slicer.paths.support.support_paths` when support is
     enabled (imported lazily by the plan), else None.
     """
     return layer_paths_many([(regions, ctx)], field, support_paths)[0]
@@ -133,9 +134,9 @@ def layer_paths_many(
 ) -> list[list[Path]]:
     """:func:`layer_paths` of every layer (``(regions, context)``, one settings for all),
     the same paths as one by one: the walls and domains of all their islands are made
-    in one pass (:func:`slicer.islands.island_geometry`), their chords are hatched and
+    in one pass (:func:`slicer.paths.islands.island_geometry`), their chords are hatched and
     stacked a line direction at a time (:func:`_stacks_many`), and the joints of all
-    their infill runs are checked in one pass (:func:`slicer.order.join_runs`)."""
+    their infill runs are checked in one pass (:func:`slicer.paths.order.join_runs`)."""
     out: list[list[Path]] = [[] for _ in layers]
     busy = [j for j, (regions, _) in enumerate(layers) if len(regions.islands)]
     for j, (regions, ctx) in enumerate(layers):
@@ -472,7 +473,7 @@ def _stacks_many(
     pass, every region its own group of stacks, so a region's stacks are those of a
     pass of its own. Chords shorter than ``min_length`` mm are dropped. Per group,
     the stacks and the stacks' group of its first island (island ``k``'s chords are
-    group ``first + k``, :func:`slicer.order.walk_stacks`); None where it has no
+    group ``first + k``, :func:`slicer.paths.order.walk_stacks`); None where it has no
     chords at all.
     """
     out: list[list[tuple[order.ChordStacks, int] | None]] = [

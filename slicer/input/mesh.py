@@ -12,10 +12,10 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from slicer import repair, shells
 from slicer.errors import ModelError
-from slicer.grouping import group_rows
-from slicer.stl_ascii import read_ascii_corners
+from slicer.input import repair, shells
+from slicer.input.grouping import group_rows
+from slicer.input.stl_ascii import read_ascii_corners
 
 # an open mesh whose open edges are at most this fraction of all edges is still
 # sliced (gaps closed per layer); beyond it the file is refused
@@ -66,7 +66,7 @@ def read_stl(path: str | os.PathLike[str]) -> tuple[np.ndarray, np.ndarray]:
     """Vertices (v, 3) float64 mm and faces (f, 3) int64 of an ASCII or binary STL.
 
     Binary files are read straight into a float32 corner array in chunks (the
-    format is fixed 50-byte records), ASCII files by :mod:`slicer.stl_ascii`;
+    format is fixed 50-byte records), ASCII files by :mod:`slicer.input.stl_ascii`;
     identical corners are then merged exactly (bitwise equal coordinates, as
     STL writers repeat them). Raises ModelError for a missing, empty or
     non-STL file, or coordinates that are not finite.
@@ -119,7 +119,7 @@ def merge_corners(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Merge bitwise-equal triangle corners: (3n, 3) float -> vertices (v, 3), faces (n, 3).
 
     Exact: two corners merge only when their float32 coordinates are equal
-    (``-0`` and ``0`` alike); see :func:`slicer.grouping.group_rows`.
+    (``-0`` and ``0`` alike); see :func:`slicer.input.grouping.group_rows`.
     """
     vertices, inverse = _merge(corners)
     return vertices, inverse.astype(np.int64)
@@ -393,7 +393,7 @@ def _kept_copies(
     and how many went as copies wound the same way and as cancelled pairs.
 
     ``order``/``first`` group the faces by their sorted corners
-    (:func:`slicer.grouping.group_rows`). Copies wound the same way are one face
+    (:func:`slicer.input.grouping.group_rows`). Copies wound the same way are one face
     given twice: the first stays. A face given once each way is a wall of no
     thickness (an exporter's double wall where two bodies meet, or an inlay
     body's face written with the body it sits in): the two cancel in the count

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from slicer import order
-from slicer.geom import split_rows
+from slicer.geometry.geom import split_rows
+from slicer.paths import order
 
 WALL_OUTER = "WALL-OUTER"
 WALL_INNER = "WALL-INNER"
@@ -29,7 +29,7 @@ def wall_loops(
     closed rings of one level as (k, 2) float64 mm point arrays without the
     repeated closing point (exteriors counter-clockwise, holes clockwise;
     rings of fewer than 3 points dropped) and ``seams`` the index of each
-    ring's rear seam vertex (:func:`slicer.order.rear_seam`).
+    ring's rear seam vertex (:func:`slicer.paths.order.rear_seam`).
     """
     p, levels = walls.shape
     # per island: (kind, rings, seams, level) while the rings are gathered

@@ -1,7 +1,7 @@
 """The line budget: a layer's paths as few moves as the tolerance allows, and the wire allows.
 
 Every path is cut into pieces at its ends and at the ends of the arcs fitted
-to it (:mod:`slicer.arcs`, when arcs are on); the pieces that are not arcs are
+to it (:mod:`slicer.paths.arcs`, when arcs are on); the pieces that are not arcs are
 simplified (Douglas-Peucker, shapely, one vectorised call) within
 ``resolution`` (sparse infill and support within ``infill.resolution``: where
 they run does not show, and curved fields would spend most lines there). Arcs
@@ -28,8 +28,8 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer.arcs import Arcs, arcs_wanted, fit_arcs
-from slicer.geom import lengths, sorted_unique
+from slicer.geometry.geom import lengths, sorted_unique
+from slicer.paths.arcs import Arcs, arcs_wanted, fit_arcs
 from slicer.settings import SliceSettings
 
 # bytes a move line takes on the wire with its line number and checksum (about 30

@@ -31,7 +31,7 @@ import numpy as np
 import shapely
 
 from slicer.forkslice import write_all
-from slicer.lazycut import Polygons
+from slicer.input.lazycut import Polygons
 
 _LENGTH = struct.Struct("<q")  # bytes of one packed block that follow
 

@@ -14,8 +14,8 @@ from dataclasses import dataclass, field
 import numpy as np
 import shapely
 
-from slicer import geom
-from slicer.section import Chains
+from slicer.geometry import geom
+from slicer.input.section import Chains
 
 # shortest ring worth keeping, mm^2 of area
 _MIN_RING_AREA = 1e-4
@@ -153,7 +153,7 @@ def build_layers(
 ) -> dict[int, tuple[np.ndarray, np.ndarray]]:
     """Polygons with holes for each layer of a block.
 
-    ``chains`` from :func:`slicer.section.cut_block`; ``face_body`` (f,) int64,
+    ``chains`` from :func:`slicer.input.section.cut_block`; ``face_body`` (f,) int64,
     the body (connected shell) of each mesh face; ``layer_ids`` the layers of
     this block. Returns ``{layer: (polygons (p,) object, body (p,) int64)}``;
     a layer without polygons is absent.

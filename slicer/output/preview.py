@@ -10,7 +10,7 @@ import shapely
 from PIL import Image, ImageDraw
 from PIL.PngImagePlugin import PngInfo
 
-from slicer.layer import FILL, SKIN, SUPPORT, WALL_INNER, WALL_OUTER
+from slicer.paths.layer import FILL, SKIN, SUPPORT, WALL_INNER, WALL_OUTER
 
 if TYPE_CHECKING:
     from slicer.plan import SlicePlan

@@ -17,8 +17,8 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from slicer import geom
-from slicer.arcs import arcs_wanted
+from slicer.geometry import geom
+from slicer.paths.arcs import arcs_wanted
 from slicer.settings import SliceSettings
 
 # skin parts that an inward offset by half this many line widths empties are filled along

@@ -15,13 +15,13 @@ import numpy as np
 import shapely
 from numpy.typing import NDArray
 
-from slicer.arcs import arcs_wanted
-from slicer.budget import Moves, budget_moves, line_rate
-from slicer.detour import detours
-from slicer.geom import private_copy
-from slicer.layer import FILL, SUPPORT, WALL_OUTER, Path
-from slicer.layertime import layer_time
-from slicer.motion import run_time, segment_times
+from slicer.geometry.geom import private_copy
+from slicer.output.budget import Moves, budget_moves, line_rate
+from slicer.output.layertime import layer_time
+from slicer.output.motion import run_time, segment_times
+from slicer.paths.arcs import arcs_wanted
+from slicer.paths.detour import detours
+from slicer.paths.layer import FILL, SUPPORT, WALL_OUTER, Path
 from slicer.settings import SliceSettings
 
 # points of a path closer than this to the previous one are dropped, mm
@@ -56,7 +56,7 @@ class LayerCode:
     ``spans``, when asked for, says which lines each path's moves are and whose:
     (m, 3) int64 rows (first line, last line, owner), one per path with moves,
     in print order, the owner as given per path (a body; see
-    :meth:`slicer.labels.ObjectLabels.label_layer`). None when not asked for.
+    :meth:`slicer.output.labels.ObjectLabels.label_layer`). None when not asked for.
     """
 
     lines: list[str]
@@ -280,7 +280,7 @@ def _budgeted(
     first_path: np.ndarray, counts: np.ndarray, speeds: np.ndarray, loose: np.ndarray,
     exact: np.ndarray, settings: SliceSettings,
 ) -> Moves:
-    """The moves of every layer's packed paths (:func:`slicer.budget.budget_moves`):
+    """The moves of every layer's packed paths (:func:`slicer.output.budget.budget_moves`):
     in one pass, or layer by layer where the budget looks along a layer's chain of
     moves (arcs bounded by the islands' scale, the wire's rate)."""
     arcs = arcs_wanted(settings)
@@ -299,7 +299,7 @@ def _budgeted(
 
 
 def _joined_moves(parts: Sequence[Moves]) -> Moves:
-    """Layers' moves one after the other, as one :class:`~slicer.budget.Moves`."""
+    """Layers' moves one after the other, as one :class:`~slicer.output.budget.Moves`."""
     if len(parts) == 1:
         return parts[0]
     base = np.cumsum([0] + [len(m.pts) for m in parts[:-1]])

@@ -10,10 +10,10 @@ from dataclasses import replace
 import numpy as np
 import shapely
 
-from slicer import geom
 from slicer.fields.base import LayerContext
 from slicer.fields.eggcrate import EggcrateField
 from slicer.fields.paths import as_multiline, clip, empty_paths, linestring_parts
+from slicer.geometry import geom
 from slicer.settings import SliceSettings
 
 MIN_WIDTH_LINES = 4.0  # narrowest support region kept, in line widths

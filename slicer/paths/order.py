@@ -10,7 +10,7 @@ from dataclasses import dataclass
 import numpy as np
 import shapely
 
-from slicer.geom import lengths, sorted_unique, split_rows
+from slicer.geometry.geom import lengths, sorted_unique, split_rows
 
 
 def ring_points(ring: np.ndarray) -> np.ndarray:

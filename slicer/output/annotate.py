@@ -7,10 +7,10 @@ import shutil
 from collections.abc import Callable, Iterable, Iterator
 from typing import TYPE_CHECKING, TextIO
 
-from slicer.gcode import summarize
-from slicer.labels import ObjectLabels, progress_line
+from slicer.output.gcode import summarize
+from slicer.output.labels import ObjectLabels, progress_line
+from slicer.output.thumbnails import thumbnail_lines
 from slicer.settings import SliceSettings
-from slicer.thumbnails import thumbnail_lines
 
 if TYPE_CHECKING:
     from slicer.plan import SlicePlan
@@ -70,7 +70,7 @@ def _split(lines: Iterable[str]) -> Iterator[tuple[str, list[str]]]:
 
 
 def layer_times(parts: Iterable[tuple[str, list[str]]], settings: SliceSettings) -> list[float]:
-    """Each layer's time (s) by :func:`slicer.gcode.summarize`, starting where the part
+    """Each layer's time (s) by :func:`slicer.output.gcode.summarize`, starting where the part
     before it left the nozzle (relative extrusion, as this slicer writes)."""
     times = []
     position: list[str] = []
@@ -101,7 +101,7 @@ def annotate_program(
     """Write a streamed program (``read_body()`` gives its lines, twice) with labels and M73.
 
     ``times`` are the layers' seconds; without them a first reading times each
-    layer (:func:`slicer.gcode.summarize`). The last reading writes every part,
+    layer (:func:`slicer.output.gcode.summarize`). The last reading writes every part,
     each layer labelled and given its ``M73``. One layer is held at a time.
     """
     if times is None:

@@ -50,7 +50,7 @@ from typing import Protocol
 import numpy as np
 import shapely
 
-from slicer import geom
+from slicer.geometry import geom
 
 # largest deviation of the domains used to find skins, mm
 _SIMPLIFY = 0.1

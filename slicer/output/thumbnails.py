@@ -8,8 +8,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
-from slicer.geom import sorted_unique
-from slicer.raster import Canvas
+from slicer.geometry.geom import sorted_unique
+from slicer.geometry.raster import Canvas
 
 if TYPE_CHECKING:
     from slicer.plan import SlicePlan

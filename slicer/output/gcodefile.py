@@ -8,9 +8,9 @@ import time
 from collections.abc import Callable, Iterator
 from pathlib import Path
 
-from slicer.annotate import copy_layers, header_extras, object_labels
-from slicer.gcode import GcodeSummary, filament_grams, header_lines
-from slicer.labels import ObjectLabels
+from slicer.output.annotate import copy_layers, header_extras, object_labels
+from slicer.output.gcode import GcodeSummary, filament_grams, header_lines
+from slicer.output.labels import ObjectLabels
 from slicer.pipeline import LayerWindow, in_blocks
 from slicer.plan import SlicePlan
 

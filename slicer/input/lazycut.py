@@ -18,11 +18,11 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
-from slicer.outline import GapReport, OutlineTolerances, build_layers
-from slicer.section import cut_block, face_layer_ranges
+from slicer.input.outline import GapReport, OutlineTolerances, build_layers
+from slicer.input.section import cut_block, face_layer_ranges
 
 if TYPE_CHECKING:
-    from slicer.forkcut import CutAway
+    from slicer.input.forkcut import CutAway
 
 # per layer of a block its polygons (p,) object and their bodies (p,) int64, and
 # what its cut repaired
@@ -203,7 +203,7 @@ class LazyOutlines:
 
     def cut_away(self, reserved_layers: int = 0) -> CutAway | None:
         """Start cutting the blocks left in a forked process, from the top down, while
-        this one goes on (:class:`slicer.forkcut.CutAway`; its ``meet`` cuts the rest
+        this one goes on (:class:`slicer.input.forkcut.CutAway`; its ``meet`` cuts the rest
         here and keeps them all); the blocks of the first ``reserved_layers`` layers
         are left to this process. None with fewer than two blocks left or no
         ``fork``. Only where forking is safe: no other thread of this process may
@@ -212,7 +212,7 @@ class LazyOutlines:
             todo = [b for b in range(self._block_count()) if b not in self._blocks]
         if len(todo) < 2 or not hasattr(os, "fork"):
             return None
-        from slicer.forkcut import CutAway
+        from slicer.input.forkcut import CutAway
 
         reserved = -(-reserved_layers // self._block)
         return CutAway(todo, self._cut_polygons, self._keep, self._has,
@@ -304,7 +304,7 @@ def _block(polygons: Polygons) -> _Block:
 
 def block_layers(lo: np.ndarray, hi: np.ndarray, layers: int) -> int:
     """Layers per block for faces crossing planes ``[lo, hi)`` (from
-    :func:`slicer.section.face_layer_ranges`) of ``layers`` planes: :data:`LIGHT_BLOCK`
+    :func:`slicer.input.section.face_layer_ranges`) of ``layers`` planes: :data:`LIGHT_BLOCK`
     when a layer crosses :data:`_LIGHT_CROSSINGS` faces or fewer on average, else
     :data:`BLOCK`."""
     crossings = int(np.clip(hi - lo, 0, None).sum())

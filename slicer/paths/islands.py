@@ -24,8 +24,8 @@ from typing import Any, cast
 import numpy as np
 import shapely
 
-from slicer import loops
-from slicer.inset import inset
+from slicer.geometry.inset import inset
+from slicer.paths import loops
 
 # islands kept per thread (most recently used), and the most of their WKB kept, bytes
 # (the walls, rings and domain kept with an island take a few times its WKB)
@@ -105,7 +105,7 @@ def island_geometry(
     islands: np.ndarray, w: float, perimeters: int, fill_distance: float, wall_order: str
 ) -> tuple[np.ndarray, np.ndarray, list[Any]]:
     """Outer wall width (p,) float64 mm (NaN: the line width ``w``), infill domain (p,)
-    object array and wall rings (:func:`slicer.loops.wall_loops`, p lists) of each island
+    object array and wall rings (:func:`slicer.paths.loops.wall_loops`, p lists) of each island
     of ``islands`` (p,) Polygons, for ``perimeters`` walls ``w`` mm wide and the domain
     ``fill_distance`` mm inside the outline.
 

@@ -12,8 +12,8 @@ from __future__ import annotations
 import numpy as np
 import shapely
 
-from slicer import geom
-from slicer.geom import private_copy
+from slicer.geometry import geom
+from slicer.geometry.geom import private_copy
 
 # how far travels keep from a cancelled body's outline, mm
 MARGIN = 1.0

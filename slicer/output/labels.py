@@ -10,7 +10,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 import shapely
 
-from slicer.geom import sorted_unique
+from slicer.geometry.geom import sorted_unique
 
 if TYPE_CHECKING:
     from slicer.plan import SlicePlan
@@ -69,7 +69,7 @@ class ObjectLabels:
     ) -> list[str]:
         """Layer ``i``'s lines with each body's extruding moves between its start and end.
 
-        ``spans``: :attr:`slicer.gcode.LayerCode.spans` of these lines (each path's
+        ``spans``: :attr:`slicer.output.gcode.LayerCode.spans` of these lines (each path's
         first and last move line and its body), when known: every path's moves
         then go to its body. Without them the lines are read, and every
         extruding move is given to the body whose outline is nearest its

@@ -17,8 +17,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from slicer.budget import Moves
-from slicer.motion import JUNCTION_DEVIATION, planned_time, rest_time
+from slicer.output.budget import Moves
+from slicer.output.motion import JUNCTION_DEVIATION, planned_time, rest_time
 
 # Marlin's default limits (Configuration.h) for the axes a slicer does not set: mm/s, mm/s^2
 MAX_Z_SPEED = 5.0

@@ -4,7 +4,7 @@ Each layer is sliced on its own, so its first travel (the line that also moves t
 its height) starts wherever the previous layer left the nozzle. Once a body is
 cancelled, that travel is re-planned when the layers are joined in order: the
 nozzle's position after the previous layer is read from its lines, and the way
-to the layer's first point goes round the region (:mod:`slicer.detour`), at the
+to the layer's first point goes round the region (:mod:`slicer.paths.detour`), at the
 previous layer's height and retracted, before the layer's own first travel.
 """
 
@@ -15,9 +15,9 @@ import re
 import numpy as np
 import shapely
 
-from slicer.detour import detours
-from slicer.gcode import format_moves
-from slicer.motion import run_time
+from slicer.output.gcode import format_moves
+from slicer.output.motion import run_time
+from slicer.paths.detour import detours
 
 # a move with X and Y (every move the slicer writes names both)
 _MOVE = re.compile(r"^G[0-3] (?:F\S+ )?X(-?[\d.]+) Y(-?[\d.]+)")
