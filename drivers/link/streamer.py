@@ -374,8 +374,11 @@ class Streamer:
     async def _read_loop(self) -> None:
         loop = asyncio.get_running_loop()
         while True:
+            transport = self._transport
             try:
-                text = await self._transport.readline()
+                if isinstance(transport, Transport):
+                    await transport.serve(self._on_line)  # returns only by raising
+                text = await transport.readline()
             except TransportError as exc:
                 if not await self._link_lost(str(exc)):
                     return
@@ -385,6 +388,27 @@ class Streamer:
             # not one loop iteration later by the writer task
             await self._write_ready()
             self._progress.set()
+
+    def _on_line(self, text: str) -> None:
+        """One line received, from the serial transport's read callback: fed to the core,
+        and what it lets go written at once, with no task switch (the reader task only
+        waits for the port to fail). Other transports are read by the reader task."""
+        core = self.core
+        now = asyncio.get_running_loop().time()
+        self._dispatch(core.feed(text, now), wake=False)
+        if self._writing:  # (a write suspended elsewhere: that writer asks again after it)
+            self._wake.set()
+        else:
+            transport = self._transport
+            assert isinstance(transport, Transport)
+            try:
+                while (data := core.next_bytes(now)) is not None:
+                    self._dispatch(core.take_events(), wake=False)
+                    transport.write_now(data)
+            except TransportError:
+                pass  # serve() raises it: the reader task reports the failure
+            self._dispatch(core.take_events(), wake=False)
+        self._progress.set()
 
     async def _write_loop(self) -> None:
         while True:

@@ -8,6 +8,7 @@ import errno
 import os
 import termios
 from collections import deque
+from collections.abc import Callable
 from types import TracebackType
 
 import serial
@@ -39,6 +40,8 @@ class Transport:
         self._writing = False
         self._error: TransportError | None = None
         self._closed = False
+        self._serving: Callable[[str], None] | None = None  # serve()'s reader
+        self._served: asyncio.Future[None] | None = None  # ends serve()
         self.bytes_written = 0
         self.bytes_read = 0
         loop.add_reader(self._fd, self._on_readable)
@@ -60,6 +63,10 @@ class Transport:
 
     async def write(self, data: bytes) -> None:
         """Queue ``data`` for the wire, in order; returns at once (never waits for the UART)."""
+        self.write_now(data)
+
+    def write_now(self, data: bytes) -> None:
+        """:meth:`write` from a callback: the same, without a coroutine."""
         if self._error is not None:
             raise self._error
         if self._closed:
@@ -87,6 +94,27 @@ class Transport:
                 if waiter in self._readers:  # cancelled: no longer waiting
                     self._readers.remove(waiter)
         return lines.popleft()
+
+    async def serve(self, on_line: Callable[[str], None]) -> None:
+        """Hand every line received to ``on_line`` (those already received first), from
+        the event loop's read callback as each arrives, until the transport ends; then
+        raise :class:`TransportError` (or what ``on_line`` raised).
+
+        A reader that acts on each line at once saves the task switch per line that
+        :meth:`readline` costs. One server at a time, and no ``readline()`` meanwhile.
+        """
+        served = self._served = self._loop.create_future()
+        self._serving = on_line
+        try:
+            lines = self._lines
+            while lines:
+                on_line(lines.popleft())
+            if self._ended:
+                raise self._error or TransportError(f"{self.name}: transport closed")
+            await served
+        finally:
+            self._serving = None
+            self._served = None
 
     async def close(self) -> None:
         """Stop watching the port and close it; pending ``readline()`` calls fail."""
@@ -130,7 +158,20 @@ class Transport:
         *complete, rest = partial.split(b"\n")
         partial[:] = rest
         self._lines.extend(raw.decode("ascii", "replace").rstrip("\r") for raw in complete)
+        if self._serving is not None:
+            self._serve_lines(self._serving)
+            return
         self._wake_readers()
+
+    def _serve_lines(self, on_line: Callable[[str], None]) -> None:
+        lines = self._lines
+        try:
+            while lines:
+                on_line(lines.popleft())
+        except Exception as exc:  # the server's failure ends serve(), not the event loop
+            served = self._served
+            if served is not None and not served.done():
+                served.set_exception(exc)
 
     def _wake_readers(self) -> None:
         readers, self._readers = self._readers, []
@@ -175,6 +216,9 @@ class Transport:
     def _end(self) -> None:
         self._ended = True
         self._wake_readers()
+        served = self._served
+        if served is not None and not served.done():
+            served.set_exception(self._error or TransportError(f"{self.name}: transport closed"))
 
     def _detach(self) -> None:
         with contextlib.suppress(ValueError, OSError):

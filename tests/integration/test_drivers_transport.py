@@ -50,6 +50,30 @@ def test_lines_both_ways_and_partial_lines():
     assert asyncio.run(run()) == ["ok", "Resend: 3", "T:20.0 /0.0"]
 
 
+def test_serve_hands_each_line_to_the_reader_as_it_arrives_until_the_port_ends():
+    # the link's reader acts on each line in the read callback (no task switch per line):
+    # lines received before serve() first, then each as it arrives, in order, and the
+    # other end closing ends serve() with a TransportError
+    async def run() -> list[str]:
+        master, path = _pty()
+        got: list[str] = []
+        transport = await open_transport(path, 115200)
+        async with transport:
+            os.write(master, b"start\n")
+            await until(lambda: transport.bytes_read == 6)
+            serving = asyncio.create_task(transport.serve(got.append), name="serve")
+            os.write(master, b"ok\r\nResend: 3\nT:20")
+            await until(lambda: got == ["start", "ok", "Resend: 3"])
+            os.write(master, b".0 /0.0\n")
+            await until(lambda: len(got) == 4)
+            os.close(master)
+            with pytest.raises(TransportError):
+                await asyncio.wait_for(serving, 2)
+        return got
+
+    assert asyncio.run(run()) == ["start", "ok", "Resend: 3", "T:20.0 /0.0"]
+
+
 def test_waiting_for_a_line_does_not_block_the_loop():
     async def run() -> int:
         master, path = _pty()
