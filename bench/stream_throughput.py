@@ -332,13 +332,13 @@ async def windowed_peer(path: str, lines: list[str]) -> tuple[Run, float]:
     config = StreamerConfig(temperature_interval_s=0)
     stamps: list[float] = []
     transport = await open_transport(path, 250000)
-    write = transport.write
+    write = transport.write_now  # (write() goes through it too, as the read callback does)
 
-    async def timed(data: bytes) -> None:
+    def timed(data: bytes) -> None:
         stamps.append(time.perf_counter())
-        await write(data)
+        write(data)
 
-    transport.write = timed  # type: ignore[method-assign]
+    transport.write_now = timed  # type: ignore[method-assign]
     async with Streamer(transport, config) as link:
         await link.connect()
         first = len(stamps)
