@@ -28,16 +28,20 @@ _PROBE = 8
 # with less left were as fast either way (medians of 7, bench/.cache/corpus)
 _FORK_WORTH = 0.05
 # a model whose outline cut is estimated to take this long or more (s) is forked for
-# at once: its outlines are cut on two cores (the top half in a forked process, sent
-# back as WKB) and every layer goes to the workers, none is timed here first. Below
-# it the fork, the WKB sent back and the pages copied cost more than the overlap
-# gains (cut alone, the 158-layer lattice's 0.126 s cut took 0.090 s in two
-# processes; at 0.015-0.02 s, a bracket, a plate with holes, a grid of parts,
-# 0.97-0.99x). The lightest model above it, the panel clip (0.02 s, 50 layers), has
-# 0.11 s of layers left after the first 8: every such model forks anyway, and timing
-# 8 layers here first left the second core idle for them (the lower idler: 66 ms of
-# CPU in this process before the workers began, 24 ms now)
-_CUT_AWAY_WORTH = 0.015
+# at once: its outlines are cut before forking and every layer goes to the workers,
+# none is timed here first. The lightest model above it, the panel clip (0.02 s, 50
+# layers), has 0.11 s of layers left after the first 8: every such model forks
+# anyway, and timing 8 layers here first left the second core idle for them (the
+# lower idler: 66 ms of CPU in this process before the workers began, 24 ms now)
+_AT_ONCE_WORTH = 0.015
+# an outline cut estimated to take this long or more (s) is made on two cores: the
+# top blocks in a forked process (sent back as WKB), the bottom ones here. Cut
+# alone, the 158-layer lattice's 0.126 s cut took 0.090 s in two processes; below
+# it the fork, the WKB sent back and the wait cost what the overlap gains: the panel
+# clip (0.02 s) reached its workers after as much CPU time here either way (23 and
+# 22 ms, medians of 10) and spent 12 ms more CPU in all with its cut sent away; the
+# lower idler (0.07 s) 27 ms against 37 ms here
+_CUT_AWAY_WORTH = 0.05
 # tasks (of _CHUNK layers) a forked worker may have made or in hand beyond the one
 # being written: the window's depth in layers is _AHEAD * workers * _CHUNK
 _AHEAD = 2
@@ -96,7 +100,7 @@ def iter_layer_texts(
     inherit the plan, no copy) slice tasks in parallel instead, at most
     ``_AHEAD * workers * _CHUNK`` layers ahead of the writer. Without ``fork``
     or with one core the layers are sliced in this thread, and so are small
-    models: unless the outlines alone are heavy (:data:`_CUT_AWAY_WORTH`, then
+    models: unless the outlines alone are heavy (:data:`_AT_ONCE_WORTH`, then
     every layer goes to the workers at once), the first layers are sliced here
     and timed, and workers are forked only when the rest would take long enough
     to gain (:data:`_FORK_WORTH`).
@@ -112,12 +116,13 @@ def iter_layer_texts(
         return _layer_texts(plan, lo, hi, labels)
 
     fork = workers >= 2 and hasattr(os, "fork")
-    if fork and plan.cut_estimate() >= _CUT_AWAY_WORTH:
+    estimate = plan.cut_estimate() if fork else 0.0
+    if fork and estimate >= _AT_ONCE_WORTH:
         # a model whose outlines take this long to cut has more than enough layers to
-        # gain from workers: no layer is timed here, the outlines are cut at once on
-        # two cores (from the top down in a forked process, from the bottom up here)
-        # and every layer goes to the workers, so the second core works from the start
-        away = plan.cut_away()
+        # gain from workers: no layer is timed here, the outlines are cut at once (on
+        # two cores when heavy: from the top down in a forked process, from the bottom
+        # up here) and every layer goes to the workers, so both cores work from the start
+        away = plan.cut_away() if estimate >= _CUT_AWAY_WORTH else None
         if away is not None:
             try:
                 away.meet()

@@ -68,18 +68,20 @@ def test_one_and_two_workers_write_the_same_bytes(
     assert (one.layers, one.filament_mm, one.time_s) == (two.layers, two.filament_mm, two.time_s)
 
 
-@pytest.mark.parametrize("worth", [0.0, 60.0], ids=["cut-away", "cut-here"])
+@pytest.mark.parametrize(("at_once", "away"), [(0.0, 0.0), (0.0, 60.0), (60.0, 60.0)],
+                         ids=["at-once-cut-away", "at-once-cut-here", "timed-here-first"])
 def test_outlines_cut_away_or_here_before_forking_give_the_same_bytes(
-    tmp_path, monkeypatch, worth: float
+    tmp_path, monkeypatch, at_once: float, away: float
 ) -> None:
-    """A fresh plan's outlines are all cut before the workers fork: a heavy cut on two
-    cores (half in a forked child) and then every layer made by the workers, none
-    timed here; a light one here, after the first layers are timed here. The file is
-    the one process's, byte for byte."""
+    """A fresh plan's outlines are all cut before the workers fork. A model heavy to
+    cut has them cut first (on two cores, half in a forked child, when heavier still)
+    and every layer made by the workers; a light one has its first layers made and
+    timed here. The file is the one process's, byte for byte."""
     path = box_stl(tmp_path / "box.stl", (12.0, 8.0, 40.0))
     write_gcode(SlicePlan.from_file(path, SliceSettings()), tmp_path / "one.gcode", workers=1)
     monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
-    monkeypatch.setattr(gcodefile, "_CUT_AWAY_WORTH", worth)
+    monkeypatch.setattr(gcodefile, "_AT_ONCE_WORTH", at_once)
+    monkeypatch.setattr(gcodefile, "_CUT_AWAY_WORTH", away)
     plan = SlicePlan.from_file(path, SliceSettings())
     used: list[str] = []
     real = plan.cut_away
@@ -99,8 +101,8 @@ def test_outlines_cut_away_or_here_before_forking_give_the_same_bytes(
     monkeypatch.setattr(plan, "cut_away", counted)
     monkeypatch.setattr(LayerWindow, "take", engine)
     write_gcode(plan, tmp_path / "two.gcode", workers=2)
-    assert used == ([] if worth else ["cut_away"])
-    here = gcodefile._PROBE if worth else 0  # the layers timed here
+    assert used == ([] if away else ["cut_away"])
+    here = gcodefile._PROBE if at_once else 0  # the layers timed here
     assert taken == ["in_thread"] * here + ["ForkedLayers"] * (plan.layer_count - here)
     assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
 
