@@ -14,6 +14,12 @@ from slicer.output.gcode import fan_command
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
+# layers below the one being sliced whose outlines and skins stay held: more than any
+# lookahead (at most 64) and a skin block's reach, so that the layers sliced after this
+# one never cut them again; below, a print holds nothing of the model's layers (a view of
+# an old layer cuts its block again)
+HELD_LAYERS = 96
+
 
 class LayerSchedule:
     """Settings and excluded bodies per layer, after every retune and cancelled object.
@@ -39,6 +45,7 @@ class LayerSchedule:
         self._lock = threading.Lock()
         # layer -> (the slicer's estimated seconds, filament mm) of each layer sliced here
         self.estimates: dict[int, tuple[float, float]] = {}
+        # (two numbers a layer, for the ETA and the done file's totals: kept whole)
         self.lines: dict[int, int] = {}  # layer -> its command lines (the same layers)
         # layer -> its code made before the job began (base settings, every body)
         self._ahead: dict[int, gcode.LayerCode] = {}
@@ -85,7 +92,19 @@ class LayerSchedule:
         code = self._code(layer, self._ahead.pop(layer, None))
         self.estimates[layer] = (code.time_s, code.filament_mm)
         self.lines[layer] = sum(1 for line in code.lines if line[:1] not in ("", ";"))
+        self.forget_before(layer - HELD_LAYERS)
         return self._retuned(layer, code.lines)
+
+    def forget_before(self, layer: int) -> None:
+        """Let every plan of the schedule go of the outlines and skins of the layers
+        below ``layer`` (:meth:`SlicePlan.forget_before`): what a print holds of its
+        model stays a window of layers as it goes up."""
+        if layer <= 0:
+            return
+        with self._lock:
+            plans = list(self._plans.values())
+        for plan in plans:
+            plan.forget_before(layer)
 
     def layer_preview(self, layer: int) -> list[str]:
         """Layer ``layer``'s lines as :meth:`layer_gcode` makes them, for a view: nothing

@@ -211,6 +211,19 @@ class SlicePlan:
         before forking workers that share the outlines; its ``meet()`` ends it."""
         return self._geo.outlines.cut_away(reserved_layers)
 
+    def forget_before(self, layer: int) -> None:
+        """Let go of the outlines and skins of the blocks of layers all below ``layer``
+        (:meth:`LazyOutlines.forget_before`): a print that goes up layer by layer holds
+        a window of them, not the whole model. A layer below, asked for again, is cut
+        and solved again: the same paths, some ms later."""
+        self._geo.outlines.forget_before(layer)
+        self._skins.forget_before(layer)
+
+    def held_blocks(self) -> tuple[int, int]:
+        """Blocks of layer outlines and of skins held now (what :meth:`forget_before`
+        bounds)."""
+        return self._geo.outlines.held_blocks, self._skins.held_blocks
+
     def cut_estimate(self) -> float:
         """Estimated seconds to cut the outlines not cut yet on one thread
         (:meth:`LazyOutlines.cut_estimate`)."""

@@ -91,6 +91,8 @@ class LazyOutlines:
         self._blocks: dict[int, _Block] = {}
         self._busy: dict[int, threading.Lock] = {}
         self._cut_seconds = 0.0  # summed over the blocks cut so far (any thread)
+        # blocks let go (forget_before): their report, and which of their layers are empty
+        self._forgotten: dict[int, tuple[GapReport, tuple[bool, ...]]] = {}
 
     # ---- sequence of MultiPolygons --------------------------------------
     def __len__(self) -> int:
@@ -148,7 +150,7 @@ class LazyOutlines:
         with self._lock:
             count = self._block_count()
             done = self._cut_blocks()
-            left = [b for b in range(count) if b not in self._blocks]
+            left = [b for b in range(count) if b not in self._blocks and b not in self._forgotten]
             seconds = self._cut_seconds
         if not left:
             return 0.0
@@ -159,9 +161,28 @@ class LazyOutlines:
         return seconds / cut_faces * float(faces[left].sum())
 
     def _cut_blocks(self) -> list[int]:
-        """The printed blocks cut so far."""
+        """The printed blocks cut so far (held, or let go by :meth:`forget_before`)."""
         count = self._block_count()
-        return [b for b in self._blocks if b < count]
+        return [b for b in {*self._blocks, *self._forgotten} if b < count]
+
+    def forget_before(self, layer: int) -> int:
+        """Let go of the blocks all of whose layers lie below ``layer``, keeping what
+        their cut repaired (:meth:`report`); a layer of them asked for again is cut
+        again, the same. A print that goes up layer by layer holds a window of blocks,
+        not the whole model. Returns how many blocks were let go."""
+        with self._lock:
+            gone = [b for b in self._blocks if (b + 1) * self._block <= layer]
+            for b in gone:
+                block = self._blocks.pop(b)
+                self._busy.pop(b, None)
+                self._forgotten[b] = (block.report, tuple(not len(p) for p in block.polygons))
+        return len(gone)
+
+    @property
+    def held_blocks(self) -> int:
+        """Blocks of outlines held now."""
+        with self._lock:
+            return len(self._blocks)
 
     def cut_all(self, threads: int = 1) -> None:
         """Cut every block not cut yet, on up to ``threads`` threads.
@@ -173,7 +194,8 @@ class LazyOutlines:
         """
         threads = self.cut_threads(threads)
         with self._lock:
-            todo = [b for b in range(self._block_count()) if b not in self._blocks]
+            todo = [b for b in range(self._block_count())
+                    if b not in self._blocks and b not in self._forgotten]
         if threads <= 1:
             for b in todo:
                 self._get(b)
@@ -209,7 +231,8 @@ class LazyOutlines:
         ``fork``. Only where forking is safe: no other thread of this process may
         hold a lock the child needs."""
         with self._lock:
-            todo = [b for b in range(self._block_count()) if b not in self._blocks]
+            todo = [b for b in range(self._block_count())
+                    if b not in self._blocks and b not in self._forgotten]
         if len(todo) < 2 or not hasattr(os, "fork"):
             return None
         from slicer.input.forkcut import CutAway
@@ -231,19 +254,19 @@ class LazyOutlines:
     def report(self) -> tuple[GapReport, int]:
         """What the blocks cut so far had to fix, and how many printed layers are empty."""
         with self._lock:
-            blocks = dict(self._blocks)
+            blocks = {b: (block.report, tuple(not len(p) for p in block.polygons))
+                      for b, block in self._blocks.items()}
+            blocks = {**self._forgotten, **blocks}
         total = GapReport()
         empty = 0
-        for b, block in sorted(blocks.items()):
-            total.closed += block.report.closed
-            total.dropped += block.report.dropped
-            total.gap_layers |= block.report.gap_layers
-            total.repaired_layers |= block.report.repaired_layers
-            total.merged |= block.report.merged
+        for b, (report, empties) in sorted(blocks.items()):
+            total.closed += report.closed
+            total.dropped += report.dropped
+            total.gap_layers |= report.gap_layers
+            total.repaired_layers |= report.repaired_layers
+            total.merged |= report.merged
             lo = b * self._block
-            empty += sum(
-                1 for k, p in enumerate(block.polygons) if lo + k < self._count and not len(p)
-            )
+            empty += sum(1 for k, none in enumerate(empties) if lo + k < self._count and none)
         return total, empty
 
     # ---- internals ------------------------------------------------------

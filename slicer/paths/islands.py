@@ -6,7 +6,8 @@ island at a time, so an island with the same coordinates as one sliced lately
 while another one changes, letters standing on a base) has the same walls and
 domain, bit for bit. They are kept per thread, keyed by the island's exact
 coordinates (WKB) and the settings they depend on, for the last
-:data:`KEEP` islands (fewer when large: :data:`KEEP_BYTES`); only the islands
+:data:`KEEP` islands (fewer when large: :data:`KEEP_BYTES`) asked for in the thread's
+last :data:`WINDOW` calls (a window of recent layers); only the islands
 not seen lately are offset, all at once.
 The geometry kept is private to its thread: a thread may prepare it in place.
 A long-running host drops every thread's islands when a job ends
@@ -31,6 +32,11 @@ from slicer.paths import loops
 # (the walls, rings and domain kept with an island take a few times its WKB)
 KEEP = 2048
 KEEP_BYTES = 4_000_000
+# an island not asked for in this thread's last WINDOW calls is let go: the calls go
+# layer by layer (a batch of layers' toolpaths, a skin block's window of domains), so
+# the islands kept are those of a window of recent layers, not of the whole model
+# (a print's walls kept grew some 15 kB a layer, up to the bytes above, per thread)
+WINDOW = 64
 # the most points of an outline whose infill domain is its islands' own (island_domains):
 # a 16-layer skin block's window of 22 such layers stays within a few hundred islands
 DOMAIN_POINTS = 1000
@@ -58,6 +64,8 @@ class _Kept:
 
     def __init__(self) -> None:
         self.islands: OrderedDict[Key, Island] = OrderedDict()
+        self.used: dict[Key, int] = {}  # the call that last asked for each island
+        self.calls = 0
         self.size = 0
         self.lock = threading.Lock()
 
@@ -67,6 +75,7 @@ class _Kept:
     def clear(self) -> None:
         with self.lock:
             self.islands.clear()
+            self.used.clear()
             self.size = 0
 
 
@@ -125,6 +134,8 @@ def island_geometry(
         width, fill, rings = _offsets(islands[miss], w, perimeters, fill_distance, wall_order)
         made = {i: (float(width[j]), fill[j], rings[j]) for j, i in enumerate(miss)}
     with holder.lock:
+        holder.calls += 1
+        now, used = holder.calls, holder.used
         for i, island in made.items():
             if keys[i] not in kept:
                 holder.size += len(keys[i][0])
@@ -132,8 +143,12 @@ def island_geometry(
         for k in keys:
             if k in kept:  # (unless another thread forgot them meanwhile)
                 kept.move_to_end(k)
-        while kept and (len(kept) > KEEP or holder.size > KEEP_BYTES):
-            holder.size -= len(kept.popitem(last=False)[0][0])
+                used[k] = now
+        while kept and (len(kept) > KEEP or holder.size > KEEP_BYTES
+                        or used[next(iter(kept))] <= now - WINDOW):
+            key = kept.popitem(last=False)[0]
+            holder.size -= len(key[0])
+            del used[key]
     got = cast(list[Island], found)
     widths = np.array([f[0] for f in got], dtype=np.float64)
     fills = np.empty(p, dtype=object)

@@ -223,6 +223,7 @@ class SkinCache:
         self._busy: dict[int, threading.Lock] = {}
         self._fill: dict[int, shapely.Geometry | None] = {}  # layer -> infill domain
         self._cover: dict[tuple[int, int], shapely.Geometry] = {}  # (first, size) -> W
+        self._forgotten: set[int] = set()  # blocks solved, then let go (forget_before)
 
     def _span(self, i: int) -> tuple[int, int, int]:
         """(key, lo, hi): the block holding layer ``i``, layers ``lo..hi-1``."""
@@ -263,7 +264,7 @@ class SkinCache:
         top, bottom = self._top, self._bottom
         # open[j]: layers 0..j-1 that belong to a block not solved yet
         unsolved = np.ones(n, dtype=bool)
-        for block in self._blocks:
+        for block in (*self._blocks, *self._forgotten):
             lo, hi = self._block_layers(block)
             unsolved[lo:hi] = False
         open_ = np.concatenate(([0], np.cumsum(unsolved)))
@@ -277,6 +278,23 @@ class SkinCache:
             del self._fill[j]
         for key in [k for k in self._cover if not needed(*self._users(*k))]:
             del self._cover[key]
+
+    def forget_before(self, layer: int) -> int:
+        """Let go of the skins of the blocks all of whose layers lie below ``layer``; a
+        layer of them asked for again is solved again, the same. Returns how many."""
+        with self._lock:
+            gone = [b for b in self._blocks if self._block_layers(b)[1] <= layer]
+            for b in gone:
+                del self._blocks[b]
+                self._busy.pop(b, None)
+                self._forgotten.add(b)
+        return len(gone)
+
+    @property
+    def held_blocks(self) -> int:
+        """Blocks of skins held now."""
+        with self._lock:
+            return len(self._blocks)
 
     def _users(self, first: int, size: int) -> tuple[int, int]:
         """The first and last layer whose skin uses the window ``W(first, size)``."""
