@@ -8,6 +8,11 @@ cancelled while they print (every ``--cancel-every``-th), one is retuned mid-pri
 the daemon is idle, the daemon's RSS (``VmRSS``) is read; the target is that it
 stays within ``--budget-mb`` (10 MB) of its value after the first print.
 
+During a print, the RSS is read too when the job reaches layer ``--layers`` A and
+B (10 and 200: the jobs of 200 layers or more, the bunny, Benchy and the candle
+stand): the growth from A to B, per layer, is the job's ``kb_per_layer``; the
+target is that a print does not grow with the layers it printed.
+
 Usage (from the repository root):
     .venv/bin/python bench/soak.py [--jobs 50] [--models dogbone_100x30x5,bunny]
                                    [--models-dir DIR] [--json OUT.json]
@@ -63,6 +68,7 @@ class JobRow:
     outcome: str  # "done", "cancelled" or "failed"
     seconds: float
     rss_mb: float
+    kb_per_layer: float | None = None  # RSS growth from layer A to layer B, per layer
 
 
 def rss_mb(pid: int) -> float:
@@ -100,10 +106,13 @@ async def command(socket: Path, cmd: str, **args: object) -> dict[str, object]:
         return await client.request(cmd, **args)
 
 
-async def run_job(daemon: Daemon, model: Path, action: str, timeout: float) -> str:
+async def run_job(daemon: Daemon, model: Path, action: str, timeout: float,
+                  layers: tuple[int, int] = (10, 200)) -> tuple[str, float | None]:
     """Drop ``model``, act on it once it prints layer 1 (cancel, retune), wait until it
-    ended and the daemon is idle; returns ``done``, ``cancelled`` or ``failed``."""
+    ended and the daemon is idle; returns ``done``, ``cancelled`` or ``failed``, and
+    the RSS growth per layer (kB) between layers ``layers`` (None: not reached)."""
     socket = daemon.state / "hostd.sock"
+    seen: dict[int, tuple[int, float]] = {}  # A or B -> (layer read at, RSS MB)
     ended = outcomes(daemon)
     failed_before = set((daemon.jobs / "failed").glob("*.error.txt"))
     daemon.drop(model)
@@ -114,25 +123,33 @@ async def run_job(daemon: Daemon, model: Path, action: str, timeout: float) -> s
             raise RuntimeError(f"{model.name}: not ended after {timeout:.0f} s")
         if not daemon.alive():
             raise RuntimeError(f"the daemon exited: {daemon.log_tail()}")
-        if not acted:
-            snap = await status(socket)
-            if snap.state == "printing" and snap.job is not None and snap.job.layer >= 1:
-                try:
-                    if action == "cancel":
-                        await command(socket, "cancel")
-                    else:
-                        await command(socket, "set", settings=RETUNE)
-                except ControlError as exc:  # the job ended meanwhile: a plain print
-                    print(f"  {action} refused: {exc}", file=sys.stderr)
-                acted = True
+        snap = await status(socket)
+        if snap.job is not None and snap.state in ("printing", "paused"):
+            for mark in layers:
+                if mark not in seen and snap.job.layer >= mark:
+                    seen[mark] = (snap.job.layer, rss_mb(daemon.pid))
+        if (not acted and snap.state == "printing" and snap.job is not None
+                and snap.job.layer >= 1):
+            try:
+                if action == "cancel":
+                    await command(socket, "cancel")
+                else:
+                    await command(socket, "set", settings=RETUNE)
+            except ControlError as exc:  # the job ended meanwhile: a plain print
+                print(f"  {action} refused: {exc}", file=sys.stderr)
+            acted = True
         await asyncio.sleep(POLL_S)
     while (await status(socket)).state != "idle":
         await asyncio.sleep(POLL_S)
+    growth = None
+    if len(seen) == 2:
+        (at_a, rss_a), (at_b, rss_b) = seen[layers[0]], seen[layers[1]]
+        growth = round((rss_b - rss_a) * 1024 / max(at_b - at_a, 1), 1)
     errors = set((daemon.jobs / "failed").glob("*.error.txt")) - failed_before
     if not errors:
-        return "done"
+        return "done", growth
     text = next(iter(errors)).read_text(errors="replace")
-    return "cancelled" if "cancel" in text else "failed"
+    return ("cancelled" if "cancel" in text else "failed"), growth
 
 
 async def soak(args: argparse.Namespace) -> list[JobRow]:
@@ -149,15 +166,17 @@ async def soak(args: argparse.Namespace) -> list[JobRow]:
             model = models[index % len(models)]
             action = action_of(index, args.cancel_every, args.retune_at)
             started = time.monotonic()
-            outcome = await run_job(daemon, model, action, args.timeout)
+            outcome, growth = await run_job(daemon, model, action, args.timeout, args.layers)
             seconds = time.monotonic() - started
             await asyncio.sleep(args.settle)  # the job's last threads and files let go
             row = JobRow(index, model.stem, action, outcome, round(seconds, 1),
-                         round(rss_mb(daemon.pid), 1))
+                         round(rss_mb(daemon.pid), 1), growth)
             rows.append(row)
             first = rows[0].rss_mb
+            during = "" if growth is None else (
+                f", layers {args.layers[0]}-{args.layers[1]}: {growth:+.1f} kB/layer")
             print(f"{index:3d} {model.stem:18s} {action:6s} {outcome:9s} {seconds:7.1f} s "
-                  f"RSS {row.rss_mb:6.1f} MB ({row.rss_mb - first:+.1f})", flush=True)
+                  f"RSS {row.rss_mb:6.1f} MB ({row.rss_mb - first:+.1f}){during}", flush=True)
     return rows
 
 
@@ -169,6 +188,7 @@ def summary(rows: list[JobRow], budget_mb: float, cycle: int) -> dict[str, objec
     later = [r.rss_mb - first for r in rows[1:]] or [0.0]
     seen = rows[min(cycle, len(rows)) - 1].rss_mb
     after_cycle = [r.rss_mb - seen for r in rows[cycle:]] or [0.0]
+    per_layer = [r.kb_per_layer for r in rows if r.kb_per_layer is not None]
     return {
         "jobs": len(rows),
         "after_first_mb": first,
@@ -179,9 +199,25 @@ def summary(rows: list[JobRow], budget_mb: float, cycle: int) -> dict[str, objec
         "max_above_that_mb": round(max(after_cycle), 1),
         "budget_mb": budget_mb,
         "within_budget": max(abs(v) for v in later) <= budget_mb,
+        "kb_per_layer_during_print": {
+            "jobs": len(per_layer),
+            "median": round(sorted(per_layer)[len(per_layer) // 2], 1) if per_layer else None,
+            "max": max(per_layer) if per_layer else None,
+        },
         "outcomes": {o: sum(r.outcome == o for r in rows) for o in ("done", "cancelled",
                                                                         "failed")},
     }
+
+
+def _layer_pair(text: str) -> tuple[int, int]:
+    """``A,B`` with ``0 <= A < B``."""
+    try:
+        first, last = (int(part) for part in text.split(","))
+    except ValueError:
+        raise argparse.ArgumentTypeError("expected A,B (two layer numbers)") from None
+    if not 0 <= first < last:
+        raise argparse.ArgumentTypeError("expected 0 <= A < B")
+    return first, last
 
 
 def main() -> int:
@@ -201,6 +237,9 @@ def main() -> int:
     parser.add_argument("--settle", type=float, default=1.0,
                         help="seconds idle before RSS is read")
     parser.add_argument("--timeout", type=float, default=1800.0, help="per job, seconds")
+    parser.add_argument("--layers", type=_layer_pair, default=(10, 200),
+                        help="A,B: the layers between which a print's RSS growth is read "
+                             "(10,200)")
     parser.add_argument("--json", type=Path, help="write the rows and the summary here")
     args = parser.parse_args()
     if args.jobs < 1:
