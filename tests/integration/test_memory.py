@@ -61,7 +61,7 @@ async def print_one(daemon: Daemon, model: Path, jobs: Path) -> dict[str, weakre
     assert job.schedule is not None
     assert job.source is not None
     owned: dict[str, object] = {
-        "job": job, "runner": job.runner, "source": job.source, "schedule": job.schedule,
+        "active job": job, "runner": job.runner, "source": job.source, "schedule": job.schedule,
         "plan": job.schedule.base_plan, "eta": job.runner.eta,
     }
     refs = {name: weakref.ref(thing) for name, thing in owned.items()}
