@@ -31,6 +31,7 @@ import contextlib
 import hashlib
 import logging
 import os
+import random
 import time
 import uuid
 from dataclasses import dataclass
@@ -62,8 +63,12 @@ NAK_DELAY_S = 0.5
 DECLARE_EVERY_S = 5.0
 # how long one fetch waits for an offer (s)
 FETCH_WAIT_S = 1.0
-# how many waiting offers one fetch looks at
+# how many waiting offers one round looks at
 OFFERS_AT_ONCE = 32
+# how long the sweep for the offers behind the first waits (s)
+SWEEP_WAIT_S = 0.1
+# what considering an offer that does not fit here gives
+GIVEN_BACK = object()
 # a local job made from a farm job has this source
 SOURCE_PREFIX = "farm:"
 
@@ -214,25 +219,36 @@ class FarmAgent:
         the job behind it.
         """
         try:
-            messages = await takers.fetch(OFFERS_AT_ONCE, timeout=FETCH_WAIT_S)
+            messages = await takers.fetch(1, timeout=FETCH_WAIT_S)
         except nats.errors.TimeoutError:
             return
         except TRANSIENT as exc:
             log.debug("farm: fetch: %r", exc)
             await asyncio.sleep(0.5)
             return
+        with contextlib.suppress(nats.errors.TimeoutError, *TRANSIENT):
+            messages += await takers.fetch(OFFERS_AT_ONCE - 1, timeout=SWEEP_WAIT_S)
         held: Held | None = None
+        given_back = False
         for message in messages:
             if held is None:
-                held = await self._consider(queue, message)
+                outcome = await self._consider(queue, message)
+                given_back |= outcome is GIVEN_BACK
+                held = outcome if isinstance(outcome, Held) else None
             else:  # not looked at: another printer may take it at once
                 await _quietly(message.nak())
         if held is not None:
             self.held = held
             await self._queue_here(queue, held)
+        elif given_back:
+            # all given back: stay away until they are offered again, so that a printer
+            # they fit is the one waiting then (with two printers each holding what the
+            # other needs, the one that asked first would otherwise get both every time)
+            await asyncio.sleep(NAK_DELAY_S + random.uniform(0.1, 0.9))
 
-    async def _consider(self, queue: FarmQueue, message: Msg) -> Held | None:
-        """Take one offer if it is waiting, current and fits; settle it otherwise."""
+    async def _consider(self, queue: FarmQueue, message: Msg) -> Held | object | None:
+        """Take one offer if it is waiting, current and fits (its `Held`); give it back if
+        it does not fit (`GIVEN_BACK`); settle it otherwise (None)."""
         try:
             job_id, generation = read_offer(message.data)
         except (ValueError, KeyError, TypeError):
@@ -254,7 +270,7 @@ class FarmAgent:
         if why is not None or not self.idle():
             log.debug("farm: offer of %s given back: %s", job_id, why or "printer busy")
             await _quietly(message.nak(delay=NAK_DELAY_S))
-            return None
+            return GIVEN_BACK
         mine = entry.but(state="taken", printer=self.printer, reason=None,
                          token=uuid.uuid4().hex, beat=time.time(), lease_s=self.lease_s,
                          layer=-1)
