@@ -153,6 +153,7 @@ class StreamStats:
     resends: int = 0
     lines_resent: int = 0
     duplicate_resends: int = 0
+    replays_skipped: int = 0
     implausible_resends: int = 0
     unconfirmed_resends: int = 0
     errors: int = 0

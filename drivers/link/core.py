@@ -392,6 +392,7 @@ class LinkCore:
         ``M110`` is answered.
         """
         self.state = LinkState.CONNECTING
+        self.model.learn_keeps_buffer(False)  # a new connection: nothing learned yet
         self.watchdog.opened(now)
         self.handshake.begin(probe_numbering, identify)
 

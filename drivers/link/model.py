@@ -20,6 +20,11 @@ class PrinterModel:
       ``top`` the last line written before it began. A copy can only be refused with a
       ``Last Line`` from ``first`` to ``max(top, copied)``: the printer cannot hold a
       line written after the copy before it reads the copy.
+    - ``keeps_buffer``: learned on this connection, the firmware takes the lines behind a
+      refusal that named a line in flight as its last (it keeps its receive buffer after
+      such an error): a copy of a line after it was refused as one it already had.
+      ``skipped``: the line such a refusal asked for, not replayed on that account;
+      ``after_release``: the replay under way began at such a refusal.
     """
 
     held: int = 0
@@ -28,6 +33,9 @@ class PrinterModel:
     first: int = 0
     copied: int = -1
     top: int = -1
+    keeps_buffer: bool = False
+    after_release: bool = False
+    skipped: int | None = None
 
     def holds(self, number: int) -> None:
         """Line ``number`` is known to be in the firmware (and so is every earlier one)."""
@@ -39,6 +47,7 @@ class PrinterModel:
         refusals are still expected from lines written before it."""
         self.refused = number
         self.echoes = max(0, echoes)
+        self.after_release = False
         self.first = number
         self.copied = number - 1
         self.top = top
@@ -73,6 +82,11 @@ class PrinterModel:
         """``M110 N<value>`` took effect."""
         self.held = value
         self.settled()
+
+    def learn_keeps_buffer(self, keeps: bool) -> None:
+        """What the firmware showed it does with the lines behind a refusal."""
+        self.keeps_buffer = keeps
+        self.skipped = None
 
     def lost(self) -> None:
         """The printer reset or the port was cut: it holds nothing in flight."""

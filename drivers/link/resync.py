@@ -101,8 +101,15 @@ class Resync:
         # two lines agreeing (the Error's Last Line and the Resend's number, as received)
         confirmed = (not implied and error_line is not None and error_line + 1 == number
                      and response.digits == str(number))
-        if confirmed and error_line is not None and error_line > self.core.acks.last_acked_number \
-                and self.window.release(error_line) and not self.core.stopping:
+        released = (confirmed and error_line is not None
+                    and error_line > self.core.acks.last_acked_number
+                    and self.window.release(error_line))
+        if confirmed and not released and number == model.skipped:
+            # asked again for the line a skipped replay left to the printer: this time
+            # it did not take the lines behind the refusal (it drained them, as Marlin
+            # does after an error); replay as before from now on
+            model.learn_keeps_buffer(False)
+        if released and not self.core.stopping:
             # the printer has read the lines up to its Last Line: they leave its receive
             # buffer (and the window), but whether their oks come is the firmware's choice
             # (an emulation answers the refused next line with the only ok the last line
@@ -141,7 +148,17 @@ class Resync:
             return
         if number >= self.core.writer.next_number:
             return  # the printer has every line sent: nothing to replay
+        if released and model.keeps_buffer and self.core.writer.replay_next is None \
+                and not any(e.copy for e in self.window):
+            # a firmware seen to keep the lines behind such a refusal takes those in
+            # flight in turn: their copies would each be refused as a duplicate (one
+            # more refusal and round trip each). Should it drain them after all, the
+            # next line it reads is refused asking for ``number`` again, replayed then
+            model.skipped = number
+            self.stats.replays_skipped += 1
+            return
         self.replay_from(number)
+        model.after_release = bool(released)
 
     def replay_from(self, number: int) -> None:
         """The printer refused line ``number`` (and drains or refuses those after it):
@@ -189,6 +206,10 @@ class Resync:
         # whose ok was counted for another line is refused too: one more at most)
         out = sum(1 for e in self.window if e.copy and e.number is not None
                   and refused <= e.number < number)
+        if model.after_release:
+            # the replay began at a refusal naming a line in flight as the last one read,
+            # and the printer had taken lines after it: it keeps its receive buffer then
+            model.learn_keeps_buffer(True)
         model.advanced(number, max(0, out - 1) + 1)
         self.window.drop_copy(number - 1)
         self.stats.duplicate_resends += 1

@@ -191,3 +191,76 @@ def test_a_probe_answer_after_a_held_probe_acknowledges_no_job_line_before_its_o
     assert _writes(core, t) == [(3, "M110 N3")]
     core.feed("ok", t)
     assert [n for n, _ in _writes(core, t)][:3] == [4, 5, 6]
+
+
+def _keeping_emulation(core: LinkCore, refuse: set[int],
+                       rounds: int) -> tuple[list[str], list[int]]:
+    """Stream to a scripted firmware that keeps its receive buffer after a refusal, as
+    OctoPrint's virtual printer does: everything the core writes in a round is on the wire
+    before the first answer is read. A line numbered in ``refuse`` is taken and the next
+    one asked for (its ``ok`` the only one it gets); a line numbered as one already taken
+    is refused as out of order. Returns the commands taken, in order, and the number of
+    every line written."""
+    last = 0
+    taken: list[str] = []
+    written_numbers: list[int] = []
+    t = 0.01
+    for _ in range(rounds):
+        written = _writes(core, t)
+        answers: list[str] = []
+        for number, command in written:
+            written_numbers.append(number)
+            if number != last + 1:
+                answers += [f"Error:{ERR_LINE_NO}{last}", f"Resend: {last + 1}", "ok"]
+                continue
+            last = number
+            taken.append(command)
+            if number in refuse:
+                answers += [f"Error:{ERR_CHECKSUM}{number}", f"Resend: {number + 1}", "ok"]
+            else:
+                answers.append(PROBE_ANSWER if command == "M105" else "ok")
+        for answer in answers:
+            t += 0.001
+            core.feed(answer, t)
+    return taken, written_numbers
+
+
+def test_a_firmware_seen_to_keep_the_lines_behind_a_refusal_gets_no_copies_of_them():
+    # a refusal naming a line in flight as the last one read, with lines behind it in
+    # flight too: Marlin drains those (they are replayed), this firmware takes them, so
+    # their copies are each refused as duplicates. The first time shows it (a copy
+    # refused with a Last Line past it); from then on the lines in flight are left to it
+    core = connected_core(LINK)
+    _jobs(core, 60)
+    taken, numbers = _keeping_emulation(core, {5, 25, 45}, rounds=40)
+    jobs = [c for c in taken if c != "M105"]
+    assert jobs == [f"G1 X{i}.5 Y{i}" for i in range(60)]  # each once, in order
+    assert core.model.keeps_buffer
+    assert core.stats.replays_skipped == 2
+    first_copy_free = numbers.index(26)  # written before the second refusal was read
+    later = numbers[first_copy_free:]
+    assert len(later) == len(set(later))  # no line written twice after the lesson
+    assert len(core.window) == 0
+
+
+def test_a_firmware_that_drains_after_a_refusal_unlearns_a_kept_buffer():
+    # learned on a keeping firmware, the link skips the replay; a firmware that drained
+    # the lines after all refuses the next one asking for the same line: replayed then,
+    # and replayed at once after every later refusal
+    core = connected_core(LINK)
+    core.model.learn_keeps_buffer(True)
+    _jobs(core, 8)
+    t = 0.01
+    written = _writes(core, t)
+    assert [n for n, _ in written][:3] == [1, 2, 3]
+    core.feed("ok", t)  # line 1
+    core.feed(f"Error:{ERR_CHECKSUM}2", t)  # 2 taken, 3 asked for: the rest drained
+    core.feed("Resend: 3", t)
+    core.feed("ok", t)
+    assert core.stats.replays_skipped == 1
+    core.feed(f"Error:{ERR_LINE_NO}2", t)  # the probe, or a line behind, refused
+    core.feed("Resend: 3", t)
+    core.feed("ok", t)
+    assert not core.model.keeps_buffer
+    again = [n for n, c in _writes(core, t + 0.001) if c != "M105"]
+    assert again[:1] == [3]
