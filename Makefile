@@ -37,7 +37,7 @@ system-deps:
 	fi
 
 run: $(STAMP)
-	$(BIN)/python -m hostd.demo
+	$(BIN)/python -m hostd.app.demo
 
 # The suite waits on daemons and ptys more than on the CPU: it runs in two workers
 # (a test file stays on one worker, so module fixtures are built once), and mypy

@@ -35,12 +35,12 @@ from drivers.link.streamer import Streamer, StreamerConfig  # noqa: E402
 from drivers.link.transport import open_transport  # noqa: E402
 from drivers.sim.config import SimulatorConfig  # noqa: E402
 from drivers.sim.printer import SimulatedPrinter  # noqa: E402
-from hostd.joblife import JobLife  # noqa: E402
-from hostd.jobstore import JobStore  # noqa: E402
-from hostd.runner import JobRunner, open_output  # noqa: E402
-from hostd.schedule import LayerSchedule  # noqa: E402
-from hostd.sources import SlicedSource  # noqa: E402
-from hostd.status import StatusHub  # noqa: E402
+from hostd.jobs.joblife import JobLife  # noqa: E402
+from hostd.jobs.jobstore import JobStore  # noqa: E402
+from hostd.jobs.schedule import LayerSchedule  # noqa: E402
+from hostd.printing.runner import JobRunner, open_output  # noqa: E402
+from hostd.printing.sources import SlicedSource  # noqa: E402
+from hostd.publishing.status import StatusHub  # noqa: E402
 from slicer.plan import SlicePlan  # noqa: E402
 from slicer.settings import SliceSettings  # noqa: E402
 

@@ -5,7 +5,7 @@ Each model is sliced with the benchmark settings; its G-code (start block, layer
 block) is fed to the simulated Marlin's planner (``drivers.sim.feed``: 16 blocks, Marlin's
 acceleration and junction deviation, arcs cut as ``plan_arc`` cuts them) on a virtual
 clock, which gives the moment each line is acknowledged and the moment the print ends.
-The daemon's ETA (:class:`hostd.eta.EtaModel`) is then replayed on those moments as the
+The daemon's ETA (:class:`hostd.printing.eta.EtaModel`) is then replayed on those moments as the
 runner drives it: printing starts when the start block is acknowledged, a layer is done
 when its last line is, and only the layers the daemon would have sliced by then
 (``--lookahead`` past the one being sent) have the slicer's estimate; the others are
@@ -39,9 +39,9 @@ from drivers.sim.feed import simulate_feed
 from drivers.sim.planner import PlannerSettings
 from drivers.sim.report import report_lines
 from hostd.config import config_from_mapping
-from hostd.eta import EtaModel
-from hostd.printermotion import with_printer_motion
-from hostd.schedule import LayerSchedule
+from hostd.jobs.schedule import LayerSchedule
+from hostd.printing.eta import EtaModel
+from hostd.printing.printermotion import with_printer_motion
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings, parse_assignment
 

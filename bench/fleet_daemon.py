@@ -3,7 +3,7 @@
 ``python -m bench.fleet_daemon OUT -- run --config FILE`` runs the daemon in this
 process. Every 2 ms of the process' CPU time (``ITIMER_PROF``) the main thread's
 stack is sampled; a sample counts as MQTT when any of its frames is in the
-bridge (``hostd/mqtt.py``), aiomqtt or paho. On SIGUSR1 one JSON line is
+bridge (``hostd/publishing/mqtt.py``), aiomqtt or paho. On SIGUSR1 one JSON line is
 appended to OUT: samples so far, MQTT samples, and the process' CPU seconds.
 The MQTT estimate errs high: a sample taken while another thread used the CPU
 still counts when the main thread was at that moment inside MQTT code.
@@ -20,7 +20,7 @@ from pathlib import Path
 from types import FrameType
 
 INTERVAL_S = 0.002
-MQTT_CODE = ("/hostd/mqtt.py", "/aiomqtt/", "/paho/")
+MQTT_CODE = ("/hostd/publishing/mqtt.py", "/aiomqtt/", "/paho/")
 
 
 class Sampler:
@@ -56,7 +56,7 @@ def main() -> int:
     signal.signal(signal.SIGPROF, sampler.sample)
     signal.signal(signal.SIGUSR1, sampler.report)
     signal.setitimer(signal.ITIMER_PROF, INTERVAL_S, INTERVAL_S)
-    from hostd.cli import main as hostd_main
+    from hostd.app.cli import main as hostd_main
 
     try:
         return hostd_main(argv)

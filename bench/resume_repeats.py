@@ -34,7 +34,7 @@ from slicer.plan import SlicePlan  # noqa: E402
 from slicer.settings import SliceSettings  # noqa: E402
 
 MODEL = ROOT / "tests" / "data" / "dogbone_100x30x5.stl"
-HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+HOSTD = [sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())"]
 HOUSEKEEPING = ("M110", "M105", "M115", "M155")
 REPLAY = 16  # [runner] replay_lines, the default
 

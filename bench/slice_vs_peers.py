@@ -112,7 +112,7 @@ def hostd_executable() -> list[str]:
     if script.exists():
         return [str(script)]
     found = shutil.which("hostd")
-    return [found] if found else [sys.executable, "-m", "hostd.cli"]
+    return [found] if found else [sys.executable, "-m", "hostd.app.cli"]
 
 
 def ours_command(model: Path, out: Path, config: Path) -> list[str]:

@@ -29,9 +29,9 @@ class _CpuClock:
 
 def run_once(name: str, out: str) -> dict[str, float]:
     """CPU seconds per stage (:data:`STAGES`) of one `hostd slice --profile` of ``name``."""
-    import hostd.commands.slice as slice_cmd
-    import hostd.commands.slice_profile as slice_profile
-    from hostd import cli
+    import hostd.app.commands.slice as slice_cmd
+    import hostd.app.commands.slice_profile as slice_profile
+    from hostd.app import cli
 
     try:
         from slicer.paths import islands

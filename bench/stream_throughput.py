@@ -103,7 +103,7 @@ class SimProcess:
 
     def __init__(self, baud: int, time_scale: float, latency_ms: float = 0.0) -> None:
         self.proc = subprocess.Popen(
-            [sys.executable, "-m", "hostd.cli", "simulate", "--baud", str(baud),
+            [sys.executable, "-m", "hostd.app.cli", "simulate", "--baud", str(baud),
              "--time-scale", str(time_scale), "--latency-ms", str(latency_ms)],
             stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, text=True,
         )

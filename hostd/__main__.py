@@ -1,5 +1,5 @@
 """`python -m hostd`: the same as the `hostd` console script."""
 
-from hostd.cli import entry
+from hostd.app.cli import entry
 
 entry()

@@ -42,7 +42,7 @@ Requests for the dashboard (on the control socket as above; ``layer`` and
   without that body has been sliced yet (a command, like ``cancel_object``).
 
 Over MQTT (3.1.1, topics ``hostd/<printer>/...``; the daemon's side is
-``hostd.mqtt`` and ``hostd.mqtt_requests``):
+``hostd.publishing.mqtt`` and ``hostd.publishing.mqtt_requests``):
 
 - ``status`` (retained): the snapshot's JSON, as :meth:`Snapshot.to_json`; its job's
   ``filament_used_mm`` and ``filament_total_mm`` are the daemon's estimates.

@@ -48,12 +48,12 @@ from hostd.farm.loaded import loaded_material
 from hostd.farm.needs import Needs, Station, misfit
 from hostd.farm.queue import TRANSIENT, FarmError, FarmQueue, Lost
 from hostd.farm.records import HELD, Entry, read_offer
-from hostd.intake import Intake
-from hostd.jobfolder import move
-from hostd.joblife import JobLife
-from hostd.jobstate import FINAL_STATES, JobState, Queued
-from hostd.jobstore import Job, JobStore
-from hostd.status import StatusHub
+from hostd.jobs.intake import Intake
+from hostd.jobs.jobfolder import move
+from hostd.jobs.joblife import JobLife
+from hostd.jobs.jobstate import FINAL_STATES, JobState, Queued
+from hostd.jobs.jobstore import Job, JobStore
+from hostd.publishing.status import StatusHub
 
 log = logging.getLogger("hostd.farm")
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from hostd.config import Config
-from hostd.jobfolder import write_text
+from hostd.jobs.jobfolder import write_text
 
 MATERIAL_FILE = "farm-material"
 

@@ -14,7 +14,7 @@ import pytest
 # counts this process's threads
 _THREADS_AFTER = (
     "import os, sys, contextlib, io\n"
-    "from hostd import cli\n"
+    "from hostd.app import cli\n"
     "with contextlib.redirect_stderr(io.StringIO()):\n"
     "    cli.main(sys.argv[1:])\n"
     "assert 'numpy' in sys.modules\n"

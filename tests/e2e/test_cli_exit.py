@@ -14,7 +14,7 @@ import atexit, sys
 atexit.register(lambda: print("exit handler ran", flush=True))
 sys.stdout.write("unflushed line\\n")  # left in the buffer: the exit must flush it
 sys.argv = ["hostd", *sys.argv[1:]]
-from hostd.cli import entry
+from hostd.app.cli import entry
 entry()
 """
 
@@ -25,7 +25,7 @@ def late():
     print("thread finished", flush=True)
 threading.Thread(target=late).start()
 sys.argv = ["hostd", *sys.argv[1:]]
-from hostd.cli import entry
+from hostd.app.cli import entry
 entry()
 """
 

@@ -7,16 +7,16 @@ import sys
 
 _PROBE = """
 import gc, sys
-from hostd import cli
+from hostd.app import cli
 gc.disable()
-cli._import_command("hostd.commands.history")
+cli._import_command("hostd.app.commands.history")
 kept_off = not gc.isenabled()
 gc.enable()
 before = gc.get_freeze_count()
-module = cli._import_command("hostd.commands.tailor")
+module = cli._import_command("hostd.app.commands.tailor")
 print(kept_off, gc.isenabled(), gc.get_freeze_count() > before, "numpy" in sys.modules,
-      module is sys.modules["hostd.commands.tailor"],
-      cli._import_command("hostd.commands.tailor") is module)
+      module is sys.modules["hostd.app.commands.tailor"],
+      cli._import_command("hostd.app.commands.tailor") is module)
 """
 
 
@@ -33,8 +33,8 @@ def test_a_parser_built_for_one_subcommand_parses_it_as_the_whole_parser_does() 
     """Built for ``slice``, the parser gives the same namespace for a slice command line,
     still knows every subcommand (``hostd --help`` is unchanged) and refuses a bad
     option of the subcommand it was built for."""
-    from hostd.cli import build_parser
-    from hostd.commands import COMMANDS
+    from hostd.app.cli import build_parser
+    from hostd.app.commands import COMMANDS
 
     argv = ["slice", "m.stl", "-o", "o.gcode", "--set", "infill.density=0.3", "--jobs", "2"]
     assert vars(build_parser("slice").parse_args(argv)) == vars(build_parser().parse_args(argv))
@@ -54,7 +54,7 @@ def test_a_parser_built_for_one_subcommand_parses_it_as_the_whole_parser_does() 
 
 _HELP_LOADS = """
 import contextlib, io, sys
-from hostd import cli
+from hostd.app import cli
 help_text = io.StringIO()
 with contextlib.suppress(SystemExit), contextlib.redirect_stdout(help_text):
     cli.main(sys.argv[1:])
@@ -65,8 +65,8 @@ print(" ".join(loaded))
 
 _SLICE_PAUSES = """
 import gc, sys
-from hostd import cli
-from hostd.commands import slice as command
+from hostd.app import cli
+from hostd.app.commands import slice as command
 frozen = []
 class Stop(Exception):
     pass
@@ -87,14 +87,14 @@ def test_slice_help_loads_its_light_module_and_no_slicer() -> None:
     arguments it prints, but neither the slicer nor numpy."""
     out = subprocess.run([sys.executable, "-c", _HELP_LOADS, "slice", "--help"],
                          capture_output=True, text=True, check=True, timeout=120)
-    assert out.stdout.split() == ["hostd", "hostd.cli", "hostd.commands",
-                                  "hostd.commands.slice"]
+    assert out.stdout.split() == ["hostd", "hostd.app", "hostd.app.cli", "hostd.app.commands",
+                                  "hostd.app.commands.slice"]
 
 
 def test_hostd_help_lists_every_command_and_imports_none() -> None:
     out = subprocess.run([sys.executable, "-c", _HELP_LOADS, "--help"],
                          capture_output=True, text=True, check=True, timeout=120)
-    assert out.stdout.split() == ["hostd", "hostd.cli", "hostd.commands"]
+    assert out.stdout.split() == ["hostd", "hostd.app", "hostd.app.cli", "hostd.app.commands"]
 
 
 def test_slice_imports_the_slicer_with_the_collector_paused_then_frozen() -> None:

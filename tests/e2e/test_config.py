@@ -138,7 +138,7 @@ def test_hostd_run_refuses_a_bad_file_with_exit_2_and_the_key(tmp_path: Path) ->
 
     path = write(tmp_path, "[printer]\nbaud = 'fast'\n")
     result = subprocess.run(
-        [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+        [sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())",
          "run", "--config", str(path)],
         capture_output=True, text=True, cwd=tmp_path, timeout=30,
     )

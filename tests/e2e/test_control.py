@@ -21,8 +21,8 @@ from support.doubles import RecordingController
 from support.waiting import until
 
 from hostd.api import ControlClient, ControlError, JobStatus, Snapshot
-from hostd.control import ControlSocketError, serve_control
-from hostd.status import StatusHub
+from hostd.publishing.control import ControlSocketError, serve_control
+from hostd.publishing.status import StatusHub
 
 REPO = Path(__file__).resolve().parents[2]
 
@@ -236,7 +236,7 @@ def test_a_live_socket_or_another_file_is_never_taken_over(tmp_path: Path) -> No
 def test_the_socket_file_appears_only_once_it_listens(tmp_path: Path, monkeypatch) -> None:
     # bound at its own path, a client that saw the file between bind() and listen() was
     # refused; it is now bound aside and linked into place once listening
-    from hostd import control
+    from hostd.publishing import control
 
     path = tmp_path / "hostd.sock"
     seen: list[bool] = []
@@ -261,7 +261,7 @@ def test_the_socket_file_appears_only_once_it_listens(tmp_path: Path, monkeypatc
 
 def test_a_socket_another_daemon_bound_meanwhile_is_not_replaced(tmp_path: Path,
                                                                  monkeypatch) -> None:
-    from hostd import control
+    from hostd.publishing import control
 
     path = tmp_path / "hostd.sock"
     other = socket.socket(socket.AF_UNIX, socket.SOCK_STREAM)
@@ -287,7 +287,7 @@ def test_a_socket_another_daemon_bound_meanwhile_is_not_replaced(tmp_path: Path,
 def run_cli(*args: str) -> Callable[[], Awaitable[tuple[int, str, str]]]:
     async def call() -> tuple[int, str, str]:
         proc = await asyncio.create_subprocess_exec(
-            sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+            sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())",
             *args,
             stdout=asyncio.subprocess.PIPE, stderr=asyncio.subprocess.PIPE, cwd=REPO,
             env={**os.environ, "PYTHONPATH": str(REPO)},
@@ -330,7 +330,7 @@ def test_hostd_status_finds_the_socket_through_the_config(tmp_path: Path) -> Non
         assert code == 0, err
         assert json.loads(out)["state"] == "idle"
 
-    from hostd.commands.target import SOCKET_NAME
+    from hostd.app.commands.target import SOCKET_NAME
 
     serve(tmp_path, scenario, tmp_path / "state" / SOCKET_NAME)
 

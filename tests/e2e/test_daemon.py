@@ -22,7 +22,7 @@ from support.paths import DATA, HOSTD, ROOT
 from support.waiting import wait_until
 
 from hostd.api import ControlError
-from hostd.jobstore import JobStore
+from hostd.jobs.jobstore import JobStore
 from slicer.paths.arcs import for_printer
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
@@ -273,6 +273,6 @@ def test_emergency_stop_from_the_control_socket_halts_fails_the_job_and_reconnec
 
 def test_every_event_the_api_names_is_a_typed_job_event():
     from hostd.api import EVENTS
-    from hostd.jobstate import EventKind
+    from hostd.jobs.jobstate import EventKind
 
     assert sorted(EVENTS) == sorted(kind.value for kind in EventKind)

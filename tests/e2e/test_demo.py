@@ -12,7 +12,7 @@ from pathlib import Path
 from support.daemon_helpers import daemon_pids
 
 from hostd.api import JobStatus, Snapshot
-from hostd.demo import drop_sample, progress_line
+from hostd.app.demo import drop_sample, progress_line
 
 
 def test_sample_is_dropped_whole_under_its_final_name(tmp_path: Path) -> None:
@@ -39,7 +39,7 @@ def test_progress_line_shows_job_bar_and_layer() -> None:
 
 def test_demo_prints_and_ctrl_c_stops_the_daemon(tmp_path: Path) -> None:
     demo = subprocess.Popen(
-        [sys.executable, "-m", "hostd.demo"],
+        [sys.executable, "-m", "hostd.app.demo"],
         cwd=tmp_path, stdout=subprocess.PIPE, stderr=subprocess.STDOUT,
     )
     assert demo.stdout is not None

@@ -10,7 +10,7 @@ import pytest
 import trimesh
 from support.daemon_process import sim_config
 
-from hostd.loadcheck import LoadChecks
+from hostd.jobs.loadcheck import LoadChecks
 from slicer.fea.field import analyse_arrays, check_case
 from slicer.fea.loadcase import LoadCaseError, parse_load_case
 

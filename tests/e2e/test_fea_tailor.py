@@ -17,7 +17,7 @@ from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
 ROOT = Path(__file__).resolve().parents[2]
-HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+HOSTD = [sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())"]
 BED = (220.0, 220.0, 250.0)
 # a small flat specimen pulled along x: 60 x 12 x 3 mm, the left 8 mm held
 SPECIMEN = """

@@ -108,7 +108,7 @@ def start_daemon(folder: Path, broker: Broker, printer: str, user: str, secret: 
         "allow_commands = true\n"
     )
     return subprocess.Popen(
-        [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+        [sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())",
          "run", "--config", str(folder / "hostd.toml")],
         cwd=folder, env={**os.environ, "PYTHONPATH": str(REPO)},
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

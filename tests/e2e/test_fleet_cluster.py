@@ -19,9 +19,9 @@ from support.waiting import until
 
 from hostd.api import Snapshot
 from hostd.config import MqttConfig
-from hostd.jobstore import JobStore
-from hostd.mqtt import Backoff, MqttBridge
-from hostd.status import StatusHub
+from hostd.jobs.jobstore import JobStore
+from hostd.publishing.mqtt import Backoff, MqttBridge
+from hostd.publishing.status import StatusHub
 from tui.fleet import FleetApp, FleetScreen
 from tui.sources import MqttSource
 

@@ -53,7 +53,7 @@ def start_daemon(folder: Path, broker: Broker, printer: str, *, allow_commands: 
         f"allow_commands = {str(allow_commands).lower()}\n"
     )
     return subprocess.Popen(
-        [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+        [sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())",
          "run", "--config", str(folder / "hostd.toml")],
         cwd=folder, env={**os.environ, "PYTHONPATH": str(REPO)},
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

@@ -12,7 +12,7 @@ from support.daemon_helpers import command, printing_layer, small_box, status, t
 from support.daemon_process import sim_config
 from support.paths import HOSTD, ROOT
 
-from hostd.history import History, PrintRecord
+from hostd.publishing.history import History, PrintRecord
 
 
 def hostd_cli(*args: str, cwd: Path) -> subprocess.CompletedProcess[str]:

@@ -149,8 +149,9 @@ def part_and_stray_triangle() -> np.ndarray:
 def test_slice_says_what_it_left_out_and_never_prints_a_traceback(tmp_path):
     model = write_triangles(tmp_path / "stray.stl", part_and_stray_triangle())
     done = subprocess.run(
-        [sys.executable, "-m", "hostd.cli", "slice", str(model), "-o", str(tmp_path / "s.gcode"),
-         "--quiet"], capture_output=True, text=True, timeout=300, check=False)
+        [sys.executable, "-m", "hostd.app.cli", "slice", str(model),
+         "-o", str(tmp_path / "s.gcode"), "--quiet"],
+        capture_output=True, text=True, timeout=300, check=False)
     assert done.returncode == 0, done.stderr
     assert "Traceback" not in done.stderr
     assert ("warning: body 2 of 2 (an open surface of 1 triangle, 1.0 x 0.5 x 1.5 mm): "

@@ -175,7 +175,7 @@ def test_repairs_go_into_the_summary_and_the_events(daemon, tmp_path):
 
 def test_slice_profile_prints_every_stage(tmp_path):
     out = subprocess.run(
-        [sys.executable, "-m", "hostd.cli", "slice", str(DATA / "featuretype_mm.stl"),
+        [sys.executable, "-m", "hostd.app.cli", "slice", str(DATA / "featuretype_mm.stl"),
          "-o", str(tmp_path / "f.gcode"), "--quiet", "--profile"],
         capture_output=True, text=True, check=True, timeout=300,
     ).stdout

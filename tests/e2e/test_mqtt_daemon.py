@@ -16,7 +16,7 @@ import pytest
 from support.brokers import HOST, Broker, start_broker
 
 REPO = Path(__file__).resolve().parents[2]
-HOSTD = ["-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+HOSTD = ["-c", "import sys; from hostd.app.cli import main; sys.exit(main())"]
 PRINTER = "farm7"
 USER, SECRET = "daemon", "pw-7"
 

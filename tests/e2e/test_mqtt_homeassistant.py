@@ -23,9 +23,9 @@ from support.waiting import until
 
 from hostd.api import JobStatus, Snapshot, Temperature, Temps
 from hostd.config import MqttConfig
-from hostd.homeassistant import DeviceTopics, device_config, node_id
-from hostd.mqtt import MqttBridge
-from hostd.status import StatusHub
+from hostd.publishing.homeassistant import DeviceTopics, device_config, node_id
+from hostd.publishing.mqtt import MqttBridge
+from hostd.publishing.status import StatusHub
 
 jinja2 = pytest.importorskip("jinja2")
 
@@ -197,7 +197,7 @@ def test_a_daemon_publishes_the_layer_picture_the_job_figures_and_the_history(
         f"[mqtt]\nenabled = true\nhost = \"{HOST}\"\nport = {broker.port}\nhomeassistant = true\n"
     )
     daemon = subprocess.Popen(
-        [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())",
+        [sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())",
          "run", "--config", str(tmp_path / "hostd.toml")],
         cwd=tmp_path, env={**os.environ, "PYTHONPATH": str(ROOT)},
         stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,

@@ -19,7 +19,7 @@ from support.daemon_process import sim_config
 from support.waiting import wait_until
 
 from hostd.config import NotifyConfig
-from hostd.notify import Message, Notifier
+from hostd.publishing.notify import Message, Notifier
 
 
 class Endpoint:

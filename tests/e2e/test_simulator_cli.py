@@ -18,7 +18,7 @@ from drivers.link.protocol import frame
 def test_hostd_simulate_serves_a_port_until_signalled(tmp_path, stop_signal):
     log = tmp_path / "executed.log"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hostd.cli", "simulate", "--time-scale", "0", "--baud", "0",
+        [sys.executable, "-m", "hostd.app.cli", "simulate", "--time-scale", "0", "--baud", "0",
          "--log", str(log), "--advanced-ok"],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )
@@ -49,7 +49,7 @@ def test_hostd_simulate_serves_a_port_until_signalled(tmp_path, stop_signal):
 def test_hostd_simulate_faults_and_link(tmp_path):
     link = tmp_path / "printer"
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hostd.cli", "simulate", "--time-scale", "0", "--baud", "0",
+        [sys.executable, "-m", "hostd.app.cli", "simulate", "--time-scale", "0", "--baud", "0",
          "--fault", "drop_ok=1", "--seed", "3", "--link", str(link)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )

@@ -117,7 +117,7 @@ def test_a_clean_run_executes_the_same_lines_with_latency(tmp_path):
 def test_hostd_simulate_latency_option():
     latency_ms = 30.0
     proc = subprocess.Popen(
-        [sys.executable, "-m", "hostd.cli", "simulate", "--time-scale", "0", "--baud", "0",
+        [sys.executable, "-m", "hostd.app.cli", "simulate", "--time-scale", "0", "--baud", "0",
          "--latency-ms", str(latency_ms)],
         stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
     )

@@ -15,7 +15,7 @@ from slicer.errors import ModelError
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
-HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+HOSTD = [sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())"]
 
 
 def _plan(path, bed=(220.0, 220.0, 250.0)):

@@ -13,7 +13,7 @@ from support.slicer_helpers import DATA
 
 from slicer.output.preview import COLOURS
 
-HOSTD = [sys.executable, "-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+HOSTD = [sys.executable, "-c", "import sys; from hostd.app.cli import main; sys.exit(main())"]
 
 
 def _has_colour(pixels: np.ndarray, colour) -> bool:

@@ -12,7 +12,7 @@ from pathlib import Path, PurePosixPath
 
 import pytest
 
-from hostd.cli import build_parser
+from hostd.app.cli import build_parser
 from hostd.config import load_config
 
 SYSTEMD = Path(__file__).resolve().parents[2] / "systemd"

@@ -13,7 +13,7 @@ import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parents[2]
-HOSTD = ["-c", "import sys; from hostd.cli import main; sys.exit(main())"]
+HOSTD = ["-c", "import sys; from hostd.app.cli import main; sys.exit(main())"]
 
 
 def write_config(folder: Path) -> Path:

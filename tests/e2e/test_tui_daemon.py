@@ -14,7 +14,7 @@ from support.paths import DATA
 from support.waiting import until
 
 from hostd.api import ControlClient, ControlError
-from hostd.layerview import parse_layer
+from hostd.publishing.layerview import parse_layer
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from tui.app import Dashboard

@@ -38,7 +38,7 @@ def test_demo_opens_the_dashboard_and_q_stops_everything(tmp_path: Path) -> None
     fcntl.ioctl(slave, termios.TIOCSWINSZ, struct.pack("HHHH", 24, 80, 0, 0))
     env = {**os.environ, "TERM": "xterm-256color", "PYTHONPATH": str(ROOT), "COLUMNS": "80",
            "LINES": "24"}
-    demo = subprocess.Popen([sys.executable, "-m", "hostd.demo"], cwd=tmp_path, stdin=slave,
+    demo = subprocess.Popen([sys.executable, "-m", "hostd.app.demo"], cwd=tmp_path, stdin=slave,
                             stdout=slave, stderr=slave, env=env, start_new_session=True)
     os.close(slave)
     try:
@@ -69,7 +69,7 @@ def test_demo_opens_the_dashboard_and_q_stops_everything(tmp_path: Path) -> None
 def test_hostd_print_progress_line_fits_the_terminal(monkeypatch) -> None:
     import io
 
-    from hostd.commands.print_file import Progress, ProgressBar, fit_bar
+    from hostd.app.commands.print_file import Progress, ProgressBar, fit_bar
 
     for columns in (2, 5, 12, 19, 20, 32, 50, 80, 200):
         out = io.StringIO()

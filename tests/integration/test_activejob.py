@@ -12,11 +12,11 @@ from typing import Any
 import pytest
 import trimesh
 
-from hostd.activejob import ActiveJob
-from hostd.joblife import JobLife
-from hostd.jobstore import JobStore
-from hostd.schedule import LayerSchedule
-from hostd.status import CommandError, StatusHub
+from hostd.jobs.joblife import JobLife
+from hostd.jobs.jobstore import JobStore
+from hostd.jobs.schedule import LayerSchedule
+from hostd.printing.activejob import ActiveJob
+from hostd.publishing.status import CommandError, StatusHub
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

@@ -10,7 +10,7 @@ from support.brokers import HOST, start_broker
 
 from bench.fleetpub import snapshot
 from hostd.api import Snapshot
-from hostd.cli import main
+from hostd.app.cli import main
 from tui.fleet_model import FleetModel, progress_bar, row_cells
 from tui.mqtt_wire import WireClient, WireError
 from tui.sources import parse_brokers

@@ -12,9 +12,9 @@ from pathlib import Path
 
 import pytest
 
-from hostd.joblife import JobLife
-from hostd.jobstore import TRANSITIONS, JobNotFound, JobStore, TransitionError
-from hostd.status import StatusHub
+from hostd.jobs.joblife import JobLife
+from hostd.jobs.jobstore import TRANSITIONS, JobNotFound, JobStore, TransitionError
+from hostd.publishing.status import StatusHub
 
 
 @pytest.fixture
@@ -123,7 +123,7 @@ def test_retunes_and_cancelled_objects_are_recorded(store: JobStore) -> None:
 WRITER = r"""
 import sys, random
 from pathlib import Path
-from hostd.jobstore import JobStore
+from hostd.jobs.jobstore import JobStore
 store = JobStore(Path(sys.argv[1]))
 rng = random.Random(int(sys.argv[2]))
 print("ready", flush=True)

@@ -7,10 +7,10 @@ import shutil
 from pathlib import Path
 
 from hostd.config import load_config
-from hostd.intake import Intake
-from hostd.joblife import JobLife
-from hostd.jobstore import JobStore
-from hostd.status import StatusHub
+from hostd.jobs.intake import Intake
+from hostd.jobs.joblife import JobLife
+from hostd.jobs.jobstore import JobStore
+from hostd.publishing.status import StatusHub
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

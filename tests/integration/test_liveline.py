@@ -14,9 +14,9 @@ import pytest
 from support.waiting import until
 
 from hostd.api import JobStatus, Snapshot, Temperature, Temps
-from hostd.commands.print_file import Progress, ProgressBar
-from hostd.demo import progress_line
-from hostd.liveline import LiveLine, terminal_columns
+from hostd.app.commands.print_file import Progress, ProgressBar
+from hostd.app.demo import progress_line
+from hostd.app.liveline import LiveLine, terminal_columns
 
 JOB = JobStatus(id="1", name="a_rather_long_file_name_for_a_part.stl", layer=41, layers=309,
                 progress=0.136, lines_acked=123456, eta_s=4321.0)
@@ -117,9 +117,9 @@ def test_the_demo_line_follows_a_terminal_narrowed_while_it_prints(terminal, tmp
 
     from support.doubles import RecordingController
 
-    from hostd import demo
-    from hostd.control import serve_control
-    from hostd.status import StatusHub
+    from hostd.app import demo
+    from hostd.publishing.control import serve_control
+    from hostd.publishing.status import StatusHub
 
     master, stream = terminal
     monkeypatch.setattr(sys, "stdout", stream)

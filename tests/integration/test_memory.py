@@ -21,8 +21,8 @@ import trimesh
 from support.daemon_process import sim_config
 from support.waiting import until
 
+from hostd.app.daemon import Daemon
 from hostd.config import load_config
-from hostd.daemon import Daemon
 
 # Python memory a whole job may leave behind (the status snapshot, history rows, the log
 # records the test's capture keeps: 0-15 kB measured); the box below prints some 800

@@ -13,15 +13,15 @@ from pathlib import Path
 
 import pytest
 
-from hostd import intake as intake_module
-from hostd.activejob import ActiveJob
 from hostd.config import load_config
-from hostd.filecheck import fingerprint
-from hostd.intake import Intake
-from hostd.joblife import JobLife
-from hostd.jobstore import JobStore
-from hostd.printjob import PrintJob
-from hostd.status import StatusHub
+from hostd.jobs import intake as intake_module
+from hostd.jobs.filecheck import fingerprint
+from hostd.jobs.intake import Intake
+from hostd.jobs.joblife import JobLife
+from hostd.jobs.jobstore import JobStore
+from hostd.printing.activejob import ActiveJob
+from hostd.printing.printjob import PrintJob
+from hostd.publishing.status import StatusHub
 from slicer.errors import ModelError
 
 DATA = Path(__file__).resolve().parents[1] / "data"

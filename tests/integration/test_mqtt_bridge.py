@@ -28,8 +28,8 @@ from support.waiting import until
 
 from hostd.api import JobStatus, Snapshot
 from hostd.config import MqttConfig
-from hostd.mqtt import Backoff, MqttBridge, MqttSetupError
-from hostd.status import StatusHub
+from hostd.publishing.mqtt import Backoff, MqttBridge, MqttSetupError
+from hostd.publishing.status import StatusHub
 
 FAST = Backoff(initial_s=0.1, maximum_s=0.5)
 

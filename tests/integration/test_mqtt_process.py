@@ -22,8 +22,8 @@ CHILD = """
 import asyncio, signal, sys
 from hostd.api import JobStatus, Snapshot
 from hostd.config import MqttConfig
-from hostd.mqtt import MqttBridge
-from hostd.status import StatusHub
+from hostd.publishing.mqtt import MqttBridge
+from hostd.publishing.status import StatusHub
 
 class Controller:
     async def handle(self, cmd, args):

@@ -15,9 +15,9 @@ from support.waiting import until
 
 from hostd.api import ControlError, Snapshot
 from hostd.config import MqttConfig
-from hostd.mqtt import MqttBridge
-from hostd.mqtt_requests import MAX_PER_CLIENT, MAX_REPLY_BYTES, MAX_REQUEST_BYTES
-from hostd.status import StatusHub
+from hostd.publishing.mqtt import MqttBridge
+from hostd.publishing.mqtt_requests import MAX_PER_CLIENT, MAX_REPLY_BYTES, MAX_REQUEST_BYTES
+from hostd.publishing.status import StatusHub
 from tui.sources import MqttSource, StatusItem, parse_brokers
 
 MINE = topic("reply/observer-1")

@@ -8,7 +8,7 @@ import pytest
 
 from drivers.link.protocol import strip_comment
 from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
-from hostd.cli import main
+from hostd.app.cli import main
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 INTERNAL = ("M110", "M115", "M503", "M155", "M105")
@@ -112,7 +112,7 @@ def test_the_progress_line_says_the_layer_printing_from_acknowledged_lines(capsy
 
 
 def test_progress_counts_a_layer_once_its_last_line_is_acknowledged():
-    from hostd.commands.print_file import Progress
+    from hostd.app.commands.print_file import Progress
 
     progress = Progress("layers", 3, layer_ends=[10, 25, 40])
     seen = []

@@ -17,7 +17,7 @@ from drivers.link.streamer import Streamer
 from drivers.link.transport import open_transport
 from drivers.sim.printer import SimulatedPrinter
 from hostd.config import config_from_mapping
-from hostd.printer import printer_link
+from hostd.printing.printer import printer_link
 
 QUIET = dataclasses.replace(FAST, temperature_interval_s=0.0)  # no M105 polls of its own
 

@@ -25,13 +25,13 @@ from drivers.link.streamer import Streamer, StreamerConfig
 from drivers.link.transport import open_transport
 from drivers.sim.config import SimulatorConfig
 from drivers.sim.printer import SimulatedPrinter
-from hostd.checkpoints import CheckpointWriter
-from hostd.joblife import JobLife
-from hostd.jobstate import JobState
-from hostd.runner import JobRunner, _extrudes, open_output
-from hostd.schedule import LayerSchedule
-from hostd.sources import SlicedSource
-from hostd.status import StatusHub
+from hostd.jobs.joblife import JobLife
+from hostd.jobs.jobstate import JobState
+from hostd.jobs.schedule import LayerSchedule
+from hostd.printing.checkpoints import CheckpointWriter
+from hostd.printing.runner import JobRunner, _extrudes, open_output
+from hostd.printing.sources import SlicedSource
+from hostd.publishing.status import StatusHub
 from slicer.fields.stress_pending import waited_for, waiting
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings

@@ -11,8 +11,8 @@ from pathlib import Path
 import pytest
 
 from hostd.api import JobStatus, PrinterInfo, Snapshot
-from hostd.sdnotify import notify, status_line, watchdog, watchdog_interval
-from hostd.status import StatusHub
+from hostd.app.sdnotify import notify, status_line, watchdog, watchdog_interval
+from hostd.publishing.status import StatusHub
 
 
 @pytest.fixture

@@ -20,8 +20,8 @@ from hostd.api import (
     bar,
     duration,
 )
-from hostd.control import serve_control
-from hostd.status import StatusHub
+from hostd.publishing.control import serve_control
+from hostd.publishing.status import StatusHub
 from tui.app import Dashboard
 from tui.canvas import Canvas, Frame
 from tui.format import clock, fit_words, layer_text

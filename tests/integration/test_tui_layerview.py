@@ -12,9 +12,15 @@ from support.daemon_helpers import two_bodies
 from support.paths import DATA
 
 from drivers.link.protocol import strip_comment
-from hostd.layerview import estimate, field_samples, layer_view, parse_layer, sample_layers
-from hostd.schedule import LayerSchedule
-from hostd.sources import SlicedSource
+from hostd.jobs.schedule import LayerSchedule
+from hostd.printing.sources import SlicedSource
+from hostd.publishing.layerview import (
+    estimate,
+    field_samples,
+    layer_view,
+    parse_layer,
+    sample_layers,
+)
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings
 

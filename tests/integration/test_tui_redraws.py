@@ -20,7 +20,7 @@ from support.tui_helpers import T0, FixedSource, printing
 from support.waiting import until
 from textual.widget import Widget
 
-from hostd.cli import main
+from hostd.app.cli import main
 from tui.app import Dashboard, redraw_seconds
 from tui.fleet_model import COLUMNS
 from tui.fleet_table import changed_columns, column_widths

@@ -16,7 +16,7 @@ from slicer.plan import ON_DEMAND_MODULES
 # a fresh interpreter: this test process has long loaded everything
 _SCRIPT = textwrap.dedent("""
     import json, sys
-    from hostd.sources import warm_up
+    from hostd.printing.sources import warm_up
     from slicer.settings import SliceSettings
     before = {name: name in sys.modules for name in sys.argv[1:]}
     warm_up(SliceSettings(), (200.0, 200.0, 200.0))
@@ -43,7 +43,7 @@ def test_a_narrow_skin_layer_needs_no_module_beyond_the_warm_up(tmp_path: Path) 
     script = textwrap.dedent("""
         import json, sys
         import numpy as np
-        from hostd.sources import warm_up
+        from hostd.printing.sources import warm_up
         from slicer.plan import SlicePlan
         from slicer.settings import SliceSettings
         settings = SliceSettings(gcode_arcs="on")  # a printer with arcs: skins run along

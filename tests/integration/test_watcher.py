@@ -13,12 +13,12 @@ from pathlib import Path
 from support.waiting import until
 
 from hostd.config import load_config
-from hostd.filecheck import open_for_writing
-from hostd.intake import Intake
-from hostd.joblife import JobLife
-from hostd.jobstore import JobStore
-from hostd.status import StatusHub
-from hostd.watcher import _STAMP_GRAIN_S, Watcher, _changed_at
+from hostd.jobs.filecheck import open_for_writing
+from hostd.jobs.intake import Intake
+from hostd.jobs.joblife import JobLife
+from hostd.jobs.jobstore import JobStore
+from hostd.jobs.watcher import _STAMP_GRAIN_S, Watcher, _changed_at
+from hostd.publishing.status import StatusHub
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 CUBE = DATA / "cube20_xyz.stl"

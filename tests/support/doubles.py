@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from hostd.status import CommandError
+from hostd.publishing.status import CommandError
 
 
 class RecordingController:

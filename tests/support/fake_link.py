@@ -1,4 +1,4 @@
-"""An in-memory printer link for the runner (``hostd.runner.Link``): no wire, no printer.
+"""An in-memory printer link for the runner (``hostd.printing.runner.Link``): no wire, no printer.
 
 Each line is carried out and acknowledged as it is written; what the link carried out,
 in order, is :attr:`FakeLink.executed`. The test decides where it stops: after

@@ -1,6 +1,6 @@
 """A job store in memory, for tests with no database: the moves and checkpoints of jobs.
 
-It keeps ``hostd.jobstore.JobStore``'s rules for what the runner and a job's life ask
+It keeps ``hostd.jobs.jobstore.JobStore``'s rules for what the runner and a job's life ask
 of it (moves allowed by the state machine, ``started`` and ``finished`` stamped, the
 checkpoint's fields); connections "reopened" from it are itself.
 """
@@ -12,8 +12,8 @@ import threading
 import time
 from typing import Any
 
-from hostd.jobstate import FINAL_STATES, TRANSITIONS, JobState
-from hostd.jobstore import Job, JobNotFound, TransitionError
+from hostd.jobs.jobstate import FINAL_STATES, TRANSITIONS, JobState
+from hostd.jobs.jobstore import Job, JobNotFound, TransitionError
 
 FIELDS = {"layers", "error", "outcome", "resume_from", "layer", "lines_acked", "gcode_bytes",
           "layer_lines"}

@@ -14,7 +14,7 @@ import aiomqtt
 import pytest
 
 from hostd.config import MqttConfig
-from hostd.mqtt import MqttBridge
+from hostd.publishing.mqtt import MqttBridge
 from support.brokers import HOST, Broker
 
 PRINTER = "p1"

@@ -6,7 +6,7 @@ import threading
 import time
 from pathlib import Path
 
-from hostd.jobstore import JobStore
+from hostd.jobs.jobstore import JobStore
 
 
 class CommitLog:

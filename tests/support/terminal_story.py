@@ -25,8 +25,8 @@ sys.path[:0] = [str(ROOT), str(ROOT / "tests")]
 
 from bench.fleetpub import snapshot  # noqa: E402
 from hostd.api import JobStatus, PrinterInfo, Snapshot, Temperature, Temps  # noqa: E402
-from hostd.layerview import layer_view  # noqa: E402
-from hostd.schedule import LayerSchedule  # noqa: E402
+from hostd.jobs.schedule import LayerSchedule  # noqa: E402
+from hostd.publishing.layerview import layer_view  # noqa: E402
 from slicer.plan import SlicePlan  # noqa: E402
 from slicer.settings import SliceSettings  # noqa: E402
 from support.waiting import until  # noqa: E402

@@ -16,8 +16,8 @@ from hostd.api import (
     Temperature,
     Temps,
 )
-from hostd.layerview import layer_view
-from hostd.schedule import LayerSchedule
+from hostd.jobs.schedule import LayerSchedule
+from hostd.publishing.layerview import layer_view
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 from support.paths import DATA
@@ -61,7 +61,7 @@ EVENTS = [
 class FixedSource:
     """A source that tells a fixed story: status snapshots, events, and a real layer reply.
 
-    The layer reply is made by the daemon's own code (``hostd.layerview``) from the
+    The layer reply is made by the daemon's own code (``hostd.publishing.layerview``) from the
     dogbone; commands are recorded, and those in ``refuse`` refused.
     """
 

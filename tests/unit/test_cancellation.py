@@ -15,7 +15,7 @@ import pytest
 from support.waiting import until
 
 from drivers.link.tasks import cancel_and_wait
-from hostd.mqtt_calls import publish
+from hostd.publishing.mqtt_calls import publish
 
 
 class AckedLikeAiomqtt:

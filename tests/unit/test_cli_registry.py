@@ -1,5 +1,6 @@
-"""The one command registry: each `hostd/commands/*.py` command brings its arguments and its
-`run`, registered once in `hostd.commands.COMMANDS`; the command line adds no argument itself."""
+"""The one command registry: each `hostd/app/commands/*.py` command brings its arguments and its
+`run`, registered once in `hostd.app.commands.COMMANDS`; the command line adds no argument
+itself."""
 
 from __future__ import annotations
 
@@ -7,7 +8,7 @@ import ast
 
 from support.paths import ROOT
 
-from hostd.commands import COMMANDS
+from hostd.app.commands import COMMANDS
 
 
 def _top_level_functions(module: str) -> set[str]:
@@ -18,7 +19,7 @@ def _top_level_functions(module: str) -> set[str]:
 
 def test_every_registered_command_brings_its_arguments_and_its_run() -> None:
     for name, command in COMMANDS.items():
-        assert command.module.startswith("hostd.commands."), name
+        assert command.module.startswith("hostd.app.commands."), name
         assert {"add_arguments", "run"} <= _top_level_functions(command.module), name
         assert command.help, name
 
@@ -26,12 +27,12 @@ def test_every_registered_command_brings_its_arguments_and_its_run() -> None:
 def test_every_command_module_is_registered_once() -> None:
     registered = [command.module for command in COMMANDS.values()]
     assert len(registered) == len(set(registered))
-    runs = {f"hostd.commands.{path.stem}" for path in (ROOT / "hostd/commands").glob("*.py")
-            if "run" in _top_level_functions(f"hostd.commands.{path.stem}")}
+    runs = {f"hostd.app.commands.{path.stem}" for path in (ROOT / "hostd/app/commands").glob("*.py")
+            if "run" in _top_level_functions(f"hostd.app.commands.{path.stem}")}
     assert runs == set(registered)
 
 
 def test_the_command_line_adds_no_argument_of_a_command() -> None:
-    source = (ROOT / "hostd/cli.py").read_text(encoding="utf-8")
+    source = (ROOT / "hostd/app/cli.py").read_text(encoding="utf-8")
     assert "add_argument(" not in source
     assert "add_parser(" in source  # one per registered command, from the registry

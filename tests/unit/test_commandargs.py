@@ -6,7 +6,7 @@ from typing import Any
 
 import pytest
 
-from hostd.commandargs import (
+from hostd.printing.commandargs import (
     ArgumentError,
     EstimateArgs,
     JobArgs,

@@ -9,9 +9,9 @@ import pytest
 import trimesh
 
 from drivers.sim.feed import simulate_feed
-from hostd.eta import EtaModel
-from hostd.layerview import estimate
-from hostd.schedule import LayerSchedule
+from hostd.jobs.schedule import LayerSchedule
+from hostd.printing.eta import EtaModel
+from hostd.publishing.layerview import estimate
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

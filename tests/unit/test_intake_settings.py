@@ -8,7 +8,7 @@ from types import SimpleNamespace
 import pytest
 
 from hostd.config import config_from_mapping
-from hostd.intake import Intake, Rejected
+from hostd.jobs.intake import Intake, Rejected
 
 
 def _job_settings(folder: Path, toml: str) -> dict[str, object]:

@@ -8,7 +8,7 @@ from pathlib import Path
 import pytest
 import trimesh
 
-from hostd.schedule import HELD_LAYERS, LayerSchedule
+from hostd.jobs.schedule import HELD_LAYERS, LayerSchedule
 from slicer.paths import islands
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings

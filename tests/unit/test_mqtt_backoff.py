@@ -6,7 +6,7 @@ import random
 
 import pytest
 
-from hostd.mqtt import Backoff, MqttSetupError, Topics
+from hostd.publishing.mqtt import Backoff, MqttSetupError, Topics
 
 
 def test_backoff_grows_exponentially_with_jitter_up_to_the_cap() -> None:

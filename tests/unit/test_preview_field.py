@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 from PIL import Image
 
-from hostd.cli import main
+from hostd.app.cli import main
 
 DATA = Path(__file__).resolve().parents[1] / "data"
 

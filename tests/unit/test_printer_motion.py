@@ -6,8 +6,8 @@ from pathlib import Path
 
 from drivers.link.motion import parse_motion_report
 from hostd.config import config_from_mapping
-from hostd.printermotion import motion_note
-from hostd.printjob import printer_settings
+from hostd.printing.printermotion import motion_note
+from hostd.printing.printjob import printer_settings
 
 REPORTED = parse_motion_report(["echo:  M201 X2500.00 Y2500.00 Z100.00 E10000.00",
                                 "echo:  M204 P3000.00 R3000.00 T3000.00", "ok"])

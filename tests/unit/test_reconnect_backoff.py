@@ -9,8 +9,8 @@ import random
 import pytest
 
 from drivers.link.backoff import Backoff, reconnect
-from hostd import mqtt
-from hostd.daemon import RECONNECT
+from hostd.app.daemon import RECONNECT
+from hostd.publishing import mqtt
 
 
 def test_printer_delays_double_from_one_second_up_to_the_cap_each_drawn_at_random() -> None:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from hostd.reentry import reentry_moves, resume_line
+from hostd.printing.reentry import reentry_moves, resume_line
 
 
 def test_the_resume_continues_at_the_first_unacknowledged_command_or_goes_back_the_planner():

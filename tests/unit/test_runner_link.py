@@ -22,12 +22,20 @@ from support.memory_store import MemoryStore
 
 from drivers.link.errors import LinkError
 from drivers.link.protocol import strip_comment
-from hostd.joblife import JobLife
-from hostd.reentry import reentry_moves
-from hostd.runner import ENDING, PREAMBLE, JobCancelled, JobLine, JobRunner, open_output, park_moves
-from hostd.schedule import LayerSchedule
-from hostd.sources import SlicedSource
-from hostd.status import StatusHub
+from hostd.jobs.joblife import JobLife
+from hostd.jobs.schedule import LayerSchedule
+from hostd.printing.reentry import reentry_moves
+from hostd.printing.runner import (
+    ENDING,
+    PREAMBLE,
+    JobCancelled,
+    JobLine,
+    JobRunner,
+    open_output,
+    park_moves,
+)
+from hostd.printing.sources import SlicedSource
+from hostd.publishing.status import StatusHub
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
@@ -57,7 +65,7 @@ PER_LAYER = len(commands(layer_lines(0)))
 
 @dataclass
 class ListSource:
-    """A job whose layers are ready: ``hostd.sources.LayerSource`` over fixed lines."""
+    """A job whose layers are ready: ``hostd.printing.sources.LayerSource`` over fixed lines."""
 
     first: int = 0
     preamble_lines: list[str] = field(default_factory=lambda: list(PREAMBLE_LINES))

@@ -7,7 +7,7 @@ from pathlib import Path
 import pytest
 import trimesh
 
-from hostd.schedule import LayerSchedule
+from hostd.jobs.schedule import LayerSchedule
 from slicer.output.gcode import LayerCode
 from slicer.plan import SlicePlan
 from slicer.settings import SettingsError, SliceSettings

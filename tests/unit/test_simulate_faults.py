@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from hostd.cli import UsageError
-from hostd.commands.simulate import parse_faults
+from hostd.app.cli import UsageError
+from hostd.app.commands.simulate import parse_faults
 
 
 def test_faults_are_probabilities_of_known_kinds() -> None:

@@ -8,7 +8,7 @@ import io
 import pytest
 
 from hostd.api import bar
-from hostd.commands.slice import ProgressBar
+from hostd.app.commands.slice import ProgressBar
 
 
 def _lines(columns: int, total: int = 40) -> list[str]:

@@ -11,8 +11,8 @@ import pytest
 import shapely
 import trimesh
 
-from hostd.schedule import LayerSchedule
-from hostd.sources import SlicedSource
+from hostd.jobs.schedule import LayerSchedule
+from hostd.printing.sources import SlicedSource
 from slicer.paths.detour import MARGIN, detours
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings

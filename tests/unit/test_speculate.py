@@ -8,7 +8,7 @@ from pathlib import Path
 
 from support.paths import DATA
 
-from hostd.speculate import MadeAhead, Speculation
+from hostd.jobs.speculate import MadeAhead, Speculation
 from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 

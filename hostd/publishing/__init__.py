@@ -1,0 +1,1 @@
+"""Publishing: the status hub, the control socket, MQTT, Home Assistant, notifications, history."""
