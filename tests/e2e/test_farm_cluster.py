@@ -446,3 +446,38 @@ def test_the_fleet_view_shows_the_farm_queue_beside_the_printers(printers: Print
         await feed.queue.close()
 
     asyncio.run(scenario())
+
+
+def test_another_tool_submits_over_nats_as_the_readme_says(printers: Printers) -> None:
+    """A job put in the queue with nats-py alone (no hostd code), in the wire format the
+    README gives, is taken and printed like one from `hostd farm submit`."""
+    import hashlib
+
+    import nats
+
+    cluster = printers.cluster
+    daemon = printers.start("tool1")  # its daemon made the stream, buckets and store
+    model = (DATA / "cube20_xyz.stl").read_bytes()
+    digest = hashlib.sha256(model).hexdigest()
+    job_id = "fj-00c0ffee42"
+
+    async def put_in() -> None:
+        client = await nats.connect(servers=servers(cluster), connect_timeout=2)
+        js = client.jetstream(timeout=10)
+        await (await js.object_store("hostd_farm_models")).put(digest, model)
+        await (await js.key_value("hostd_farm_jobs")).put(job_id, json.dumps({
+            "id": job_id, "name": "from_a_tool.stl", "model": digest, "size": len(model),
+            "settings": {"infill.density": 0.1}, "needs": {"material": "PLA", "nozzle": 0.4,
+                                                           "bed": [220, 220]},
+            "state": "waiting", "generation": 1}).encode())
+        await js.publish("hostd.farm.jobs", json.dumps({"id": job_id, "generation": 1}).encode(),
+                         headers={"Nats-Msg-Id": f"{job_id}.1"})
+        await client.close()
+
+    asyncio.run(put_in())
+    rows = wait_rows(cluster, lambda r: r.get(job_id, {}).get("state") == "printed", 60,
+                     "the tool's job printed")
+    assert rows[job_id]["printer"] == "tool1"
+    assert (daemon.jobs / "done" / f"{job_id}.stl").read_bytes() == model
+    assert "; infill = linear 0.1\n" in (daemon.jobs / "done" / f"{job_id}.gcode").read_text()
+    assert_printed_once(daemon, [job_id])
