@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass, fields, replace
 
 from drivers.sim.planner import PlannerSettings
+from slicer.options import SettingError
 
 # names of the fault probabilities, in the order they are documented
 FAULT_KINDS = (
@@ -190,5 +191,7 @@ def dialect(name: str, p: float = 0.0, **settings: object) -> SimulatorConfig:
 
 
 def _check(ok: bool, key: str, reason: str) -> None:
+    """Raise the project's one settings error (:class:`~slicer.options.SettingError`,
+    a ``ValueError``) naming ``key`` unless ``ok``."""
     if not ok:
-        raise ValueError(f"SimulatorConfig.{key}: {reason}")
+        raise SettingError(key, reason)

@@ -12,6 +12,7 @@ from support.simhost import Host, PortGone, stream
 
 from drivers.sim.faults import FaultInjector
 from drivers.sim.printer import SimulatedPrinter, SimulatorConfig
+from slicer.options import SettingError
 
 P = 0.05
 LINES = 400
@@ -116,10 +117,14 @@ def test_faults_are_reproducible_for_a_seed():
 
 
 def test_config_rejects_bad_values():
-    with pytest.raises(ValueError, match="p_drop_ok"):
+    # the project's one settings error, naming the key, as the link's settings raise it
+    with pytest.raises(SettingError, match="p_drop_ok") as caught:
         SimulatorConfig(p_drop_ok=1.5)
-    with pytest.raises(ValueError, match="bufsize"):
+    assert caught.value.key == "p_drop_ok"
+    assert "probability" in caught.value.reason
+    with pytest.raises(SettingError, match="bufsize") as caught:
         SimulatorConfig(bufsize=0)
+    assert caught.value.key == "bufsize"
 
 
 def test_unplugging_mid_command_cuts_it_short(tmp_path):
