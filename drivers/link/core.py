@@ -13,6 +13,7 @@ import re
 from drivers.link.config import StreamerConfig, StreamStats
 from drivers.link.events import (
     Acked,
+    Booted,
     Event,
     Failed,
     LinkState,
@@ -163,6 +164,8 @@ class LinkCore:
                     and len(self._plain_oks) < 16:
                 self._plain_oks[text] = response  # the same few texts, line after line
             self.watchdog.heard(now, response, False)
+            if response.kind == "start":
+                self._events.append(Booted())  # whatever it means to the protocol
         else:
             self.watchdog.heard(now, response, True)
         self.handle(response, now)

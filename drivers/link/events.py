@@ -70,8 +70,14 @@ class Failed:
 
 
 @dataclass(frozen=True)
+class Booted:
+    """The printer announced a boot: its ``start`` banner was read (at connect, or a
+    reset mid-stream)."""
+
+
+@dataclass(frozen=True)
 class Connected:
     """The handshake is done: the link is ready to stream (:mod:`drivers.link.handshake`)."""
 
 
-Event = Written | Acked | Temperature | Report | Failed | Connected
+Event = Written | Acked | Temperature | Report | Failed | Connected | Booted

@@ -26,6 +26,7 @@ from drivers.link.core import LinkCore
 from drivers.link.errors import LinkError, PrinterLinkError, StreamCancelled, TransportError
 from drivers.link.events import (
     Acked,
+    Booted,
     Event,
     Failed,
     LinkState,
@@ -84,7 +85,8 @@ class Streamer:
     acks`` attaches an :class:`~drivers.link.acks.AckChannel` that receives an
     :class:`~drivers.link.acks.Ack` for every job line acknowledged, in order, carrying the
     ``tag`` given to ``send()``. Callbacks (attributes): ``on_temperature(response)`` for
-    every temperature report; ``on_error(text)`` for printer errors and link failures.
+    every temperature report; ``on_error(text)`` for printer errors and link failures;
+    ``on_boot()`` for every boot banner (``start``) the printer prints.
 
     Every protocol decision is the core's (:class:`~drivers.link.core.LinkCore`); this shell
     runs three named tasks in one ``TaskGroup``: the reader feeds it received lines, the
@@ -106,6 +108,7 @@ class Streamer:
         self._tags = Tags()
         self.on_temperature: Callable[[Response], None] | None = None
         self.on_error: Callable[[str], None] | None = None
+        self.on_boot: Callable[[], None] | None = None
         self._transport = transport
         self._reconnector = Reconnector(reopen)
         self._waiters = Waiters()
@@ -177,6 +180,13 @@ class Streamer:
     def capable(self) -> frozenset[str]:
         """Names of the capabilities the firmware reported as enabled (``Cap:NAME:1``)."""
         return self.core.capable
+
+    @property
+    def served(self) -> bool:
+        """Whether received lines reach the core from the port's read callback
+        (:meth:`Transport.serve`), the path without a task switch per line."""
+        transport = self._transport
+        return isinstance(transport, Transport) and transport.serving
 
     @property
     def in_flight(self) -> int:
@@ -484,6 +494,9 @@ class Streamer:
             elif isinstance(event, Report):
                 if self.on_error is not None:
                     self.on_error(event.text)
+            elif isinstance(event, Booted):
+                if self.on_boot is not None:
+                    self.on_boot()
             elif isinstance(event, Failed):
                 self._tags.clear()
                 self._waiters.fail_all(LinkError(event.reason))

@@ -57,6 +57,11 @@ class Transport:
         return int(getattr(self._port, "baudrate", 250000))
 
     @property
+    def serving(self) -> bool:
+        """True while :meth:`serve` hands the lines received to its reader."""
+        return self._serving is not None
+
+    @property
     def is_open(self) -> bool:
         """False once closed or failed."""
         return not self._closed and self._error is None

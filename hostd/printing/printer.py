@@ -7,7 +7,7 @@ import logging
 from collections.abc import AsyncIterator, Callable
 
 from drivers.link.streamer import Streamer
-from drivers.link.transport import Transport, open_transport
+from drivers.link.transport import open_transport
 from drivers.sim.config import SimulatorConfig
 from drivers.sim.printer import SimulatedPrinter
 from hostd.config import Config
@@ -55,9 +55,10 @@ async def printer_link(
                  config.simulator.acceleration)
     try:
         transport = await open_transport(port, baud)
-        if on_boot is not None:
-            transport = BootWatch(transport, on_boot)  # type: ignore[assignment]
         async with Streamer(transport, config.printer.link) as streamer:
+            # (told by the link, not by a wrapper around the port: the link reads the
+            # port itself, from its read callback, and a port reopened keeps the watch)
+            streamer.on_boot = on_boot
             await streamer.connect(probe_numbering=on_boot is not None)
             if streamer.numbering_kept is False and on_boot is not None:
                 on_boot()  # (again, if its banner was read too: the same news)
@@ -68,33 +69,3 @@ async def printer_link(
         if simulator is not None:
             simulator.stop()
 
-
-class BootWatch:
-    """A printer transport that calls ``on_boot`` for each boot banner (``start``) read."""
-
-    def __init__(self, inner: Transport, on_boot: Callable[[], None]) -> None:
-        self.inner = inner
-        self.on_boot = on_boot
-
-    @property
-    def name(self) -> str:
-        return self.inner.name
-
-    @property
-    def is_open(self) -> bool:
-        return self.inner.is_open
-
-    async def write(self, data: bytes) -> None:
-        await self.inner.write(data)
-
-    async def readline(self) -> str:
-        line = await self.inner.readline()
-        if line.strip().lower() == "start":
-            self.on_boot()
-        return line
-
-    async def close(self) -> None:
-        await self.inner.close()
-
-    def __getattr__(self, name: str) -> object:
-        return getattr(self.inner, name)  # anything else (port settings) is the inner one's

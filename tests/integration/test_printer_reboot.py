@@ -103,3 +103,43 @@ def test_the_daemon_s_printer_link_reports_a_boot_it_did_not_see(tmp_path: Path)
         wait_until(lambda: sim.last_line == 0, 5, "the printer to reboot")
         asyncio.run(connect(sim))
         assert boots == [1, 1]  # rebooted meanwhile: a resume goes back replay_lines
+
+
+def test_the_daemon_s_printer_link_is_served_and_hears_every_banner(tmp_path: Path) -> None:
+    # the boot watch is the link's: the daemon's link reads the port from its read
+    # callback (no task switch per line), and a reboot mid-print is still reported
+    boots: list[int] = []
+    served: list[bool] = []
+    counts: list[int] = []
+
+    async def connect(sim: SimulatedPrinter) -> None:
+        printer = {"port": sim.path, "baud": 250000}
+        config = config_from_mapping({"printer": printer}, tmp_path)
+        booted = asyncio.Event()
+
+        def on_boot() -> None:
+            boots.append(1)
+            booted.set()
+
+        async with printer_link(config, on_boot) as link:
+            served.append(link.served)
+            at_connect = len(boots)
+            await link.send("G1 X5 F3000")
+            await link.drain()
+            counts.append(at_connect)
+            booted.clear()
+            sim.reset()
+            async with asyncio.timeout(10):
+                await booted.wait()  # its banner, once it booted
+            for x in range(6, 12):
+                await link.send(f"G1 X{x} F3000")
+            await link.drain()
+            served.append(link.served)
+
+    with SimulatedPrinter(sim_config()) as sim:
+        asyncio.run(connect(sim))
+    assert served == [True, True]
+    # at connect: the banner, and the numbering that starts at 1 (the same news twice);
+    # then the reboot's banner, once
+    assert counts == [2]
+    assert len(boots) == 3
