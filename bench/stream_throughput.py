@@ -37,9 +37,12 @@ own created under ``bench/.cache/``: AGPL, never a dependency of the package) on
 pseudo-terminal paced to 250000 baud, clean and at its resend ratios (``--resend-ratios``),
 the link at its defaults against a send-and-wait host that handles requests as OctoPrint
 does; rates, the link's longest gap between writes, CPU per line and the moves the
-emulation queued (``once``, or how many it left out and queued twice)::
+emulation queued (``once``, or how many it left out and queued twice). ``--repeat N``
+makes each row N pairs of streams, the hosts taking turns to go first, reported as
+medians, with the range of the pairs' CPU ratios (each host's CPU is its event loop's
+thread time over the same lines)::
 
-    .venv/bin/python -m bench.stream_throughput --peer octoprint --peer-lines 3000
+    .venv/bin/python -m bench.stream_throughput --peer octoprint --peer-lines 3000 --repeat 5
 """
 
 from __future__ import annotations
@@ -48,6 +51,7 @@ import argparse
 import asyncio
 import math
 import os
+import statistics
 import subprocess
 import sys
 import time
@@ -342,11 +346,11 @@ async def windowed_peer(path: str, lines: list[str]) -> tuple[Run, float]:
     async with Streamer(transport, config) as link:
         await link.connect()
         first = len(stamps)
-        cpu0, t0 = time.process_time(), time.perf_counter()
+        cpu0, t0 = time.thread_time(), time.perf_counter()
         for line in lines:
             await link.send(line)
         await link.drain()
-        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
     gaps = [b - a for a, b in zip(stamps[first:], stamps[first + 1:], strict=False)]
     return Run(len(lines), wall, cpu, 0), max(gaps, default=0.0)
 
@@ -361,7 +365,7 @@ async def send_and_wait_peer(path: str, lines: list[str]) -> tuple[Run, float]:
         await transport.write(frame(0, "M110 N0"))
         while parse_response(await transport.readline()).kind != "ok":
             pass
-        cpu0, t0 = time.process_time(), time.perf_counter()
+        cpu0, t0 = time.thread_time(), time.perf_counter()
         n = 1
         while n <= len(lines):
             await transport.write(frame(n, lines[n - 1]))
@@ -374,15 +378,23 @@ async def send_and_wait_peer(path: str, lines: list[str]) -> tuple[Run, float]:
                 elif response.kind == "ok":
                     break
             n = replay if replay is not None else n + 1
-        wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
+        wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
     finally:
         await transport.close()
     return Run(len(lines), wall, cpu, 0), 0.0
 
 
-def peer_table(count: int, ratios: list[int]) -> list[str]:
+def peer_table(count: int, ratios: list[int], repeat: int = 1) -> list[str]:
     """Rows of the project's link vs a send-and-wait host on OctoPrint's virtual printer,
-    clean and at each resend ratio, a fresh emulation per stream."""
+    clean and at each resend ratio, a fresh emulation per stream.
+
+    Each row is ``repeat`` pairs of streams, the two hosts taking turns to go first (so a
+    change of the machine's load falls on both alike), each host's CPU time measured the
+    same way: the event loop's thread (:func:`time.thread_time`), from the first job line
+    to the last acknowledged. The row gives medians over the pairs, the CPU ratio as the
+    median of the pairs' ratios with their range, the longest gap of any of the link's
+    streams and the worst exactness of each host.
+    """
     python = octoprint_python()
     moves = curved_perimeter(count)
     # absolute positions: the emulation starts relative, and sleeps a tenth of each move's
@@ -390,28 +402,53 @@ def peer_table(count: int, ratios: list[int]) -> list[str]:
     lines = ["G90", *moves]
     rows = [f"{'resend %':>8} {'hostd l/s':>9} {'% clean':>8} {'s&w l/s':>8} "
             f"{'hostd/s&w':>9} {'max gap':>8} {'hostd us/l':>10} {'s&w us/l':>9} "
-            f"{'CPU ratio':>9} {'hostd run':>13} {'s&w run':>13}"]
+            f"{'CPU ratio':>9} {'CPU ratio range':>15} {'hostd run':>13} {'s&w run':>13}"]
     clean = None
+    hosts = (windowed_peer, send_and_wait_peer)
     for ratio in ratios:
-        runs = []
-        for host in (windowed_peer, send_and_wait_peer):
-            peer = PeerProcess(python, ratio)
-            try:
-                run, gap = asyncio.run(host(peer.path, lines))
-            finally:
-                queued = peer.stop()
-            runs.append(PeerRun(run, gap, queued))
-            print(f"measured {host.__name__} at {ratio} %", file=sys.stderr)
-        ours, wait = runs
-        clean = clean or ours.run.rate
-        rows.append(
-            f"{ratio:>8} {ours.run.rate:>9.1f} {100 * ours.run.rate / clean:>7.1f}% "
-            f"{wait.run.rate:>8.1f} {ours.run.rate / wait.run.rate:>8.2f}x "
-            f"{ours.max_gap_s:>7.3f}s {1e6 * ours.run.cpu_s / len(lines):>10.0f} "
-            f"{1e6 * wait.run.cpu_s / len(lines):>9.0f} "
-            f"{ours.run.cpu_s / wait.run.cpu_s:>8.2f}x "
-            f"{_exactness(ours.moves, moves):>13} {_exactness(wait.moves, moves):>13}")
+        pairs: list[tuple[PeerRun, PeerRun]] = []
+        for turn in range(max(1, repeat)):
+            runs: dict[str, PeerRun] = {}
+            for host in hosts if turn % 2 == 0 else hosts[::-1]:
+                peer = PeerProcess(python, ratio)
+                try:
+                    run, gap = asyncio.run(host(peer.path, lines))
+                finally:
+                    queued = peer.stop()
+                runs[host.__name__] = PeerRun(run, gap, queued)
+                print(f"measured {host.__name__} at {ratio} % ({turn + 1}/{repeat})",
+                      file=sys.stderr)
+            pairs.append((runs[windowed_peer.__name__], runs[send_and_wait_peer.__name__]))
+        rows.append(_peer_row(ratio, pairs, moves, clean))
+        clean = clean or statistics.median(ours.run.rate for ours, _ in pairs)
     return rows
+
+
+def _peer_row(ratio: int, pairs: list[tuple[PeerRun, PeerRun]], moves: list[str],
+              clean: float | None) -> str:
+    """One row of :func:`peer_table`: medians over ``pairs`` (the link's run, the
+    send-and-wait host's)."""
+    n = pairs[0][0].run.lines
+    ours_rate = statistics.median(ours.run.rate for ours, _ in pairs)
+    wait_rate = statistics.median(wait.run.rate for _, wait in pairs)
+    ours_us = statistics.median(1e6 * ours.run.cpu_s / n for ours, _ in pairs)
+    wait_us = statistics.median(1e6 * wait.run.cpu_s / n for _, wait in pairs)
+    cpu_ratios = [ours.run.cpu_s / wait.run.cpu_s for ours, wait in pairs]
+    gap = max(ours.max_gap_s for ours, _ in pairs)
+    spread = f"{min(cpu_ratios):.2f}-{max(cpu_ratios):.2f}x"
+    exact_ours = {_exactness(ours.moves, moves) for ours, _ in pairs}
+    exact_wait = {_exactness(wait.moves, moves) for _, wait in pairs}
+    return (f"{ratio:>8} {ours_rate:>9.1f} {100 * ours_rate / (clean or ours_rate):>7.1f}% "
+            f"{wait_rate:>8.1f} {ours_rate / wait_rate:>8.2f}x "
+            f"{gap:>7.3f}s {ours_us:>10.0f} {wait_us:>9.0f} "
+            f"{statistics.median(cpu_ratios):>8.2f}x {spread:>15} "
+            f"{_worst(exact_ours):>13} {_worst(exact_wait):>13}")
+
+
+def _worst(exactness: set[str]) -> str:
+    """``once`` when every stream was; else the other outcomes, joined."""
+    others = sorted(e for e in exactness if e != "once")
+    return "/".join(others) if others else "once"
 
 
 def _exactness(moves: list[str], lines: list[str]) -> str:
@@ -451,12 +488,15 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--resend-ratios", type=int, nargs="+", default=[0, 2, 5, 10],
                         help="the OctoPrint peer's resend ratios (percent)")
     parser.add_argument("--repeat", type=int, default=1,
-                        help="measure each speed and latency this many times (a row each)")
+                        help="measure each speed and latency this many times (a row each); "
+                             "with --peer octoprint, the pairs of streams per row (medians)")
     args = parser.parse_args(argv)
     if args.peer == "octoprint":
         print(f"{args.peer_lines} short G1 moves to OctoPrint's virtual printer ({OCTOPRINT}) "
-              "on a pseudo-terminal, link defaults (5 s probe interval)")
-        print("\n".join(peer_table(args.peer_lines, args.resend_ratios)))
+              "on a pseudo-terminal, link defaults (5 s probe interval), "
+              f"medians of {max(1, args.repeat)} interleaved pair(s) per row, "
+              f"load {os.getloadavg()[0]:.1f}")
+        print("\n".join(peer_table(args.peer_lines, args.resend_ratios, args.repeat)))
         return 0
     if args.noisy_lines:
         rows = noisy_table(curved_perimeter(args.noisy_lines))
