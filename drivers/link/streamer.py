@@ -277,7 +277,11 @@ class Streamer:
         self.core.queue_job(command, token)
         # written at once when the window has room (the future is then done and awaiting
         # it does not suspend); otherwise the line waits in the core for an ok to free room
-        await self._write_ready()
+        transport = self._transport
+        if not self._writing and isinstance(transport, Transport):
+            self._pump(transport, asyncio.get_running_loop().time())
+        else:
+            await self._write_ready()
         return await future
 
     async def drain(self) -> None:
@@ -405,20 +409,38 @@ class Streamer:
         waits for the port to fail). Other transports are read by the reader task."""
         core = self.core
         now = asyncio.get_running_loop().time()
-        self._dispatch(core.feed(text, now), wake=False)
+        events = core.feed(text, now)
+        if events:
+            self._dispatch(events, wake=False)
         if self._writing:  # (a write suspended elsewhere: that writer asks again after it)
             self._wake.set()
         else:
             transport = self._transport
             assert isinstance(transport, Transport)
-            try:
-                while (data := core.next_bytes(now)) is not None:
-                    self._dispatch(core.take_events(), wake=False)
-                    transport.write_now(data)
-            except TransportError:
-                pass  # serve() raises it: the reader task reports the failure
-            self._dispatch(core.take_events(), wake=False)
+            self._pump(transport, now)
         self._progress.set()
+
+    def _pump(self, transport: Transport, now: float) -> None:
+        """Write everything the core hands out now in one write, without suspending (the
+        serial transport's ``write_now``): the lines an answer lets go leave in one
+        system call, and what the core decided meanwhile is carried out once. A failed
+        write is the reader task's to report (``serve()`` raises it)."""
+        core = self.core
+        data = core.next_bytes(now)
+        if data is None:
+            events = core.take_events()
+            if events:
+                self._dispatch(events, wake=False)
+            return
+        more = core.next_bytes(now)
+        if more is not None:
+            chunks = [data, more]
+            while (more := core.next_bytes(now)) is not None:
+                chunks.append(more)
+            data = b"".join(chunks)
+        self._dispatch(core.take_events(), wake=False)
+        with contextlib.suppress(TransportError):
+            transport.write_now(data)
 
     async def _write_loop(self) -> None:
         while True:
@@ -436,6 +458,10 @@ class Streamer:
         writing asks the core again after each write, so it sees whatever changed.
         """
         if self._writing:
+            return
+        transport = self._transport
+        if isinstance(transport, Transport):  # its writes never suspend: all in one
+            self._pump(transport, asyncio.get_running_loop().time())
             return
         self._writing = True
         try:
