@@ -64,13 +64,18 @@ Over MQTT (3.1.1, topics ``hostd/<printer>/...``; the daemon's side is
 
 from __future__ import annotations
 
-import asyncio
 import contextlib
 import json
 import time
 from collections.abc import AsyncIterator
 from dataclasses import asdict, dataclass, field
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    # imported when a control client connects (ControlClient.__aenter__): `hostd slice`
+    # takes only its durations and bar from this module, and asyncio's import (with
+    # ssl, socket, subprocess, inspect, logging) was a tenth of a small part's slice
+    import asyncio
 
 STATES = ("idle", "heating", "printing", "paused", "error", "offline")
 COMMANDS = (
@@ -283,6 +288,8 @@ class ControlClient:
         self._writer: asyncio.StreamWriter | None = None
 
     async def __aenter__(self) -> ControlClient:
+        import asyncio
+
         try:
             self._reader, self._writer = await asyncio.open_unix_connection(
                 self.path, limit=MAX_REPLY_BYTES
