@@ -9,6 +9,7 @@ writing is in :mod:`drivers.link.writer`, timers in :mod:`drivers.link.watchdog`
 from __future__ import annotations
 
 import re
+from collections.abc import Callable
 
 from drivers.link.config import StreamerConfig, StreamStats
 from drivers.link.events import (
@@ -69,6 +70,9 @@ class LinkCore:
         self._expect_resend_ok = False
         self._last_error: Response | None = None  # a line error just before this line
         self.writer = LinkWriter(self)
+        # the next bytes to write now (recorded as written), or None: the writer's, called
+        # for every line (no call of the core's own in between)
+        self.next_bytes: Callable[[float], bytes | None] = self.writer.next_bytes
         self.acks = AckCounter(self)
         self.resync = Resync(self)
         self.watchdog = Watchdog(self)
@@ -109,9 +113,6 @@ class LinkCore:
         self.writer.queue_control(command, internal=internal, token=token, probe=probe,
                                   force=force, front=front)
 
-    def next_bytes(self, now: float) -> bytes | None:
-        """The next bytes to write now (recorded as written), or ``None``."""
-        return self.writer.next_bytes(now)
 
     def tick(self, now: float) -> list[Event]:
         """Let time pass: probes, polls, give-ups. Returns the events produced."""

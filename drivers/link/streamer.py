@@ -267,14 +267,17 @@ class Streamer:
         command = command.strip()
         if not command:
             raise ValueError("empty command")
-        if self.core.cancelled:
+        core = self.core
+        if core.cancelled:
             raise StreamCancelled("stream cancelled")
-        self._check_alive()
-        if self.core.stopping:
+        if not core.alive():
+            raise LinkError(core.error or "link failed")
+        if core.stopping:
             raise LinkError("emergency stop")
         token, future = self._waiters.new()
-        self._tags.queued(token, tag)
-        self.core.queue_job(command, token)
+        if tag is not None:
+            self._tags.queued(token, tag)
+        core.queue_job(command, token)
         # written at once when the window has room (the future is then done and awaiting
         # it does not suspend); otherwise the line waits in the core for an ok to free room
         transport = self._transport
@@ -411,36 +414,39 @@ class Streamer:
         now = asyncio.get_running_loop().time()
         events = core.feed(text, now)
         if events:
-            self._dispatch(events, wake=False)
+            self._dispatch(events, wake=False, progress=False)
         if self._writing:  # (a write suspended elsewhere: that writer asks again after it)
             self._wake.set()
         else:
             transport = self._transport
             assert isinstance(transport, Transport)
-            self._pump(transport, now)
+            self._pump(transport, now, progress=False)
         self._progress.set()
 
-    def _pump(self, transport: Transport, now: float) -> None:
+    def _pump(self, transport: Transport, now: float, *, progress: bool = True) -> None:
         """Write everything the core hands out now in one write, without suspending (the
         serial transport's ``write_now``): the lines an answer lets go leave in one
         system call, and what the core decided meanwhile is carried out once. A failed
         write is the reader task's to report (``serve()`` raises it)."""
         core = self.core
-        data = core.next_bytes(now)
+        next_bytes = core.next_bytes
+        data = next_bytes(now)
         if data is None:
             events = core.take_events()
             if events:
-                self._dispatch(events, wake=False)
+                self._dispatch(events, wake=False, progress=progress)
             return
-        more = core.next_bytes(now)
+        more = next_bytes(now)
         if more is not None:
             chunks = [data, more]
-            while (more := core.next_bytes(now)) is not None:
+            while (more := next_bytes(now)) is not None:
                 chunks.append(more)
             data = b"".join(chunks)
-        self._dispatch(core.take_events(), wake=False)
-        with contextlib.suppress(TransportError):
+        self._dispatch(core.take_events(), wake=False, progress=progress)
+        try:  # noqa: SIM105 (contextlib.suppress: three Python calls a line more)
             transport.write_now(data)
+        except TransportError:
+            pass  # serve() raises it: the reader task reports the failure
 
     async def _write_loop(self) -> None:
         while True:
@@ -459,7 +465,7 @@ class Streamer:
         """
         if self._writing:
             return
-        transport = self._transport
+        transport: object = self._transport  # (a wrapper's write may suspend)
         if isinstance(transport, Transport):  # its writes never suspend: all in one
             self._pump(transport, asyncio.get_running_loop().time())
             return
@@ -498,9 +504,10 @@ class Streamer:
         self.core.urgent(command)
         await self._write_ready()
 
-    def _dispatch(self, events: list[Event], *, wake: bool = True) -> None:
+    def _dispatch(self, events: list[Event], *, wake: bool = True, progress: bool = True) -> None:
         """Carry out what the core decided; ``wake`` the writer task after (not needed
-        when the caller is writing what the core hands out anyway)."""
+        when the caller is writing what the core hands out anyway); tell the waiters of
+        progress (``progress``; the read callback does once per line)."""
         if not events:
             return
         for event in events:
@@ -529,7 +536,8 @@ class Streamer:
                 self._failed.set()
         if wake:
             self._wake.set()
-        self._progress.set()
+        if progress:
+            self._progress.set()
 
     async def _link_lost(self, reason: str) -> bool:
         """The port failed: report, then try to reopen it. True if the link is back."""

@@ -51,8 +51,9 @@ class Watchdog:
     def heard(self, now: float, response: Response, fast: bool) -> None:
         """A line received; ``fast``: a plain ok seen before (it answers the link)."""
         self.last_rx = now
-        if fast:
-            self.answered(now)
+        if fast:  # (answered, inline: once per plain ok)
+            self.last_answer = now
+            self.probes_unanswered = self.reports_unanswered = self.over_budget = 0
         elif self.is_report(response):
             self.reports_unanswered += 1  # a sign of a powered board, not of a live link
         else:
