@@ -40,8 +40,10 @@ _AT_ONCE_WORTH = 0.015
 # it the fork, the WKB sent back and the wait cost what the overlap gains: the panel
 # clip (0.02 s) reached its workers after as much CPU time here either way (23 and
 # 22 ms, medians of 10) and spent 12 ms more CPU in all with its cut sent away; the
-# lower idler (0.07 s) 27 ms against 37 ms here
-_CUT_AWAY_WORTH = 0.05
+# lower idler (0.07 s on a loaded machine) 27 ms against 37 ms here. Its estimate
+# is often under 0.05 s (0.026-0.039 s at load 3, lower when the machine is quiet):
+# its cut then stayed here, the second core idle for it
+_CUT_AWAY_WORTH = 0.02
 # tasks (of _CHUNK layers) a forked worker may have made or in hand beyond the one
 # being written: the window's depth in layers is _AHEAD * workers * _CHUNK
 _AHEAD = 2
@@ -81,6 +83,20 @@ def _chunks(lo: int, n: int) -> Iterator[tuple[int, int]]:
     if lo > _CHUNK and lo % _CHUNK:  # the rest of a block begun here
         yield lo, min(n, lo - lo % _CHUNK + _CHUNK)
     for a in range(max(_CHUNK, -(-lo // _CHUNK) * _CHUNK), n, _CHUNK):
+        yield a, min(n, a + _CHUNK)
+
+
+def _whole_blocks(n: int) -> Iterator[tuple[int, int]]:
+    """Tasks ``[a, b)`` covering layers ``0..n-1``, one per skin cache block of
+    ``_CHUNK`` layers, for workers forked before any layer is made.
+
+    A layer's skins and islands look at the layers around it, so two tasks
+    made in different processes each solve what their edge shares; small first
+    tasks (:func:`_chunks`) bring the first layer sooner but add two such edges.
+    The whole file waits for the last layer, not the first: the lower idler's
+    58 layers are four tasks instead of six.
+    """
+    for a in range(0, n, _CHUNK):
         yield a, min(n, a + _CHUNK)
 
 
@@ -171,7 +187,8 @@ def _forked(
     in order; ``meanwhile`` is called here once their first tasks are handed out."""
     from slicer.forkslice import ForkedLayers
 
-    with ForkedLayers(make, list(_chunks(done, n)), workers) as engine:
+    tasks = list(_chunks(done, n)) if done else list(_whole_blocks(n))
+    with ForkedLayers(make, tasks, workers) as engine:
         window: LayerWindow[tuple[str, float, float]] = LayerWindow(
             engine.submit, n, depth=_AHEAD * workers * _CHUNK, first=done
         )

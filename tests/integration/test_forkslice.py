@@ -107,6 +107,36 @@ def test_outlines_cut_away_or_here_before_forking_give_the_same_bytes(
     assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
 
 
+@pytest.mark.parametrize("at_once", [0.0, 60.0], ids=["at-once", "timed-here-first"])
+def test_workers_forked_at_once_take_whole_skin_blocks(
+    tmp_path, monkeypatch, at_once: float
+) -> None:
+    """Forked before any layer is made, the workers take one task per skin cache block
+    (fewer task edges, each solved in two processes); forked after the layers timed
+    here, the rest of the first block comes as one task, then whole blocks."""
+    path = box_stl(tmp_path / "box.stl", (12.0, 8.0, 7.0))  # 35 layers: 3 blocks
+    monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
+    monkeypatch.setattr(gcodefile, "_AT_ONCE_WORTH", at_once)
+    plan = SlicePlan.from_file(path, SliceSettings())
+    n = plan.layer_count
+    handed: list[list[tuple[int, int]]] = []
+
+    class Recorded(ForkedLayers):
+        def __init__(self, make, tasks, workers) -> None:
+            handed.append(list(tasks))
+            super().__init__(make, tasks, workers)
+
+    monkeypatch.setattr("slicer.forkslice.ForkedLayers", Recorded)
+    write_gcode(plan, tmp_path / "two.gcode", workers=2)
+    (tasks,) = handed
+    assert n > 32
+    first = 0 if at_once == 0.0 else gcodefile._PROBE
+    expected = [(a, min(n, a + 16)) for a in range(16, n, 16)]
+    assert tasks == [(first, 16), *expected]
+    write_gcode(SlicePlan.from_file(path, SliceSettings()), tmp_path / "one.gcode", workers=1)
+    assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
+
+
 def test_forked_layers_come_back_in_order_from_other_processes(
     tall_box: SlicePlan, tmp_path
 ) -> None:
