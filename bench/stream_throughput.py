@@ -40,9 +40,11 @@ does; rates, the link's longest gap between writes, CPU per line and the moves t
 emulation queued (``once``, or how many it left out and queued twice). ``--repeat N``
 makes each row N pairs of streams, the hosts taking turns to go first, reported as
 medians, with the range of the pairs' CPU ratios (each host's CPU is its event loop's
-thread time over the same lines)::
+thread time over the same lines). ``--instructions`` counts instead, with valgrind, the
+instructions each host runs per line (the machine's load does not move that figure)::
 
     .venv/bin/python -m bench.stream_throughput --peer octoprint --peer-lines 3000 --repeat 5
+    .venv/bin/python -m bench.stream_throughput --peer octoprint --peer-lines 2500 --instructions
 """
 
 from __future__ import annotations
@@ -451,6 +453,52 @@ def _worst(exactness: set[str]) -> str:
     return "/".join(others) if others else "once"
 
 
+def one_peer_stream(host: str, count: int, ratio: int) -> str:
+    """One stream of ``host`` (``link`` or ``send-and-wait``) to a fresh emulation at
+    ``ratio`` %: its CPU per line (us), rate and longest gap, on one line."""
+    lines = ["G90", *curved_perimeter(count)]
+    peer = PeerProcess(octoprint_python(), ratio)
+    try:
+        run, gap = asyncio.run(
+            (windowed_peer if host == "link" else send_and_wait_peer)(peer.path, lines))
+    finally:
+        peer.stop()
+    return f"{1e6 * run.cpu_s / len(lines):.1f} {run.rate:.1f} {gap:.3f}"
+
+
+def instructions_table(count: int, ratios: list[int]) -> list[str]:
+    """Instructions per line each host runs, counted by valgrind (user space, the host's
+    process only): each host streams ``count // 5`` and ``count`` lines, and the
+    difference of the two counts over the difference of the lines is its cost of a
+    line, free of the start, the connection and the machine's load. (The kernel's share,
+    the system calls, is not counted: the two hosts make about as many.)"""
+    short = max(1, count // 5)
+    rows = [f"{'resend %':>8} {'hostd kinstr/l':>14} {'s&w kinstr/l':>12} {'ratio':>6}"]
+    for ratio in ratios:
+        per_line = []
+        for host in ("link", "send-and-wait"):
+            counts = [_instructions(host, n, ratio) for n in (short, count)]
+            per_line.append((counts[1] - counts[0]) / (count - short))
+            print(f"counted {host} at {ratio} %", file=sys.stderr)
+        ours, wait = per_line
+        rows.append(f"{ratio:>8} {ours / 1e3:>14.1f} {wait / 1e3:>12.1f} {ours / wait:>5.2f}x")
+    return rows
+
+
+def _instructions(host: str, count: int, ratio: int) -> int:
+    """Instructions of one :func:`one_peer_stream` process, counted by valgrind."""
+    result = subprocess.run(
+        ["valgrind", "--tool=cachegrind", "--cache-sim=no", "--cachegrind-out-file=/dev/null",
+         sys.executable, "-m", "bench.stream_throughput", "--peer", "octoprint",
+         "--one", host, "--peer-lines", str(count), "--resend-ratios", str(ratio)],
+        capture_output=True, text=True, check=True,
+        cwd=Path(__file__).resolve().parents[1])
+    for line in result.stderr.splitlines():
+        if "I" in line and "refs:" in line:
+            return int(line.rsplit(":", 1)[1].replace(",", "").strip())
+    raise RuntimeError(f"valgrind reported no instruction count: {result.stderr[-300:]}")
+
+
 def _exactness(moves: list[str], lines: list[str]) -> str:
     """``once`` when the emulation queued every line once, in order; else how many it
     left out and how many it queued twice (``-3 +0``)."""
@@ -490,7 +538,20 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--repeat", type=int, default=1,
                         help="measure each speed and latency this many times (a row each); "
                              "with --peer octoprint, the pairs of streams per row (medians)")
+    parser.add_argument("--instructions", action="store_true",
+                        help="with --peer octoprint: instructions per line of each host, "
+                             "counted by valgrind (Debian package valgrind)")
+    parser.add_argument("--one", choices=["link", "send-and-wait"],
+                        help="with --peer octoprint: one stream of that host (for --instructions)")
     args = parser.parse_args(argv)
+    if args.peer == "octoprint" and args.one:
+        print(one_peer_stream(args.one, args.peer_lines, args.resend_ratios[0]))
+        return 0
+    if args.peer == "octoprint" and args.instructions:
+        print(f"instructions per line, {args.peer_lines // 5} and {args.peer_lines} lines to "
+              f"OctoPrint's virtual printer ({OCTOPRINT}), counted by valgrind")
+        print("\n".join(instructions_table(args.peer_lines, args.resend_ratios)))
+        return 0
     if args.peer == "octoprint":
         print(f"{args.peer_lines} short G1 moves to OctoPrint's virtual printer ({OCTOPRINT}) "
               "on a pseudo-terminal, link defaults (5 s probe interval), "
