@@ -100,9 +100,20 @@ def _whole_blocks(n: int) -> Iterator[tuple[int, int]]:
         yield a, min(n, a + _CHUNK)
 
 
+class Aside:
+    """Lines the layers do not need (the file's header extras), made by ``make`` in a
+    forked worker once every layer's task is handed out: the first worker left
+    without a layer takes it, while the other still slices. ``lines`` holds them
+    once made there (None when no worker was forked: make them here then)."""
+
+    def __init__(self, make: Callable[[], list[str]]) -> None:
+        self.make = make
+        self.lines: list[str] | None = None
+
+
 def iter_layer_texts(
     plan: SlicePlan, workers: int | None = None, labels: ObjectLabels | None = None,
-    meanwhile: Callable[[], None] | None = None,
+    aside: Aside | None = None,
 ) -> Iterator[tuple[str, float, float]]:
     """Every layer as (G-code text, filament mm, time s), in order, labelled by
     ``labels`` when given (in the workers, so the labelling is spread over cores too).
@@ -120,10 +131,11 @@ def iter_layer_texts(
     every layer goes to the workers at once), the first layers are sliced here
     and timed, and workers are forked only when the rest would take long enough
     to gain (:data:`_FORK_WORTH`).
-    The bytes are the same either way. ``meanwhile``, when given, is called once
-    here while forked workers slice (their first tasks handed out), so work of
-    this process that the layers do not need (the file's header) overlaps
-    theirs; it is not called when no workers are forked.
+    The bytes are the same either way. ``aside``, when given and workers are
+    forked, is made by a worker after the layers' tasks (:class:`Aside`): made in
+    this process while the workers sliced, it took the CPU time of both cores'
+    layers (3 processes on 2 cores), where at the end one worker waits for the
+    other's last task.
     """
     workers = workers or max(1, os.cpu_count() or 1)
     n = plan.layer_count
@@ -145,7 +157,7 @@ def iter_layer_texts(
             finally:
                 away.close()
         plan.cut_all()
-        yield from _forked(plan, make, 0, n, workers, meanwhile)
+        yield from _forked(plan, make, 0, n, workers, aside)
         return
     probe = min(_PROBE, n) if fork else 0
     tasks = list(_chunks(0, n))
@@ -176,26 +188,38 @@ def iter_layer_texts(
         plan.cut_all()
     finally:
         here.close()
-    yield from _forked(plan, make, here.taken, n, workers, meanwhile)
+    yield from _forked(plan, make, here.taken, n, workers, aside)
 
 
 def _forked(
     plan: SlicePlan, make: Callable[[int, int], list[tuple[str, float, float]]],
-    done: int, n: int, workers: int, meanwhile: Callable[[], None] | None,
+    done: int, n: int, workers: int, aside: Aside | None,
 ) -> Iterator[tuple[str, float, float]]:
     """Layers ``done..n-1`` made by ``workers`` forked processes, a task at a time,
-    in order; ``meanwhile`` is called here once their first tasks are handed out."""
+    in order; ``aside``, when given, is a task of its own (numbered ``n``), handed
+    out after the layers' first window of tasks, and its lines are read back
+    after the last layer."""
     from slicer.forkslice import ForkedLayers
 
     tasks = list(_chunks(done, n)) if done else list(_whole_blocks(n))
-    with ForkedLayers(make, tasks, workers) as engine:
+
+    def task(lo: int, hi: int) -> list[tuple[str, float, float]]:
+        if lo == n and aside is not None:  # one text: the lines, each ended by a newline
+            return [("".join(line + "\n" for line in aside.make()), 0.0, 0.0)]
+        return make(lo, hi)
+
+    if aside is not None:
+        tasks.append((n, n + 1))
+    with ForkedLayers(task, tasks, workers) as engine:
         window: LayerWindow[tuple[str, float, float]] = LayerWindow(
             engine.submit, n, depth=_AHEAD * workers * _CHUNK, first=done
         )
         try:
-            if meanwhile is not None:
-                meanwhile()
+            made_aside = engine.submit(n) if aside is not None else None
             yield from window
+            if made_aside is not None and aside is not None:
+                text = made_aside.result()[0]
+                aside.lines = text.split("\n")[:-1]  # the same lines, written the same
         finally:
             window.close()
 
@@ -223,14 +247,11 @@ def write_gcode(
     labels = object_labels(plan, plan.settings)
     lengths: list[int] = []
     times: list[float] = []
-    extras: list[str] | None = None
-
-    def make_extras() -> None:  # thumbnails and objects' definitions: the outlines only
-        nonlocal extras
-        extras = header_extras(plan, plan.settings, labels)
+    # thumbnails and objects' definitions: the outlines only
+    extras = Aside(lambda: header_extras(plan, plan.settings, labels))
 
     with tempfile.TemporaryFile("w+", encoding="ascii", newline="\n") as body:
-        layers = iter_layer_texts(plan, workers, labels, meanwhile=make_extras)
+        layers = iter_layer_texts(plan, workers, labels, aside=extras)
         for i, (text, layer_filament, layer_time) in enumerate(layers):
             body.write(text)
             lengths.append(len(text))
@@ -242,10 +263,10 @@ def write_gcode(
         body.write("\n".join(plan.end_gcode()) + "\n")
         summary = GcodeSummary(n, filament, filament_grams(filament, plan.settings), seconds)
         body.seek(0)
-        if extras is None:  # no workers were forked
-            extras = header_extras(plan, plan.settings, labels)
+        if extras.lines is None:  # no workers were forked
+            extras.lines = extras.make()
         head = "\n".join(header_lines(summary, plan.settings)) + "\n"
-        head += "".join(line + "\n" for line in extras)
+        head += "".join(line + "\n" for line in extras.lines)
         head += "\n".join(plan.start_gcode()) + "\n"
         if in_place:
             with open(out, "w", encoding="ascii", newline="\n") as fh:

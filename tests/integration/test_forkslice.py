@@ -113,7 +113,8 @@ def test_workers_forked_at_once_take_whole_skin_blocks(
 ) -> None:
     """Forked before any layer is made, the workers take one task per skin cache block
     (fewer task edges, each solved in two processes); forked after the layers timed
-    here, the rest of the first block comes as one task, then whole blocks."""
+    here, the rest of the first block comes as one task, then whole blocks; the
+    header's extras are made by a worker too, in a task after the layers'."""
     path = box_stl(tmp_path / "box.stl", (12.0, 8.0, 7.0))  # 35 layers: 3 blocks
     monkeypatch.setattr(gcodefile, "_FORK_WORTH", 0.0)
     monkeypatch.setattr(gcodefile, "_AT_ONCE_WORTH", at_once)
@@ -132,7 +133,8 @@ def test_workers_forked_at_once_take_whole_skin_blocks(
     assert n > 32
     first = 0 if at_once == 0.0 else gcodefile._PROBE
     expected = [(a, min(n, a + 16)) for a in range(16, n, 16)]
-    assert tasks == [(first, 16), *expected]
+    # then the header's thumbnails and object definitions, a task of their own
+    assert tasks == [(first, 16), *expected, (n, n + 1)]
     write_gcode(SlicePlan.from_file(path, SliceSettings()), tmp_path / "one.gcode", workers=1)
     assert (tmp_path / "one.gcode").read_bytes() == (tmp_path / "two.gcode").read_bytes()
 
