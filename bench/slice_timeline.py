@@ -74,6 +74,7 @@ def hooks():
     wrap(sp.SlicePlan, "cut_away", "", "outline cut begun in a child")
     wrap(sp.SlicePlan, "cut_all", "", "outlines cut")
     wrap(fs.ForkedLayers, "__init__", "", "workers forked")
+    wrap(fs.ForkedLayers, "close", "last layer back, workers let go", "workers reaped")
     wrap(gf, "header_extras", "header extras begun", "header extras made")
     wrap(gf, "copy_layers", "layers all back", "file written")
     layers = gf.iter_layer_texts
