@@ -23,6 +23,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
+import signal
 import sys
 import time
 from dataclasses import asdict, dataclass
@@ -69,15 +71,19 @@ class JobRow:
     seconds: float
     rss_mb: float
     kb_per_layer: float | None = None  # RSS growth from layer A to layer B, per layer
+    anon_mb: float | None = None  # of the RSS: anonymous memory (heaps, Python's arenas)
+    file_mb: float | None = None  # of the RSS: pages of files (the libraries' code)
+    heap: dict[str, object] | None = None  # --heap-probe: the C heap's arenas, after a trim
 
 
-def rss_mb(pid: int) -> float:
-    """Resident set size of process ``pid``, in MB (VmRSS)."""
+def rss_mb(pid: int, field: str = "VmRSS") -> float:
+    """Resident set size of process ``pid``, in MB (``VmRSS``; ``RssAnon``: its anonymous
+    memory, ``RssFile``: its pages of files, from ``/proc/PID/status``)."""
     with open(f"/proc/{pid}/status", encoding="ascii") as handle:
         for line in handle:
-            if line.startswith("VmRSS:"):
+            if line.startswith(f"{field}:"):
                 return int(line.split()[1]) / 1024.0
-    raise RuntimeError(f"no VmRSS for process {pid}")
+    raise RuntimeError(f"no {field} for process {pid}")
 
 
 def action_of(index: int, cancel_every: int, retune_at: int) -> str:
@@ -152,16 +158,46 @@ async def run_job(daemon: Daemon, model: Path, action: str, timeout: float,
     return ("cancelled" if "cancel" in text else "failed"), growth
 
 
+HEAP_PROBE = Path(__file__).resolve().parent / "heapprobe"
+
+
+def heap_probe(pid: int, out: Path, timeout: float = 10.0) -> dict[str, object]:
+    """Ask the daemon's heap probe (``bench/heapprobe``) for a reading: its next line
+    of ``out``."""
+    before = out.read_text().count("\n") if out.exists() else 0
+    os.kill(pid, signal.SIGUSR2)
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        lines = out.read_text().splitlines() if out.exists() else []
+        if len(lines) > before:
+            reading: dict[str, object] = json.loads(lines[before])
+            return reading
+        time.sleep(0.1)
+    raise RuntimeError("the heap probe did not answer (is bench/heapprobe on PYTHONPATH?)")
+
+
+def with_heap_probe(out: Path) -> None:
+    """Daemons started from now on load the heap probe and write its readings to ``out``."""
+    os.environ["HOSTD_HEAPPROBE"] = str(out)
+    path = os.environ.get("PYTHONPATH")
+    os.environ["PYTHONPATH"] = str(HEAP_PROBE) + (os.pathsep + path if path else "")
+
+
 async def soak(args: argparse.Namespace) -> list[JobRow]:
     models = [args.models_dir / f"{name}.stl" for name in args.models.split(",")]
     missing = [m for m in models if not m.exists()]
     if missing:
         raise SystemExit(f"missing models: {', '.join(map(str, missing))}")
     rows: list[JobRow] = []
+    if args.heap_probe:
+        args.heap_probe.unlink(missing_ok=True)
+        with_heap_probe(args.heap_probe)
     with Daemon(SoakSetup(baud=args.baud)) as daemon:  # type: ignore[arg-type]
         daemon.wait_ready()
         daemon.wait_warm()
-        print(f"idle: {rss_mb(daemon.pid):.1f} MB", flush=True)
+        print(f"idle: {rss_mb(daemon.pid):.1f} MB (anonymous "
+              f"{rss_mb(daemon.pid, 'RssAnon'):.1f}, files {rss_mb(daemon.pid, 'RssFile'):.1f})",
+              flush=True)
         for index in range(args.jobs):
             model = models[index % len(models)]
             action = action_of(index, args.cancel_every, args.retune_at)
@@ -170,13 +206,19 @@ async def soak(args: argparse.Namespace) -> list[JobRow]:
             seconds = time.monotonic() - started
             await asyncio.sleep(args.settle)  # the job's last threads and files let go
             row = JobRow(index, model.stem, action, outcome, round(seconds, 1),
-                         round(rss_mb(daemon.pid), 1), growth)
+                         round(rss_mb(daemon.pid), 1), growth,
+                         round(rss_mb(daemon.pid, "RssAnon"), 1),
+                         round(rss_mb(daemon.pid, "RssFile"), 1),
+                         heap_probe(daemon.pid, args.heap_probe) if args.heap_probe else None)
             rows.append(row)
             first = rows[0].rss_mb
             during = "" if growth is None else (
                 f", layers {args.layers[0]}-{args.layers[1]}: {growth:+.1f} kB/layer")
             print(f"{index:3d} {model.stem:18s} {action:6s} {outcome:9s} {seconds:7.1f} s "
-                  f"RSS {row.rss_mb:6.1f} MB ({row.rss_mb - first:+.1f}){during}", flush=True)
+                  f"RSS {row.rss_mb:6.1f} MB ({row.rss_mb - first:+.1f}; anonymous {row.anon_mb}, "
+                  f"files {row.file_mb}){during}", flush=True)
+            if row.heap is not None:
+                print(f"    heap after a trim: {json.dumps(row.heap['arenas'])}", flush=True)
     return rows
 
 
@@ -189,6 +231,8 @@ def summary(rows: list[JobRow], budget_mb: float, cycle: int) -> dict[str, objec
     seen = rows[min(cycle, len(rows)) - 1].rss_mb
     after_cycle = [r.rss_mb - seen for r in rows[cycle:]] or [0.0]
     per_layer = [r.kb_per_layer for r in rows if r.kb_per_layer is not None]
+    anon = [r.anon_mb for r in rows if r.anon_mb is not None]
+    files = [r.file_mb for r in rows if r.file_mb is not None]
     return {
         "jobs": len(rows),
         "after_first_mb": first,
@@ -199,6 +243,9 @@ def summary(rows: list[JobRow], budget_mb: float, cycle: int) -> dict[str, objec
         "max_above_that_mb": round(max(after_cycle), 1),
         "budget_mb": budget_mb,
         "within_budget": max(abs(v) for v in later) <= budget_mb,
+        # the same split: anonymous memory (heaps) and pages of files (code first run)
+        "anon_max_above_first_mb": round(max(anon) - anon[0], 1) if anon else None,
+        "files_max_above_first_mb": round(max(files) - files[0], 1) if files else None,
         "kb_per_layer_during_print": {
             "jobs": len(per_layer),
             "median": round(sorted(per_layer)[len(per_layer) // 2], 1) if per_layer else None,
@@ -241,6 +288,10 @@ def main() -> int:
                         help="A,B: the layers between which a print's RSS growth is read "
                              "(10,200)")
     parser.add_argument("--json", type=Path, help="write the rows and the summary here")
+    parser.add_argument("--heap-probe", type=Path, metavar="FILE",
+                        help="load bench/heapprobe into the daemon and, after each job, read "
+                             "its C heap's arenas (in use, free) after a trim into FILE; "
+                             "HOSTD_HEAPPROBE_TRACE=N adds Python's traced memory")
     args = parser.parse_args()
     if args.jobs < 1:
         parser.error("--jobs must be 1 or more")
