@@ -10,7 +10,7 @@ from support.linkrun import run_core
 
 from drivers.link.config import StreamerConfig
 from drivers.link.core import LinkCore
-from drivers.link.events import Failed, LinkState, Report
+from drivers.link.events import Booted, Failed, LinkState, Report
 from drivers.sim.config import SimulatorConfig
 from drivers.sim.virtual import VirtualPrinter
 
@@ -147,3 +147,19 @@ def test_a_long_heating_wait_with_temperature_lines_is_not_declared_dead():
         core.feed("ok", t)  # the M109 done, then the move
         core.feed("ok", t)
         assert core.acked == 2
+
+
+def test_every_boot_banner_is_an_event_of_the_core():
+    # the daemon's boot watch is the link's (Streamer.on_boot): the banner at connect and a
+    # reboot mid-stream each give one Booted, and nothing else does
+    core = LinkCore(StreamerConfig(temperature_interval_s=0))
+    core.begin_connect(0.0, identify=False)
+    assert [e for e in core.feed("start", 0.0) if isinstance(e, Booted)] == [Booted()]
+    assert core.next_bytes(0.0) == b"\n"
+    core.next_bytes(0.0)  # the handshake's M110
+    assert not any(isinstance(e, Booted) for e in core.feed("ok", 0.001))
+    core.queue_job("G1 X1", 1)
+    assert core.next_bytes(0.002) is not None
+    assert not any(isinstance(e, Booted) for e in core.feed("echo:start of a message", 0.003))
+    assert [e for e in core.feed("start", 0.004) if isinstance(e, Booted)] == [Booted()]
+    assert core.stats.resets == 1  # (and the core recovers from it as before)
