@@ -17,7 +17,7 @@ from drivers.link.responses import Response
 from drivers.link.streamer import HALTED, LinkError, Streamer
 from hostd.api import PrinterInfo, Snapshot, Temperature, Temps
 from hostd.app.addons import Addons
-from hostd.app.memory import release_after_job
+from hostd.app.memory import release_after_job, release_once_ended
 from hostd.config import Config
 from hostd.jobs.intake import Intake
 from hostd.jobs.jobfolder import LOAD_SUFFIX, split_name
@@ -75,6 +75,7 @@ class Daemon:
         )
         self._wake = asyncio.Event()
         self._stop = asyncio.Event()
+        self._late_release: asyncio.Task[bool] | None = None  # see release_once_ended
 
     async def run(self) -> None:
         """Serve until SIGINT or SIGTERM; the job printing is left at its last checkpoint."""
@@ -246,9 +247,14 @@ class Daemon:
                 with contextlib.suppress(Exception):
                     self.intake.fail(self.store.get(job.id), f"internal error: {exc!r}")
             finally:
+                eta = active.runner.eta if active.runner is not None else None
                 active.release()  # whoever still holds it, nothing of the print stays
                 self.current = active = None
                 release_after_job()  # see hostd.app.memory: RSS stays flat job after job
+                if eta is not None and eta.measuring:  # a cancel: it measures on
+                    self._late_release = asyncio.create_task(
+                        release_once_ended(eta.wait_measured, lambda: self.current is None))
+                eta = None
                 self.life.idle()
                 self.queue_changed()
 

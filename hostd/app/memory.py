@@ -11,6 +11,7 @@ working set and, with fragmentation, beyond.
 
 from __future__ import annotations
 
+import asyncio
 import ctypes
 import ctypes.util
 import functools
@@ -56,3 +57,18 @@ def release_after_job() -> float:
     seconds = time.perf_counter() - started
     log.debug("memory of the job released in %.3f s", seconds)
     return seconds
+
+
+async def release_once_ended(
+    wait: Callable[[float | None], bool], idle: Callable[[], bool], wait_s: float = 300.0
+) -> bool:
+    """Release again once a finished job's last thread ended: ``wait(wait_s)`` blocks
+    until it has (the ETA's measuring of the whole model goes on after a job cancelled
+    early, and what it allocates is freed after :func:`release_after_job` ran). Only
+    if the daemon is still ``idle()`` then; True if it released."""
+    await asyncio.to_thread(wait, wait_s)
+    del wait  # what the thread measured (its plan) must not be held by this call
+    if not idle():
+        return False
+    release_after_job()
+    return True

@@ -74,6 +74,12 @@ class EtaModel:
         """The job is over: the background sampling stops after its current layer."""
         self._stop.set()
 
+    @property
+    def measuring(self) -> bool:
+        """Whether the background measuring thread is still running."""
+        thread = self._thread
+        return thread is not None and thread.is_alive()
+
     def wait_measured(self, timeout: float | None = None) -> bool:
         """Wait until the geometry and the samples are ready (or failed); False on timeout."""
         thread = self._thread
