@@ -47,6 +47,15 @@ def give_back() -> bool:
     return True
 
 
+def _wait_from(box: list[Callable[[float | None], bool]], wait_s: float) -> None:
+    """Run the one wait in ``box``, taking it out first so nothing keeps it after."""
+    wait = box.pop()
+    try:
+        wait(wait_s)
+    finally:
+        del wait
+
+
 def release_after_job() -> float:
     """Everything a finished job left behind in the process, released; returns the
     seconds it took (some ms: called between jobs, never while one prints)."""
@@ -66,8 +75,12 @@ async def release_once_ended(
     until it has (the ETA's measuring of the whole model goes on after a job cancelled
     early, and what it allocates is freed after :func:`release_after_job` ran). Only
     if the daemon is still ``idle()`` then; True if it released."""
-    await asyncio.to_thread(wait, wait_s)
-    del wait  # what the thread measured (its plan) must not be held by this call
+    # The executor's work item outlives the call by a moment (the result wakes this
+    # coroutine before the worker thread drops the item), so it must not hold the
+    # bound ``wait`` (and through it the measured plan): it gets an emptied box.
+    box = [wait]
+    del wait
+    await asyncio.to_thread(_wait_from, box, wait_s)
     if not idle():
         return False
     release_after_job()
