@@ -7,12 +7,14 @@ import tomllib
 from collections.abc import Mapping
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from drivers.link.config import StreamerConfig
 from slicer.fea.material import material_keys, material_settings
 from slicer.options import Flag, Number, SettingError, Table, Text, Texts, Whole
 from slicer.settings import SliceSettings
+
+if TYPE_CHECKING:
+    from drivers.link.config import StreamerConfig
 
 # the one settings error (``slicer.options``), by the name the configuration has always used
 ConfigError = SettingError
@@ -43,9 +45,20 @@ class PrinterConfig:
     port: str = "sim"
     baud: int = 250000
     bed: tuple[float, float, float] = (220.0, 220.0, 250.0)
-    link: StreamerConfig = field(default_factory=StreamerConfig)
+    # ``[printer.link]`` as given, checked; None when not given (the link's defaults,
+    # made on first use: a command that never opens the link does not load its module)
+    link_given: StreamerConfig | None = None
     material: str = "PLA"  # loaded filament, matched against farm jobs' needs
     nozzle_mm: float = 0.4
+
+    @property
+    def link(self) -> StreamerConfig:
+        """The printer link's settings (``[printer.link]``, or the link's defaults)."""
+        if self.link_given is not None:
+            return self.link_given
+        from drivers.link.config import StreamerConfig
+
+        return StreamerConfig()
 
 
 @dataclass(frozen=True)
@@ -183,7 +196,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             port=printer.get("port", Text(empty=False), "sim"),
             baud=printer.get("baud", Whole(300, 10_000_000), 250000),
             bed=_bed(printer, "bed", (220.0, 220.0, 250.0)),
-            link=_link(printer, "link"),
+            link_given=_link(printer, "link"),
             material=printer.get("material", Text(empty=False), "PLA").strip(),
             nozzle_mm=printer.get("nozzle_mm", Number(0.05, 5.0), 0.4),
         ),
@@ -308,11 +321,16 @@ def _ident(section: Table, key: str, default: str) -> str:
     return value
 
 
-def _link(section: Table, key: str) -> StreamerConfig:
-    """The printer link's table (``[printer.link]``), checked by the link's settings."""
-    value = section.raw(key, {})
+def _link(section: Table, key: str) -> StreamerConfig | None:
+    """The printer link's table (``[printer.link]``), checked by the link's settings;
+    None when it is not given."""
+    value = section.raw(key, None)
+    if value is None:
+        return None
     if not isinstance(value, Mapping):
         raise section.fail(key, "expected a [table]")
+    from drivers.link.config import StreamerConfig
+
     try:
         return StreamerConfig.from_mapping(value)
     except SettingError as exc:
