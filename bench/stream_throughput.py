@@ -138,14 +138,23 @@ class SimProcess:
             self.proc.wait()
 
 
+LAYER_LINES = 200  # lines handed to the link in one call, as the daemon hands a layer
+
+
+async def send_in_layers(link: Streamer, lines: list[str]) -> None:
+    """Hand ``lines`` to the link as the daemon's runner does: a layer's lines in one
+    :meth:`~drivers.link.streamer.Streamer.send_many` (here blocks of LAYER_LINES)."""
+    for start in range(0, len(lines), LAYER_LINES):
+        await link.send_many((line, None) for line in lines[start:start + LAYER_LINES])
+
+
 async def windowed(path: str, baud: int, lines: list[str]) -> Run:
     """The project's streamer: send-ahead window over the receive buffer."""
     config = StreamerConfig(temperature_interval_s=0)
     async with Streamer(await open_transport(path, baud), config) as link:
         await link.connect()
         cpu0, t0 = time.process_time(), time.perf_counter()
-        for line in lines:
-            await link.send(line)
+        await send_in_layers(link, lines)
         await link.drain()
         wall, cpu = time.perf_counter() - t0, time.process_time() - cpu0
         first = link.stats.lines_sent - len(lines)
@@ -349,8 +358,7 @@ async def windowed_peer(path: str, lines: list[str]) -> tuple[Run, float]:
         await link.connect()
         first = len(stamps)
         cpu0, t0 = time.thread_time(), time.perf_counter()
-        for line in lines:
-            await link.send(line)
+        await send_in_layers(link, lines)
         await link.drain()
         wall, cpu = time.perf_counter() - t0, time.thread_time() - cpu0
     gaps = [b - a for a, b in zip(stamps[first:], stamps[first + 1:], strict=False)]

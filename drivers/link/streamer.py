@@ -268,18 +268,62 @@ class Streamer:
         if not command:
             raise ValueError("empty command")
         core = self.core
-        if core.cancelled:
-            raise StreamCancelled("stream cancelled")
-        if not core.alive():
-            raise LinkError(core.error or "link failed")
-        if core.stopping:
-            raise LinkError("emergency stop")
+        self._check_sendable()
         token, future = self._waiters.new()
         if tag is not None:
             self._tags.queued(token, tag)
         core.queue_job(command, token)
         # written at once when the window has room (the future is then done and awaiting
         # it does not suspend); otherwise the line waits in the core for an ok to free room
+        # (inline, not through _written(): a coroutine call a line less)
+        transport = self._transport
+        if not self._writing and isinstance(transport, Transport):
+            self._pump(transport, asyncio.get_running_loop().time())
+        else:
+            await self._write_ready()
+        return await future
+
+    async def send_many(self, commands: Iterable[tuple[str, Hashable | None]]) -> int | None:
+        """Queue job commands, each with its tag (None: untagged), in one call; returns the
+        last one's line number once it has been written (None when there were none).
+
+        As :meth:`send` called for each in turn, but the caller waits once for all of
+        them, not once per line (a layer's lines: no task switch and no future a line).
+        The lines wait in the core until the window has room for them; ``cancel()``
+        drops those not written and this raises :class:`StreamCancelled`.
+        """
+        core = self.core
+        self._check_sendable()
+        checked = []
+        for command, tag in commands:
+            command = command.strip()
+            if not command:
+                raise ValueError("empty command")
+            checked.append((command, tag))
+        if not checked:
+            return None
+        new_token, queued, queue_job = self._waiters.token, self._tags.queued, core.queue_job
+        token = 0
+        for command, tag in checked:
+            token = new_token()
+            if tag is not None:
+                queued(token, tag)
+            queue_job(command, token)
+        return await self._written(self._waiters.wait_for(token))
+
+    def _check_sendable(self) -> None:
+        """Raise what a job line sent now would meet: a cancelled stream, a failed link,
+        an emergency stop."""
+        core = self.core
+        if core.cancelled:
+            raise StreamCancelled("stream cancelled")
+        if not core.alive():
+            raise LinkError(core.error or "link failed")
+        if core.stopping:
+            raise LinkError("emergency stop")
+
+    async def _written(self, future: asyncio.Future[int]) -> int:
+        """Write what the core lets go now, then wait for ``future`` (a line written)."""
         transport = self._transport
         if not self._writing and isinstance(transport, Transport):
             self._pump(transport, asyncio.get_running_loop().time())

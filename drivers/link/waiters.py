@@ -19,6 +19,17 @@ class Waiters:
         self._futures[self._last] = future
         return self._last, future
 
+    def token(self) -> int:
+        """A fresh token with no future yet (a line of a batch nobody awaits alone)."""
+        self._last += 1
+        return self._last
+
+    def wait_for(self, token: int) -> asyncio.Future[int]:
+        """The future of ``token`` (from :meth:`token`), resolved as :meth:`new`'s are."""
+        future: asyncio.Future[int] = asyncio.get_running_loop().create_future()
+        self._futures[token] = future
+        return future
+
     def settle(self, token: int, *, result: int = 0, error: Exception | None = None) -> None:
         """Resolve ``token``'s future with ``result`` (a line number) or ``error``."""
         future = self._futures.pop(token, None)

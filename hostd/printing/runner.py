@@ -40,6 +40,8 @@ class Link(Protocol):
 
     async def send(self, command: str, tag: Hashable | None = None) -> int: ...
 
+    async def send_many(self, commands: Iterable[tuple[str, Hashable | None]]) -> int | None: ...
+
     async def drain(self) -> None: ...
 
     def acknowledgements(self) -> AbstractContextManager[AckChannel]: ...
@@ -286,7 +288,9 @@ class JobRunner:
             # file at this layer's event (the job tracker) find the whole layer there
             self._save(self.output.flush)
         done: list[str] = []
+        batch: list[tuple[str, Hashable | None]] = []
         index = 0
+        seq = self._seq
         for line in lines:
             command = strip_comment(line)
             if not command:
@@ -294,15 +298,19 @@ class JobRunner:
             if len(done) < skip:
                 done.append(command)  # carried out before the interruption
                 if len(done) == skip:
-                    for move in reentry_moves(done):  # not lines of the job: untagged
-                        await self.link.send(move)
+                    # not lines of the job: untagged, ahead of the layer's rest
+                    batch.extend((move, None) for move in reentry_moves(done))
                 index += 1
                 continue
-            if self._cancelled:
-                raise StreamCancelled("job cancelled")
-            await self.link.send(command, JobLine(self._seq, layer, index))
-            self._seq += 1
+            batch.append((command, JobLine(seq, layer, index)))
+            seq += 1
             index += 1
+        if self._cancelled:
+            raise StreamCancelled("job cancelled")
+        # the layer's lines handed over in one call (the link writes them as the window
+        # has room): the loop waits once a layer, not once a line
+        await self.link.send_many(batch)
+        self._seq = seq
         offset = self._save(self.output.tell)
         self._marks.append(_Mark(self._seq - 1, layer, offset if offset is not None else -1))
         self._check_marks()

@@ -84,17 +84,16 @@ async def print_job(
     executor = concurrent.futures.ThreadPoolExecutor(2)
     try:
         config = StreamerConfig(renumber_at=renumber_at)
-        async with Streamer(await open_transport(path, 250000), config) as link:
-            await link.connect()
-            source = SlicedSource(schedule, 0, depth, executor, resume=False)
-            output = open_output(output_path or tmp_path / "out.gcode.part", 0)
-            runner = JobRunner(job, source, link, JobLife(store, hub), output, 0,
-                               write_preamble=True)
-            schedule.hub = hub
-            runner.waiting = lambda: "analysis" if waited_for(FIELD_FILE) else None
-            original_send = link.send
+        transport = await open_transport(path, 250000)
+        write_now = transport.write_now
+        source: SlicedSource | None = None
 
-            async def send(command: str, tag: object = None) -> int:
+        def observed(data: bytes) -> None:
+            """Each line as it goes on the wire: what was sliced, what was under way."""
+            for framed in data.decode("ascii").splitlines():
+                command = framed.split(" ", 1)[-1].rsplit("*", 1)[0]
+                if source is None or command.split()[0] in HOUSEKEEPING:
+                    continue
                 if seen["sliced_at_first_send"] is None and not command.startswith(("M1", "G28")):
                     seen["sliced_at_first_send"] = len(schedule.sliced)
                 if seen["sliced_at_first_extrusion"] is None and _extrudes(command):
@@ -102,9 +101,17 @@ async def print_job(
                         seen["sliced_at_first_extrusion"] = sorted(schedule.sliced)
                 seen["ahead"].append(source.ready_ahead)
                 seen["sends_in_commits"] += bool(store.commits.under_way)
-                return await original_send(command, tag)
+            write_now(data)
 
-            link.send = send  # type: ignore[method-assign]
+        transport.write_now = observed  # type: ignore[method-assign]
+        async with Streamer(transport, config) as link:
+            await link.connect()
+            source = SlicedSource(schedule, 0, depth, executor, resume=False)
+            output = open_output(output_path or tmp_path / "out.gcode.part", 0)
+            runner = JobRunner(job, source, link, JobLife(store, hub), output, 0,
+                               write_preamble=True)
+            schedule.hub = hub
+            runner.waiting = lambda: "analysis" if waited_for(FIELD_FILE) else None
             original_ack = runner.on_ack
 
             def on_ack(ack) -> None:

@@ -54,6 +54,13 @@ class FakeLink:
         self.job_lines += 1
         return self._carry_out(command, tag)
 
+    async def send_many(self, commands: Iterable[tuple[str, Hashable | None]]) -> int | None:
+        """Carry out each line in turn as :meth:`send` does; the last one's number."""
+        number = None
+        for command, tag in commands:
+            number = await self.send(command, tag)
+        return number
+
     async def drain(self) -> None:
         """Every line written is acknowledged already."""
         await asyncio.sleep(0)
