@@ -595,3 +595,61 @@ def test_port_lost_for_good_gives_an_error_state():
     link = asyncio.run(run(sim))
     assert link.state == "error"
     assert "link lost" in (link.error or "")
+
+
+def test_a_batch_is_acknowledged_line_by_line_with_its_tags_across_resends():
+    lines = job(300)
+    tags: list[object] = []
+
+    async def run(sim: SimulatedPrinter) -> tuple[int | None, int]:
+        async with Streamer(await open_transport(sim.path, 250000), FAST) as link:
+            with link.acknowledgements() as channel:
+
+                async def follow() -> None:
+                    async for ack in channel:
+                        tags.append(ack.tag)
+
+                follower = asyncio.create_task(follow(), name="follower")
+                await link.connect()
+                last = None
+                for start in range(0, len(lines), 120):  # layers of up to 120 lines
+                    block = lines[start:start + 120]
+                    last = await link.send_many(
+                        (line, start + i) for i, line in enumerate(block))
+                assert await link.send_many([]) is None
+                await link.drain()
+            await follower
+        return last, link.stats.resends
+
+    with SimulatedPrinter(sim_config(p_corrupt_rx=0.05, seed=5)) as sim:
+        last, resends = asyncio.run(run(sim))
+        executed = job_lines(list(sim.executed))
+    assert resends > 0  # the noise made the printer ask for lines again
+    assert executed == lines
+    assert tags == list(range(len(lines)))
+    assert last is not None
+    assert last > len(lines)  # the last line's number (the handshake's lines before)
+
+
+def test_cancel_drops_what_a_batch_still_holds_and_the_batch_raises():
+    lines = job(400)
+    end = ("M104 S0", "M140 S0", "M84")
+
+    async def run(sim: SimulatedPrinter) -> None:
+        async with Streamer(await open_transport(sim.path, 250000), SLOW) as link:
+            await link.connect()
+            batch = asyncio.create_task(link.send_many((line, None) for line in lines))
+            await _wait_acked(link, 50)
+            await link.cancel(end)
+            with pytest.raises(StreamCancelled):
+                await batch
+            with pytest.raises(StreamCancelled):
+                await link.send_many([("G1 X0", None)])
+
+    with SimulatedPrinter(_slow_sim()) as sim:
+        asyncio.run(run(sim))
+        body = job_lines(sim.executed)
+    assert body[-3:] == list(end)
+    done = body[:-3]
+    assert done == lines[:len(done)]
+    assert 50 <= len(done) < len(lines)
