@@ -7,7 +7,7 @@ import os
 import shutil
 from typing import TextIO
 
-from hostd.api import bar
+from hostd.textforms import bar
 
 
 def terminal_columns(stream: TextIO) -> int:

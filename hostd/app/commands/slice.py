@@ -190,10 +190,11 @@ def run(args) -> int:
     """Slice ``args.model`` to ``args.output`` and print a summary (and the stage times
     with ``--profile``: one process then, so the stages add up to the whole)."""
     with collector_paused():
-        # the slicer (slicer.plan with numpy, shapely, trimesh), hostd.api and the progress
-        # line, for slicing only
-        import hostd.app.liveline  # noqa: F401  (the progress line's, loaded here)
-        from hostd.api import duration
+        # the slicer (slicer.plan with numpy, shapely, trimesh), the summary's duration
+        # and the progress line (not with --quiet), for slicing only
+        if not args.quiet:
+            import hostd.app.liveline  # noqa: F401  (the progress line's, loaded here)
+        from hostd.textforms import duration
         from slicer.output.gcodefile import write_gcode
     return_freed_memory()
     settings, bed = load_settings(args.config, args.set)
