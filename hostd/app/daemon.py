@@ -17,7 +17,7 @@ from drivers.link.responses import Response
 from drivers.link.streamer import HALTED, LinkError, Streamer
 from hostd.api import PrinterInfo, Snapshot, Temperature, Temps
 from hostd.app.addons import Addons
-from hostd.app.memory import release_after_job, release_once_ended
+from hostd.app.memory import release_after_job, release_again, release_once_ended
 from hostd.config import Config
 from hostd.jobs.intake import Intake
 from hostd.jobs.jobfolder import LOAD_SUFFIX, split_name
@@ -254,6 +254,9 @@ class Daemon:
                 if eta is not None and eta.measuring:  # a cancel: it measures on
                     self._late_release = asyncio.create_task(
                         release_once_ended(eta.wait_measured, lambda: self.current is None))
+                else:
+                    self._late_release = asyncio.create_task(
+                        release_again(lambda: self.current is None))
                 eta = None
                 self.life.idle()
                 self.queue_changed()

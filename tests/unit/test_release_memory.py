@@ -7,7 +7,7 @@ import gc
 import threading
 import weakref
 
-from hostd.app.memory import release_once_ended
+from hostd.app.memory import release_again, release_once_ended
 
 
 class Measuring:
@@ -51,3 +51,39 @@ def test_not_released_when_the_next_job_began():
     thread.let_go.set()
     assert asyncio.run(release_once_ended(thread.wait_measured, lambda: False)) is False
     assert thread.waited
+
+
+class Cycle:
+    """What a job's end leaves: a reference cycle only a collection frees."""
+
+    def __init__(self) -> None:
+        self.me = self
+
+
+def test_released_again_after_the_job_ended_while_idle():
+    async def scenario() -> tuple[bool, bool, weakref.ref[Cycle]]:
+        gc.disable()  # only the release's collection may free the cycle
+        try:
+            ref = weakref.ref(Cycle())  # freed to the collector only
+            task = asyncio.create_task(release_again(lambda: True, delay_s=0.05))
+            await asyncio.sleep(0)
+            before = ref() is not None and not task.done()  # not yet: it waits first
+            return before, await task, ref
+        finally:
+            gc.enable()
+
+    waited, released, ref = asyncio.run(scenario())
+    assert waited
+    assert released
+    assert ref() is None
+
+
+def test_not_released_again_when_the_next_job_began():
+    gc.disable()
+    try:
+        ref = weakref.ref(Cycle())
+        assert asyncio.run(release_again(lambda: False, delay_s=0.01)) is False
+        assert ref() is not None  # no collection ran
+    finally:
+        gc.enable()
+        gc.collect()
