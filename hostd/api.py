@@ -1,7 +1,8 @@
 """The daemon's public API: the status snapshot schema, the control socket's and MQTT's protocol.
 
 This is the one module of `hostd` that clients (the dashboard in `tui/`, scripts)
-import. It depends on the standard library only.
+import. It depends on the standard library only (and on `hostd.textforms`, the
+durations and progress bars it re-exports, which does too).
 
 Control socket protocol: a Unix stream socket, one JSON object per line each way.
 Requests carry ``{"cmd": NAME, ...args}`` and an optional ``"id"``; each gets one
@@ -75,9 +76,9 @@ from hostd.textforms import bar as bar  # the text forms, re-exported for client
 from hostd.textforms import duration as duration
 
 if TYPE_CHECKING:
-    # imported when a control client connects (ControlClient.__aenter__): `hostd slice`
-    # takes only its durations and bar from this module, and asyncio's import (with
-    # ssl, socket, subprocess, inspect, logging) was a tenth of a small part's slice
+    # imported when a control client connects (ControlClient.__aenter__): commands that
+    # only read the schema do not pay for asyncio's import (with ssl, socket,
+    # subprocess, inspect, logging)
     import asyncio
 
 STATES = ("idle", "heating", "printing", "paused", "error", "offline")
