@@ -273,15 +273,7 @@ class Streamer:
         if tag is not None:
             self._tags.queued(token, tag)
         core.queue_job(command, token)
-        # written at once when the window has room (the future is then done and awaiting
-        # it does not suspend); otherwise the line waits in the core for an ok to free room
-        # (inline, not through _written(): a coroutine call a line less)
-        transport = self._transport
-        if not self._writing and isinstance(transport, Transport):
-            self._pump(transport, asyncio.get_running_loop().time())
-        else:
-            await self._write_ready()
-        return await future
+        return await self._written(future)
 
     async def send_many(self, commands: Iterable[tuple[str, Hashable | None]]) -> int | None:
         """Queue job commands, each with its tag (None: untagged), in one call; returns the
@@ -323,7 +315,10 @@ class Streamer:
             raise LinkError("emergency stop")
 
     async def _written(self, future: asyncio.Future[int]) -> int:
-        """Write what the core lets go now, then wait for ``future`` (a line written)."""
+        """Write what the core lets go now, then wait for ``future`` (a line written).
+
+        Written at once when the window has room (the future is then done and awaiting it
+        does not suspend); otherwise the lines wait in the core for an ok to free room."""
         transport = self._transport
         if not self._writing and isinstance(transport, Transport):
             self._pump(transport, asyncio.get_running_loop().time())
