@@ -154,6 +154,7 @@ class StreamStats:
     lines_resent: int = 0
     duplicate_resends: int = 0
     replays_skipped: int = 0
+    stand_ins_counted: int = 0  # oks after a Resend counted for the line it released
     implausible_resends: int = 0
     unconfirmed_resends: int = 0
     errors: int = 0

@@ -345,6 +345,11 @@ class LinkCore:
             return
         self.report(response.text)
 
+    def count_resend_ok(self) -> None:
+        """The ``ok`` after the ``Resend`` being read stands in for the line the refusal
+        named as the last read (:attr:`PrinterModel.stands_in`): count it as that line's."""
+        self._expect_resend_ok = False
+
     def on_lost_resend(self, error: Response) -> None:
         """An ``Error`` then its ``ok``, the ``Resend`` between them lost to noise: act on
         the request the error implies (the line after its ``Last Line``), so that a refused
@@ -397,6 +402,7 @@ class LinkCore:
         """
         self.state = LinkState.CONNECTING
         self.model.learn_keeps_buffer(False)  # a new connection: nothing learned yet
+        self.model.forget_stand_in()
         self.watchdog.opened(now)
         self.handshake.begin(probe_numbering, identify)
 

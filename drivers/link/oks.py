@@ -45,11 +45,17 @@ class AckCounter:
         self.answers_owed: list[int] = []  # probes acknowledged ahead of their answers
         self.resolving = False  # a probe after a refusal is out: no job line until answered
         self.doubt = False  # an answer taken for an owed one may have been a probe's in flight
+        # refusals that released a line, awaiting the probe asked after them: its answer
+        # shows whether the ok after each Resend stood in for the released line's own
+        self.stand_in_checks = 0
         self.waiters: dict[int, int] = {}  # line number -> token of a replayed control line
 
     def on_ok(self, response: Response) -> None:
         """One ``ok`` (plain, advanced, or a probe's ``ok T:``), in the order received."""
         probe_answer = bool(response.temperatures)
+        checks = 0
+        if probe_answer and self.stand_in_checks:
+            checks, self.stand_in_checks = self.stand_in_checks, 0
         if probe_answer and self.resolving and not self.answers_owed:
             newest = self._past_held_probe()
             if newest is not None:
@@ -107,6 +113,8 @@ class AckCounter:
             done = self._ack_by_count(probe_answer)
         if not done:
             return
+        if checks:
+            self._check_stand_in(done, checks)
         self.doubt = False
         last = self.core.writer.next_number - 1
         for entry in done:
@@ -116,6 +124,17 @@ class AckCounter:
             self.window.grow()
         for entry in done:
             self.acknowledged(entry)
+
+    def _check_stand_in(self, done: list[InFlight], released: int) -> None:
+        """A probe's answer after ``released`` refusals that each released a line: the
+        lines it acknowledges before it got no ok of their own. As many as the refusals:
+        each Resend's ok (not counted) stood in for the released line's; none: each of
+        those lines had its own. Anything else (an ok lost, a late one) tells nothing."""
+        unanswered = sum(1 for e in done if not _is_probe_line((e.command, e.internal)))
+        if unanswered == released:
+            self.model.saw_stand_in(True)
+        elif unanswered == 0:
+            self.model.saw_stand_in(False)
 
     def _past_held_probe(self) -> int | None:
         """The first probe in flight that the printer has not been seen to read, when
@@ -301,6 +320,7 @@ class AckCounter:
         self.doubt = False
         self.late_oks = 0
         self.answers_owed = []
+        self.stand_in_checks = 0
         if cut:
             self.oks_lost = True
 

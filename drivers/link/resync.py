@@ -116,9 +116,19 @@ class Resync:
             # gets); a probe right away tells, instead of a full window waiting out the
             # silence for one. Until it is answered no job line goes out: with nothing but
             # the probe after them, its ok T: is the first answer past those lines, and
-            # acknowledges them however many oks the firmware gave them
-            self.core.acks.resolve_by_probe()
-            self._ask_probe()
+            # acknowledges them however many oks the firmware gave them. Once its answers
+            # showed that the ok after the Resend stands in for that line (the model's
+            # ``stands_in``), that ok is counted for it instead, where no replay follows
+            unreplayed = self.core.config.ok_after_resend \
+                and self._ends_without_replay(number, error_line, confirmed)
+            if unreplayed and model.trusts_stand_in():
+                self.core.count_resend_ok()
+                self.stats.stand_ins_counted += 1
+            else:
+                if unreplayed:
+                    self.core.acks.stand_in_checks += 1
+                self.core.acks.resolve_by_probe()
+                self._ask_probe()
         if confirmed and error_line is not None and model.explains(error_line) \
                 and model.refused != number and not self._refuses_oldest(number):
             # the printer took lines at or after the replay's start before their copies
@@ -159,6 +169,30 @@ class Resync:
             return
         self.replay_from(number)
         model.after_release = bool(released)
+
+    def _ends_without_replay(self, number: int, error_line: int | None,
+                             confirmed: bool) -> bool:
+        """True when a refusal that released lines ends below with no replay and no
+        resynchronisation, on a firmware seen to keep the lines behind a refusal: the
+        printer has every line sent, or takes those behind it in turn (the same tests, in
+        the same order, as :meth:`on_resend` makes).
+
+        Only there is the ok after the Resend counted for the released line: a firmware
+        that drains its buffer after an error is Marlin or like it, and Marlin answers a
+        line it read when it has run it, after the refusal that named it. (The seeded
+        loop's next_line dialect, a Marlin that also refuses as the emulation does, lost
+        a line when such an ok was counted twice.)"""
+        model = self.model
+        if not model.keeps_buffer:
+            return False
+        if confirmed and error_line is not None and model.explains(error_line):
+            return False
+        if number == model.refused and model.echoes > 0:
+            return False
+        writer = self.core.writer
+        if number >= writer.next_number:
+            return True
+        return writer.replay_next is None and not any(e.copy for e in self.window)
 
     def replay_from(self, number: int) -> None:
         """The printer refused line ``number`` (and drains or refuses those after it):

@@ -193,14 +193,15 @@ def test_a_probe_answer_after_a_held_probe_acknowledges_no_job_line_before_its_o
     assert [n for n, _ in _writes(core, t)][:3] == [4, 5, 6]
 
 
-def _keeping_emulation(core: LinkCore, refuse: set[int],
-                       rounds: int) -> tuple[list[str], list[int]]:
+def _keeping_emulation(core: LinkCore, refuse: set[int], rounds: int,
+                       own_ok: frozenset[int] = frozenset()) -> tuple[list[str], list[int]]:
     """Stream to a scripted firmware that keeps its receive buffer after a refusal, as
     OctoPrint's virtual printer does: everything the core writes in a round is on the wire
     before the first answer is read. A line numbered in ``refuse`` is taken and the next
     one asked for (its ``ok`` the only one it gets); a line numbered as one already taken
-    is refused as out of order. Returns the commands taken, in order, and the number of
-    every line written."""
+    is refused as out of order; one in ``own_ok`` too, but it gets an ``ok`` of its own
+    after the refusal's, as Marlin answers a line it read. Returns the commands taken, in
+    order, and the number of every line written."""
     last = 0
     taken: list[str] = []
     written_numbers: list[int] = []
@@ -217,6 +218,8 @@ def _keeping_emulation(core: LinkCore, refuse: set[int],
             taken.append(command)
             if number in refuse:
                 answers += [f"Error:{ERR_CHECKSUM}{number}", f"Resend: {number + 1}", "ok"]
+                if number in own_ok:
+                    answers.append("ok")
             else:
                 answers.append(PROBE_ANSWER if command == "M105" else "ok")
         for answer in answers:
@@ -240,6 +243,41 @@ def test_a_firmware_seen_to_keep_the_lines_behind_a_refusal_gets_no_copies_of_th
     first_copy_free = numbers.index(26)  # written before the second refusal was read
     later = numbers[first_copy_free:]
     assert len(later) == len(set(later))  # no line written twice after the lesson
+    assert len(core.window) == 0
+
+
+def test_a_learned_stand_in_ok_spares_the_probe_after_most_refusals():
+    # OctoPrint's virtual printer takes the refused line by number and answers it with
+    # nothing but the ok after its Resend: once two probes showed that, the ok is counted
+    # for the line and no probe is asked, but for one refusal in four, still checked
+    core = connected_core(LINK)
+    _jobs(core, 200)
+    refuse = set(range(5, 200, 10))
+    taken, numbers = _keeping_emulation(core, refuse, rounds=200)
+    assert [c for c in taken if c != "M105"] == [f"G1 X{i}.5 Y{i}" for i in range(200)]
+    assert core.model.stands_in
+    counted = core.stats.stand_ins_counted
+    assert counted >= 10
+    assert taken.count("M105") <= len(refuse) - counted
+    later = numbers[numbers.index(20):]
+    assert len(later) == len(set(later))  # copies only before the buffer was learned
+    assert len(core.window) == 0
+    assert core.acks.last_acked_number == numbers[-1]
+
+
+def test_a_firmware_seen_to_answer_a_released_line_itself_is_never_trusted_again():
+    # a firmware that keeps its buffer, where one refusal's line gets its own ok after
+    # the Resend's: counted for it, that ok would have put the count a line ahead of the
+    # printer. After that, every such refusal is probed, whatever the later ones show
+    core = connected_core(LINK)
+    _jobs(core, 120)
+    refuse = set(range(5, 120, 10))
+    taken, _numbers = _keeping_emulation(core, refuse, rounds=200, own_ok=frozenset({25}))
+    assert [c for c in taken if c != "M105"] == [f"G1 X{i}.5 Y{i}" for i in range(120)]
+    assert not core.model.stands_in
+    assert core.model.stand_ins_seen == -1
+    assert core.stats.stand_ins_counted == 0
+    assert taken.count("M105") >= len(refuse) - 1
     assert len(core.window) == 0
 
 
