@@ -5,7 +5,8 @@ Python process started so; in ``hostd run`` only, it answers ``SIGUSR2`` by
 collecting garbage, trimming the C heap (``malloc_trim``), and appending one JSON
 line to ``FILE``: the RSS split into anonymous memory and pages of files, and for
 each glibc arena (``malloc_info``) the bytes it has from the system and those of
-its free chunks (the rest is in use). Python's own allocations, if
+its free chunks (the rest is in use), and Python's small-object arenas (those in
+blocks in use, free blocks, free pools). Python's own allocations, if
 ``HOSTD_HEAPPROBE_TRACE=N`` started ``tracemalloc`` with N frames, are summed too.
 Read only between jobs: the handler runs on the daemon's main thread.
 """
@@ -56,6 +57,40 @@ def _arenas(libc: ctypes.CDLL) -> list[dict[str, float]]:
     return arenas
 
 
+def _pymalloc() -> dict[str, float]:
+    """Python's small-object allocator (``sys._debugmallocstats``, written by C to
+    stderr, read back through a file): its arenas' MB, and of those the MB in blocks
+    in use and in free blocks of its pools."""
+    import tempfile
+
+    with tempfile.TemporaryFile() as capture:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        try:
+            os.dup2(capture.fileno(), 2)
+            sys._debugmallocstats()
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        capture.seek(0)
+        text = capture.read().decode("ascii", "replace")
+    figures: dict[str, float] = {}
+    keys = {"# bytes in allocated blocks": "in_blocks_mb",
+            "# bytes in available blocks": "free_blocks_mb"}
+    for line in text.splitlines():
+        name, _, value = line.partition("=")
+        name = name.strip()
+        if name in keys:
+            figures[keys[name]] = round(int(value.replace(",", "").strip()) / 2**20, 2)
+        elif name.startswith("# arenas allocated current"):
+            figures["arenas"] = int(value.replace(",", "").strip())
+        elif name.endswith("bytes/arena"):
+            figures["arenas_mb"] = round(int(value.replace(",", "").strip()) / 2**20, 2)
+        elif name.endswith("unused pools * 16384 bytes"):
+            figures["free_pools_mb"] = round(int(value.replace(",", "").strip()) / 2**20, 2)
+    return figures
+
+
 def _probe(_signum: int, _frame: object) -> None:
     assert _OUT is not None
     gc.collect()
@@ -67,6 +102,7 @@ def _probe(_signum: int, _frame: object) -> None:
         "file_mb": round(_status_mb("RssFile"), 1),
         "arenas": _arenas(libc),
         "modules": len(sys.modules),
+        "pymalloc": _pymalloc(),
     }
     if "tracemalloc" in sys.modules and sys.modules["tracemalloc"].is_tracing():
         row["python_traced_mb"] = round(sys.modules["tracemalloc"].get_traced_memory()[0]
