@@ -52,7 +52,6 @@ class PrinterModel:
     keeps_buffer: bool = False
     after_release: bool = False
     skipped: int | None = None
-    stands_in: bool = False
     stand_ins_seen: int = 0
     unchecked: int = 0
 
@@ -115,14 +114,14 @@ class PrinterModel:
             # a firmware seen to answer such a line itself, once, may do so again: the
             # ok counted for it would put the count a line ahead of the printer (a line
             # written past its receive buffer). Never trusted again on this connection
-            self.stands_in = False
             self.stand_ins_seen = -1
-            return
-        if self.stand_ins_seen < 0:
-            return
-        self.stand_ins_seen += 1
-        if self.stand_ins_seen >= STAND_IN_SEEN:
-            self.stands_in = True
+        elif self.stand_ins_seen >= 0:
+            self.stand_ins_seen += 1
+
+    @property
+    def stands_in(self) -> bool:
+        """Learned: the ok after such a refusal's ``Resend`` stands in for the line's."""
+        return self.stand_ins_seen >= STAND_IN_SEEN
 
     def trusts_stand_in(self) -> bool:
         """True when the ``ok`` after this refusal's ``Resend`` is counted for the line it
@@ -134,7 +133,6 @@ class PrinterModel:
 
     def forget_stand_in(self) -> None:
         """A new connection: nothing learned of its oks yet."""
-        self.stands_in = False
         self.stand_ins_seen = 0
         self.unchecked = 0
 
