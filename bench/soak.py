@@ -184,7 +184,8 @@ def with_heap_probe(out: Path) -> None:
 
 
 async def soak(args: argparse.Namespace) -> list[JobRow]:
-    models = [args.models_dir / f"{name}.stl" for name in args.models.split(",")]
+    models = [args.models_dir / (name if Path(name).suffix else f"{name}.stl")
+              for name in args.models.split(",")]
     missing = [m for m in models if not m.exists()]
     if missing:
         raise SystemExit(f"missing models: {', '.join(map(str, missing))}")
@@ -271,7 +272,7 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--jobs", type=int, default=50, help="prints back to back (50)")
     parser.add_argument("--models", default=",".join(MODELS),
-                        help="model names (without .stl), taken in turn")
+                        help="model names (without .stl; G-code files with .gcode), in turn")
     parser.add_argument("--models-dir", type=Path, default=SHARED_MODELS,
                         help="folder of the shared models")
     parser.add_argument("--cancel-every", type=int, default=7,
