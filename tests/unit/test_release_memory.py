@@ -3,11 +3,24 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import gc
 import threading
 import weakref
+from collections.abc import Iterator
 
 from hostd.app.memory import release_again, release_once_ended
+
+
+@contextlib.contextmanager
+def collector_off() -> Iterator[None]:
+    """The cyclic collector paused in the block: only the release's collection may free
+    a cycle made there."""
+    gc.disable()
+    try:
+        yield
+    finally:
+        gc.enable()
 
 
 class Measuring:
@@ -27,8 +40,7 @@ class Measuring:
 
 def test_released_once_the_thread_ended_and_nothing_of_it_is_held():
     async def scenario() -> tuple[bool, bool, weakref.ref[Measuring]]:
-        gc.disable()  # only the release's collection may free the cycle
-        try:
+        with collector_off():
             thread = Measuring()
             ref = weakref.ref(thread)
             task = asyncio.create_task(release_once_ended(thread.wait_measured, lambda: True))
@@ -37,8 +49,6 @@ def test_released_once_the_thread_ended_and_nothing_of_it_is_held():
             thread.let_go.set()
             del thread
             return pending, await task, ref
-        finally:
-            gc.enable()
 
     pending, released, ref = asyncio.run(scenario())
     assert pending
@@ -62,15 +72,12 @@ class Cycle:
 
 def test_released_again_after_the_job_ended_while_idle():
     async def scenario() -> tuple[bool, bool, weakref.ref[Cycle]]:
-        gc.disable()  # only the release's collection may free the cycle
-        try:
+        with collector_off():
             ref = weakref.ref(Cycle())  # freed to the collector only
             task = asyncio.create_task(release_again(lambda: True, delay_s=0.05))
             await asyncio.sleep(0)
             before = ref() is not None and not task.done()  # not yet: it waits first
             return before, await task, ref
-        finally:
-            gc.enable()
 
     waited, released, ref = asyncio.run(scenario())
     assert waited
@@ -79,11 +86,8 @@ def test_released_again_after_the_job_ended_while_idle():
 
 
 def test_not_released_again_when_the_next_job_began():
-    gc.disable()
-    try:
+    with collector_off():
         ref = weakref.ref(Cycle())
         assert asyncio.run(release_again(lambda: False, delay_s=0.01)) is False
         assert ref() is not None  # no collection ran
-    finally:
-        gc.enable()
-        gc.collect()
+    gc.collect()
