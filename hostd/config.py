@@ -117,6 +117,9 @@ class RunnerConfig:
     # itself reset: the moves its planner held (Marlin BLOCK_BUFFER_SIZE); the lines of
     # its command buffer were not acknowledged yet, so they are sent again anyway
     replay_lines: int = 16
+    # slice each print's layers in a process of its own, ended with the print, so that
+    # what slicing leaves in a heap goes back to the system (see slicer.planprocess)
+    slice_process: bool = True
 
 
 @dataclass(frozen=True)
@@ -222,6 +225,7 @@ def config_from_mapping(data: Mapping[str, Any], cwd: Path) -> Config:
             lookahead=runner.get("lookahead", Whole(1, 64), 4),
             workers=runner.get("workers", Whole(1, 32), 2),
             replay_lines=runner.get("replay_lines", Whole(0, 10_000), 16),
+            slice_process=runner.get("slice_process", Flag(), True),
         ),
         notify=NotifyConfig(
             urls=notify.get("urls", _ENTRIES, ()),

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import logging
 import threading
 from collections.abc import Mapping
 from typing import Any
@@ -12,7 +13,10 @@ from slicer.output import gcode
 from slicer.output.entry import entered, last_xy
 from slicer.output.gcode import fan_command
 from slicer.plan import SlicePlan
+from slicer.planprocess import PlanProcess, PlanProcessGone
 from slicer.settings import SliceSettings
+
+log = logging.getLogger("hostd.jobs.schedule")
 
 # layers below the one being sliced whose outlines and skins stay held: more than any
 # lookahead (at most 64) and a skin block's reach, so that the layers sliced after this
@@ -49,6 +53,25 @@ class LayerSchedule:
         self.lines: dict[int, int] = {}  # layer -> its command lines (the same layers)
         # layer -> its code made before the job began (base settings, every body)
         self._ahead: dict[int, gcode.LayerCode] = {}
+        # the child process slicing the layers, once its plan is ready (see slice_in)
+        self._process: PlanProcess | None = None
+        self._owned: PlanProcess | None = None  # the process to close, even once it died
+        self._closed = False  # the print ended: its slicing process is closed
+
+    def slice_in(self, process: PlanProcess) -> None:
+        """Slice the layers in ``process`` (the same model and base settings) from the
+        moment its plan is ready: what slicing leaves in a heap then goes with the
+        process. Until then, and if it dies, layers are sliced here as before; the
+        lines are the same either way."""
+        self._process = self._owned = process
+
+    def close(self) -> None:
+        """The print ended: no layer is sliced any longer, and the slicing process, if
+        any, ends."""
+        self._closed = True
+        process, self._process, self._owned = self._owned, None, None
+        if process is not None:
+            process.close()
 
     def made_ahead(self, layer: int, code: gcode.LayerCode) -> None:
         """Layer ``layer``'s code, made by the base plan with every body before the job
@@ -116,8 +139,28 @@ class LayerSchedule:
         """The layer's code: ``ahead`` when it was made with what the layer has now."""
         if ahead is None or self.settings_at(layer) != self.base_settings or (
                 self.excluded_at(layer)):
-            return self.plan_at(layer).layer_code(layer, self.excluded_at(layer))
+            return self.fresh_code(layer)
         return ahead
+
+    def fresh_code(self, layer: int) -> gcode.LayerCode:
+        """Layer ``layer`` sliced now with its settings and bodies (in the slicing
+        process when it is ready), nothing recorded; PlanProcessGone once the print
+        ended (:meth:`close`)."""
+        if self._closed:
+            raise PlanProcessGone("the print ended: its layers are no longer sliced")
+        excluded = self.excluded_at(layer)
+        process = self._process
+        if process is not None and process.ready.is_set():
+            try:
+                return process.layer_code(self.settings_at(layer), layer, excluded,
+                                          layer - HELD_LAYERS)
+            except PlanProcessGone as exc:
+                if self._closed:  # closed with the print: the layer is not wanted
+                    raise
+                if self._process is process:  # said once: the next layers are sliced here
+                    self._process = None
+                    log.warning("layers from %d on sliced in the daemon: %s", layer, exc)
+        return self.plan_at(layer).layer_code(layer, excluded)
 
     def _retuned(self, layer: int, code_lines: list[str]) -> list[str]:
         """``code_lines`` (copied) with a retune's temperatures and fan set on its first layer."""
@@ -149,7 +192,7 @@ class LayerSchedule:
         (slicing it again: for the layer before a resumed one); None if it moves nowhere."""
         if layer < 0:
             return None
-        return last_xy(self.plan_at(layer).layer_code(layer, self.excluded_at(layer)).lines)
+        return last_xy(self.fresh_code(layer).lines)
 
     def retune(self, first: int, changed: Mapping[str, Any]) -> SliceSettings:
         """Apply ``changed`` from layer ``first`` on; raises SettingsError when refused."""

@@ -132,7 +132,7 @@ class EtaModel:
                     continue
                 retunes = len(schedule.changes)
                 excluded = schedule.excluded_at(layer)
-                code = schedule.plan_at(layer).layer_code(layer, excluded)
+                code = schedule.fresh_code(layer)
                 self._samples[layer] = ((code.time_s, code.filament_mm), retunes, excluded)
         except Exception:  # the ETA falls back to the slicer's recent layers
             log.debug("layer geometry for the ETA not measured", exc_info=True)

@@ -35,6 +35,7 @@ from slicer.fea.tailor import Tailoring, find_load_case, tailored_plan
 from slicer.output.annotate import annotate_file
 from slicer.output.gcode import header_lines, summarize
 from slicer.paths.arcs import for_printer
+from slicer.planprocess import PlanProcess
 from slicer.settings import SettingsError, SliceSettings
 
 log = logging.getLogger("hostd.job")
@@ -101,6 +102,9 @@ class PrintJob:
             return await self._run(link)
         finally:
             self.analysis_hold.set()  # an analysis held for this job is not held forever
+            schedule = self.active.schedule
+            if schedule is not None:  # its slicing process ends with the print
+                await asyncio.shield(asyncio.to_thread(schedule.close))
 
     async def _run(self, link: Streamer) -> str:
         job = self.store.get(self.job.id)
@@ -250,8 +254,24 @@ class PrintJob:
         )
         if ahead is not None and ahead.plan is plan and ahead.first_layer is not None:
             schedule.made_ahead(0, ahead.first_layer)
+        if self.config.runner.slice_process and tailoring.running is None:
+            # (an analysis running beside the first layers is this process's to wait for)
+            self._slice_apart(job, schedule)
         return schedule, SlicedSource(schedule, first, self.config.runner.lookahead,
                                       self.executor, resume, on_started=self.analysis_hold.set)
+
+    def _slice_apart(self, job: Job, schedule: LayerSchedule) -> None:
+        """Start the process that slices the job's layers (:mod:`slicer.planprocess`);
+        the layers before it is ready, or all of them if it cannot start, are sliced
+        in the daemon's threads."""
+        try:
+            process = PlanProcess(job.path, schedule.base_settings, self.config.printer.bed,
+                                  self.config.runner.workers)
+        except (OSError, ValueError) as exc:
+            log.warning("job %s %s: layers sliced in the daemon, no slicing process: %s",
+                        job.id, job.name, exc)
+            return
+        schedule.slice_in(process)
 
     async def _made_ahead(self, job: Job, settings: SliceSettings) -> MadeAhead | None:
         """The whole-model pass (and layer 0) begun while the file settled, if it fits

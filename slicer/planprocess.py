@@ -1,0 +1,245 @@
+"""A model's plan in a process of its own, which slices its layers and ends with the job.
+
+A long-running host that slices in its own threads keeps what slicing leaves in
+its C heaps: freed chunks between the few allocations that outlive a layer, which
+no trim can hand back. Slicing each job's layers in a child process, ended with
+the job, returns all of it to the system at once.
+
+The children are forked from multiprocessing's fork server, a fresh interpreter
+started once (:func:`start_server`) with the slicer already imported: a child is
+ready as soon as it has built the job's plan from the file, as the parent did,
+and a child never inherits the parent's threads or locks. Same file, same
+settings: the same layers, byte for byte, as the parent's plan would make.
+"""
+
+from __future__ import annotations
+
+import concurrent.futures
+import itertools
+import logging
+import multiprocessing
+import multiprocessing.connection
+import multiprocessing.forkserver
+import os
+import threading
+from collections.abc import Callable
+from typing import Any
+
+from slicer.output.gcode import LayerCode
+from slicer.plan import ON_DEMAND_MODULES, SlicePlan
+from slicer.settings import SliceSettings
+
+log = logging.getLogger("slicer.planprocess")
+
+# modules the fork server imports once, so that each child starts with them loaded
+# (the main module too: a child would import it again otherwise)
+PRELOAD = ("__main__", "slicer.planprocess", *ON_DEMAND_MODULES)
+CLOSE_WAIT_S = 5.0  # a closing child's time to finish before it is killed
+
+
+class PlanProcessGone(RuntimeError):
+    """The child slicing the job's layers is no longer there (closed, or it died)."""
+
+
+def _context() -> Any:
+    """multiprocessing's fork-server context, with the slicer preloaded."""
+    context = multiprocessing.get_context("forkserver")
+    context.set_forkserver_preload(list(PRELOAD))
+    return context
+
+
+def start_server() -> bool:
+    """Start the fork server the children come from (a fresh interpreter importing the
+    slicer, some 0.5 s of another process's time); False where it cannot run."""
+    try:
+        _context()
+        multiprocessing.forkserver.ensure_running()
+    except (OSError, ValueError) as exc:
+        log.warning("fork server for the slicing processes not started: %s", exc)
+        return False
+    return True
+
+
+class PlanProcess:
+    """A child process holding the plan of ``path`` with ``settings`` on ``bed``.
+
+    :meth:`call` runs ``function(plan, *args)`` there, where ``plan`` is the plan with
+    the settings given (the same geometry, :meth:`SlicePlan.with_settings`), on up to
+    ``threads`` threads of the child at once; the result comes back pickled. Safe to
+    call from any thread. :attr:`ready` is set once the child's plan is built.
+    """
+
+    def __init__(
+        self,
+        path: str | os.PathLike[str],
+        settings: SliceSettings,
+        bed: tuple[float, float, float],
+        threads: int = 2,
+    ) -> None:
+        context = _context()
+        mine, theirs = context.Pipe()
+        self._process = context.Process(
+            target=_serve, args=(theirs, os.fspath(path), settings, bed, max(1, threads)),
+            name="hostd-plan", daemon=True,
+        )
+        self._process.start()
+        theirs.close()
+        self._conn: multiprocessing.connection.Connection = mine
+        self._send_lock = threading.Lock()
+        self._lock = threading.Lock()
+        self._pending: dict[int, concurrent.futures.Future[Any]] = {}
+        self._ids = itertools.count()
+        self._gone: str | None = None  # why the child is gone, once it is
+        self.ready = threading.Event()
+        self._reader = threading.Thread(target=self._read, name="hostd-plan-reader",
+                                        daemon=True)
+        self._reader.start()
+
+    @property
+    def pid(self) -> int | None:
+        """The child's process id."""
+        return self._process.pid
+
+    @property
+    def gone(self) -> str | None:
+        """Why the child is gone (closed, died, its plan failed), or None while it serves."""
+        return self._gone
+
+    def call(self, function: Callable[..., Any], settings: SliceSettings,
+             *args: Any) -> concurrent.futures.Future[Any]:
+        """``function(plan, *args)`` in the child, ``plan`` having ``settings``; the
+        future fails with :class:`PlanProcessGone` if the child ends first."""
+        future: concurrent.futures.Future[Any] = concurrent.futures.Future()
+        with self._lock:
+            if self._gone is not None:
+                raise PlanProcessGone(self._gone)
+            number = next(self._ids)
+            self._pending[number] = future
+        try:
+            with self._send_lock:
+                self._conn.send((number, function, settings, args))
+        except (OSError, ValueError) as exc:  # the pipe closed under us
+            self._end(f"the slicing process is gone ({exc})")
+        return future
+
+    def layer_code(self, settings: SliceSettings, layer: int, excluded: frozenset[int],
+                   forget_below: int = 0) -> LayerCode:
+        """Layer ``layer``'s code made in the child (waits for it); the child's plans
+        let go of the layers below ``forget_below``."""
+        return self.call(_layer_code, settings, layer, excluded, forget_below).result()
+
+    def _read(self) -> None:
+        """Hand each answer to its future until the child's end of the pipe closes."""
+        why = "the slicing process ended"
+        try:
+            while True:
+                number, ok, value = self._conn.recv()
+                if number == "ready":
+                    self.ready.set()
+                    continue
+                if number == "failed":
+                    why = f"the slicing process could not build the plan: {value}"
+                    break
+                with self._lock:
+                    future = self._pending.pop(number, None)
+                if future is None:
+                    continue
+                if ok:
+                    future.set_result(value)
+                else:
+                    future.set_exception(value)
+        except (EOFError, OSError):
+            pass
+        self._end(why)
+
+    def _end(self, why: str) -> None:
+        """Fail every call still waiting: the child will not answer them."""
+        with self._lock:
+            if self._gone is None:
+                self._gone = why
+            pending, self._pending = self._pending, {}
+        for future in pending.values():
+            if not future.done():
+                future.set_exception(PlanProcessGone(self._gone))
+
+    def close(self) -> None:
+        """End the child (calls still waiting fail) and wait for it to be gone."""
+        with self._lock:
+            closing = self._gone is None
+            if closing:
+                self._gone = "the slicing process was closed"
+        if closing:
+            try:
+                with self._send_lock:
+                    self._conn.send(None)
+            except (OSError, ValueError):
+                pass
+        self._process.join(CLOSE_WAIT_S)
+        if self._process.is_alive():
+            log.warning("slicing process %s did not end: killed", self._process.pid)
+            self._process.kill()
+            self._process.join(CLOSE_WAIT_S)
+        self._reader.join(CLOSE_WAIT_S)
+        self._conn.close()
+        self._end(self._gone or "the slicing process was closed")
+
+
+# in a child: its plans, one per settings the job's layers were asked with
+_CHILD_PLANS: dict[SliceSettings, SlicePlan] = {}
+_CHILD_PLANS_LOCK = threading.Lock()
+
+
+def _layer_code(plan: SlicePlan, layer: int, excluded: frozenset[int],
+                forget_below: int) -> LayerCode:
+    """In the child: one layer's code, its plans letting go of the layers far below."""
+    if forget_below > 0:
+        with _CHILD_PLANS_LOCK:
+            every = list(_CHILD_PLANS.values())
+        for each in every:
+            each.forget_before(forget_below)
+    return plan.layer_code(layer, excluded)
+
+
+def _serve(conn: multiprocessing.connection.Connection, path: str, settings: SliceSettings,
+           bed: tuple[float, float, float], threads: int) -> None:
+    """The child: build the plan, then answer calls on ``threads`` threads until told
+    to stop (None) or the parent's end of the pipe closes."""
+    try:
+        base = SlicePlan.from_file(path, settings, bed)
+    except Exception as exc:  # the parent slices in its own threads instead
+        conn.send(("failed", False, f"{type(exc).__name__}: {exc}"))
+        return
+    plans = _CHILD_PLANS
+    plans[settings] = base
+    plans_lock = _CHILD_PLANS_LOCK
+    send_lock = threading.Lock()
+
+    def plan_with(wanted: SliceSettings) -> SlicePlan:
+        with plans_lock:
+            plan = plans.get(wanted)
+            if plan is None:
+                plan = plans[wanted] = base.with_settings(wanted)
+        return plan
+
+    def answer(number: int, function: Callable[..., Any], wanted: SliceSettings,
+               args: tuple[Any, ...]) -> None:
+        try:
+            reply: tuple[Any, bool, Any] = (number, True, function(plan_with(wanted), *args))
+        except Exception as exc:
+            reply = (number, False, exc)
+        with send_lock:
+            try:
+                conn.send(reply)
+            except Exception as exc:  # an answer that does not pickle
+                conn.send((number, False, RuntimeError(f"{type(exc).__name__}: {exc}")))
+
+    conn.send(("ready", True, None))
+    with concurrent.futures.ThreadPoolExecutor(threads, thread_name_prefix="plan") as pool:
+        while True:
+            try:
+                message = conn.recv()
+            except (EOFError, OSError):
+                break
+            if message is None:
+                break
+            pool.submit(answer, *message)

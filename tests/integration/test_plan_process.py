@@ -1,0 +1,124 @@
+"""Layers sliced in a process of their own (slicer.planprocess), as the daemon slices a
+print's layers: the same bytes as the plan in this process, with retunes and cancelled
+bodies; errors carried back; a child that dies or cannot build its plan leaves the
+layers to this process; a closed child is gone."""
+
+from __future__ import annotations
+
+import logging
+import os
+import signal
+from pathlib import Path
+
+import pytest
+import trimesh
+from support.slicer_helpers import write_mesh
+
+from hostd.jobs.schedule import LayerSchedule
+from slicer.plan import SlicePlan
+from slicer.planprocess import PlanProcess, PlanProcessGone, start_server
+from slicer.settings import SliceSettings
+
+BED = (220.0, 220.0, 250.0)
+WAIT_S = 60.0
+
+
+@pytest.fixture(scope="module")
+def pair(tmp_path_factory) -> Path:
+    """Two boxes side by side (bodies 0 and 1), one taller than the other."""
+    low = trimesh.creation.box(extents=(12.0, 12.0, 3.0))
+    low.apply_translation((-10.0, 0.0, 1.5))
+    tall = trimesh.creation.box(extents=(10.0, 14.0, 5.0))
+    tall.apply_translation((10.0, 0.0, 2.5))
+    path = tmp_path_factory.mktemp("models") / "pair.stl"
+    return write_mesh(trimesh.util.concatenate([low, tall]), path)
+
+
+@pytest.fixture(scope="module")
+def settings() -> SliceSettings:
+    return SliceSettings()
+
+
+@pytest.fixture
+def process(pair: Path, settings: SliceSettings):
+    assert start_server()
+    child = PlanProcess(pair, settings, BED)
+    assert child.ready.wait(WAIT_S), child.gone
+    yield child
+    child.close()
+
+
+def test_every_layer_is_the_same_bytes_as_here(process: PlanProcess, pair: Path,
+                                                settings: SliceSettings) -> None:
+    here = SlicePlan.from_file(pair, settings, BED)
+    denser = SliceSettings.from_mapping({"infill.density": 0.5}, base=settings)
+    for layer in range(here.layer_count):
+        theirs = process.layer_code(settings, layer, frozenset(), layer - 8)
+        ours = here.layer_code(layer)
+        assert theirs.lines == ours.lines
+        assert (theirs.time_s, theirs.filament_mm) == (ours.time_s, ours.filament_mm)
+    # a retune's settings and a cancelled body, as a schedule asks for them
+    middle = here.layer_count // 2
+    assert process.layer_code(denser, middle, frozenset({1})).lines == \
+        here.with_settings(denser).layer_code(middle, frozenset({1})).lines
+
+
+def test_an_error_in_the_child_comes_back_as_raised(process: PlanProcess,
+                                                     settings: SliceSettings) -> None:
+    with pytest.raises(IndexError):
+        process.layer_code(settings, 10_000, frozenset())
+    assert process.gone is None  # the child serves on
+    assert process.layer_code(settings, 0, frozenset()).lines[0] == ";LAYER:0"
+
+
+def test_closed_child_is_gone_and_calls_fail(process: PlanProcess,
+                                              settings: SliceSettings) -> None:
+    pid = process.pid
+    process.close()
+    assert process.gone == "the slicing process was closed"
+    with pytest.raises(PlanProcessGone):
+        process.layer_code(settings, 0, frozenset())
+    assert pid is not None
+    with pytest.raises(ProcessLookupError):
+        os.kill(pid, 0)
+
+
+def test_schedule_slices_in_the_child_and_takes_over_when_it_dies(
+        process: PlanProcess, pair: Path, settings: SliceSettings,
+        caplog: pytest.LogCaptureFixture) -> None:
+    plan = SlicePlan.from_file(pair, settings, BED)
+    alone = LayerSchedule(SlicePlan.from_file(pair, settings, BED), settings)
+    apart = LayerSchedule(plan, settings)
+    apart.slice_in(process)
+    for schedule in (alone, apart):
+        schedule.retune(3, {"infill.density": 0.4})
+        schedule.cancel_body(0, 5)
+    assert [apart.layer_gcode(i) for i in range(4)] == [alone.layer_gcode(i) for i in range(4)]
+    assert apart.estimates == alone.estimates
+    os.kill(process.pid, signal.SIGKILL)
+    process._process.join(WAIT_S)
+    with caplog.at_level(logging.WARNING, logger="hostd.jobs.schedule"):
+        rest = [apart.layer_gcode(i) for i in range(4, plan.layer_count)]
+    assert rest == [alone.layer_gcode(i) for i in range(4, plan.layer_count)]
+    warnings = [r.getMessage() for r in caplog.records]
+    assert len(warnings) == 1, warnings
+    assert "layers from 4 on sliced in the daemon" in warnings[0]
+    apart.close()
+    with pytest.raises(PlanProcessGone):  # a print that ended wants no more layers
+        apart.fresh_code(0)
+
+
+def test_a_child_that_cannot_build_the_plan_says_why(tmp_path: Path,
+                                                     settings: SliceSettings) -> None:
+    broken = tmp_path / "broken.stl"
+    broken.write_bytes(b"solid nothing\nendsolid nothing\n")
+    child = PlanProcess(broken, settings, BED)
+    try:
+        child._reader.join(WAIT_S)
+        assert not child.ready.is_set()
+        assert child.gone is not None
+        assert child.gone.startswith("the slicing process could not build the plan: ModelError")
+        with pytest.raises(PlanProcessGone):
+            child.layer_code(settings, 0, frozenset())
+    finally:
+        child.close()
