@@ -91,6 +91,7 @@ class PlanProcess:
         self._ids = itertools.count()
         self._gone: str | None = None  # why the child is gone, once it is
         self.ready = threading.Event()
+        self._settled = threading.Event()  # ready, or gone
         self._reader = threading.Thread(target=self._read, name="hostd-plan-reader",
                                         daemon=True)
         self._reader.start()
@@ -98,12 +99,19 @@ class PlanProcess:
     @property
     def pid(self) -> int | None:
         """The child's process id."""
-        return self._process.pid
+        pid: int | None = self._process.pid
+        return pid
 
     @property
     def gone(self) -> str | None:
         """Why the child is gone (closed, died, its plan failed), or None while it serves."""
         return self._gone
+
+    def wait_ready(self, timeout_s: float | None = None) -> bool:
+        """Wait until the child's plan is built; False if the child is gone first (or
+        after ``timeout_s``)."""
+        self._settled.wait(timeout_s)
+        return self.ready.is_set() and self._gone is None
 
     def call(self, function: Callable[..., Any], settings: SliceSettings,
              *args: Any) -> concurrent.futures.Future[Any]:
@@ -120,13 +128,19 @@ class PlanProcess:
                 self._conn.send((number, function, settings, args))
         except (OSError, ValueError) as exc:  # the pipe closed under us
             self._end(f"the slicing process is gone ({exc})")
+        except Exception:  # a call that does not pickle: nothing was sent
+            with self._lock:
+                self._pending.pop(number, None)
+            raise
         return future
 
     def layer_code(self, settings: SliceSettings, layer: int, excluded: frozenset[int],
                    forget_below: int = 0) -> LayerCode:
         """Layer ``layer``'s code made in the child (waits for it); the child's plans
         let go of the layers below ``forget_below``."""
-        return self.call(_layer_code, settings, layer, excluded, forget_below).result()
+        code: LayerCode = self.call(_layer_code, settings, layer, excluded,
+                                    forget_below).result()
+        return code
 
     def _read(self) -> None:
         """Hand each answer to its future until the child's end of the pipe closes."""
@@ -136,6 +150,7 @@ class PlanProcess:
                 number, ok, value = self._conn.recv()
                 if number == "ready":
                     self.ready.set()
+                    self._settled.set()
                     continue
                 if number == "failed":
                     why = f"the slicing process could not build the plan: {value}"
@@ -158,6 +173,7 @@ class PlanProcess:
             if self._gone is None:
                 self._gone = why
             pending, self._pending = self._pending, {}
+        self._settled.set()
         for future in pending.values():
             if not future.done():
                 future.set_exception(PlanProcessGone(self._gone))
@@ -182,6 +198,11 @@ class PlanProcess:
         self._reader.join(CLOSE_WAIT_S)
         self._conn.close()
         self._end(self._gone or "the slicing process was closed")
+
+
+def plan_warnings(plan: SlicePlan) -> list[str]:
+    """The plan's :attr:`SlicePlan.warnings` (a function, to be called in a child)."""
+    return plan.warnings
 
 
 # in a child: its plans, one per settings the job's layers were asked with

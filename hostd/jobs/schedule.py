@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import logging
 import threading
-from collections.abc import Mapping
-from typing import Any
+from collections.abc import Callable, Mapping
+from typing import Any, TypeVar
 
 import numpy as np
 
@@ -23,6 +23,10 @@ log = logging.getLogger("hostd.jobs.schedule")
 # one never cut them again; below, a print holds nothing of the model's layers (a view of
 # an old layer cuts its block again)
 HELD_LAYERS = 96
+# whole-model work waits this long for the slicing process's plan, then runs here
+READY_WAIT_S = 60.0
+
+T = TypeVar("T")
 
 
 class LayerSchedule:
@@ -62,14 +66,20 @@ class LayerSchedule:
         """Slice the layers in ``process`` (the same model and base settings) from the
         moment its plan is ready: what slicing leaves in a heap then goes with the
         process. Until then, and if it dies, layers are sliced here as before; the
-        lines are the same either way."""
-        self._process = self._owned = process
+        lines are the same either way. A process given once the print ended is
+        closed at once."""
+        with self._lock:
+            if not self._closed:
+                self._process = self._owned = process
+                return
+        process.close()
 
     def close(self) -> None:
         """The print ended: no layer is sliced any longer, and the slicing process, if
         any, ends."""
-        self._closed = True
-        process, self._process, self._owned = self._owned, None, None
+        with self._lock:
+            self._closed = True
+            process, self._process, self._owned = self._owned, None, None
         if process is not None:
             process.close()
 
@@ -141,6 +151,23 @@ class LayerSchedule:
                 self.excluded_at(layer)):
             return self.fresh_code(layer)
         return ahead
+
+    def on_plan(self, function: Callable[..., T], *args: Any) -> T:
+        """``function(plan, *args)``, ``plan`` the base settings' plan: in the slicing
+        process when there is one (waiting for its plan), so that whole-model work
+        (the ETA's measure, the warnings of every layer) leaves nothing in the daemon;
+        here otherwise. PlanProcessGone once the print ended."""
+        if self._closed:
+            raise PlanProcessGone("the print ended: its model is no longer sliced")
+        process = self._process
+        if process is not None and process.wait_ready(READY_WAIT_S):
+            try:
+                result: T = process.call(function, self.base_settings, *args).result()
+                return result
+            except PlanProcessGone:
+                if self._closed:
+                    raise
+        return function(self.base_plan, *args)
 
     def fresh_code(self, layer: int) -> gcode.LayerCode:
         """Layer ``layer`` sliced now with its settings and bodies (in the slicing

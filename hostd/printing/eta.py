@@ -122,7 +122,7 @@ class EtaModel:
         """The geometry of every layer, then the estimate of a few sampled layers."""
         try:
             schedule = self.schedule
-            geometry = measure(schedule.base_plan, schedule.base_settings)
+            geometry = schedule.on_plan(measure, schedule.base_settings)
             self._geometry = geometry
             guess = geometry.seconds(schedule.base_settings).sum(axis=1)
             for layer in sample_layers(guess).tolist():

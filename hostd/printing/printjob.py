@@ -35,7 +35,7 @@ from slicer.fea.tailor import Tailoring, find_load_case, tailored_plan
 from slicer.output.annotate import annotate_file
 from slicer.output.gcode import header_lines, summarize
 from slicer.paths.arcs import for_printer
-from slicer.planprocess import PlanProcess
+from slicer.planprocess import PlanProcess, plan_warnings
 from slicer.settings import SettingsError, SliceSettings
 
 log = logging.getLogger("hostd.job")
@@ -69,6 +69,8 @@ class PrintJob:
         self.warned: list[str] = []  # the model's warnings logged so far
         self.tailoring: Tailoring | None = None  # the analysis and equal mass, for the summary
         self.analysis_file = ""  # the field file an analysis beside the print is writing
+        # the slicing process being started (see _slice_apart), awaited when the print ends
+        self._starting: asyncio.Future[None] | None = None
         # an analysis beside the print begins once the printer laid the first filament
         # (or a layer needs its field, or the job ends): see `tailored_plan`
         self.analysis_hold = threading.Event()
@@ -105,6 +107,8 @@ class PrintJob:
             schedule = self.active.schedule
             if schedule is not None:  # its slicing process ends with the print
                 await asyncio.shield(asyncio.to_thread(schedule.close))
+            if self._starting is not None:  # (a child started after that is closed too)
+                await asyncio.shield(self._starting)
 
     async def _run(self, link: Streamer) -> str:
         job = self.store.get(self.job.id)
@@ -261,9 +265,14 @@ class PrintJob:
                                       self.executor, resume, on_started=self.analysis_hold.set)
 
     def _slice_apart(self, job: Job, schedule: LayerSchedule) -> None:
-        """Start the process that slices the job's layers (:mod:`slicer.planprocess`);
-        the layers before it is ready, or all of them if it cannot start, are sliced
-        in the daemon's threads."""
+        """Start, beside the first layer, the process that slices the job's layers
+        (:mod:`slicer.planprocess`): the layers before it is ready, or all of them if it
+        cannot start, are sliced in the daemon's threads."""
+        self._starting = asyncio.ensure_future(
+            asyncio.to_thread(self._start_process, job, schedule))
+
+    def _start_process(self, job: Job, schedule: LayerSchedule) -> None:
+        """(In a thread: asking the fork server for a child takes some ms.)"""
         try:
             process = PlanProcess(job.path, schedule.base_settings, self.config.printer.bed,
                                   self.config.runner.workers)
@@ -271,6 +280,7 @@ class PrintJob:
             log.warning("job %s %s: layers sliced in the daemon, no slicing process: %s",
                         job.id, job.name, exc)
             return
+        log.info("job %s %s: layers sliced in process %s", job.id, job.name, process.pid)
         schedule.slice_in(process)
 
     async def _made_ahead(self, job: Job, settings: SliceSettings) -> MadeAhead | None:
@@ -300,8 +310,7 @@ class PrintJob:
         """Log the model's warnings found while slicing (every layer is cut by now)."""
         if self.schedule is None:
             return
-        plan = self.schedule.base_plan
-        warnings = await asyncio.to_thread(lambda: plan.warnings)
+        warnings = await asyncio.to_thread(self.schedule.on_plan, plan_warnings)
         for warning in warnings:
             if warning not in self.warned:
                 log.warning("job %s %s: %s", job.id, job.name, warning)

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import re
 import sqlite3
 import subprocess
 from pathlib import Path
@@ -28,6 +29,15 @@ from slicer.plan import SlicePlan
 from slicer.settings import SliceSettings
 
 
+def pid_alive(pid: int) -> bool:
+    """True while process ``pid`` runs (a zombie not yet reaped counts as ended)."""
+    try:
+        with open(f"/proc/{pid}/stat") as handle:
+            return handle.read().rsplit(")", 1)[1].split()[0] != "Z"
+    except FileNotFoundError:
+        return False
+
+
 def job_state(state: Path, job: str) -> tuple[str, int]:
     db = sqlite3.connect(state / "jobs.sqlite3")
     try:
@@ -46,6 +56,8 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     # dropped on an idle printer: the plan was made while the file settled, and the
     # G-code checked against a fresh slice at the end is the same, byte for byte
     assert "whole-model pass made while the file settled" in hostd.log()
+    # the layers are sliced in a process of the print's own, which ends with the daemon
+    child = int(re.search(r"layers sliced in process (\d+)", hostd.log()).group(1))
 
     with pytest.raises(ControlError, match="does not exist"):
         command(socket, "cancel_object", object=5)
@@ -65,6 +77,7 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     hostd.wait_for(lambda: job_state(hostd.state, "1")[1] >= first_retuned, 30,
                    "the checkpoint of the first retuned layer")
     hostd.kill9()
+    wait_until(lambda: not pid_alive(child), 30, "the slicing process ended with the daemon")
 
     hostd.start()
     assert job_state(hostd.state, "1")[0] == "interrupted"
@@ -72,6 +85,9 @@ def test_cancel_object_and_retune_mid_print_survive_a_crash_and_resume(daemon, t
     reply = command(socket, "resume_job", job="pair.stl")
     assert reply["from_layer"] > first_retuned
     hostd.wait_for(lambda: (hostd.jobs / "done" / "pair.summary.txt").exists(), 90, "done")
+    resumed = int(re.findall(r"layers sliced in process (\d+)", hostd.log())[-1])
+    assert resumed != child
+    wait_until(lambda: not pid_alive(resumed), 30, "the slicing process ended with the print")
     assert hostd.stop() == 0
 
     store = JobStore(hostd.state / "jobs.sqlite3")

@@ -10,13 +10,15 @@ import os
 import signal
 from pathlib import Path
 
+import numpy as np
 import pytest
 import trimesh
 from support.slicer_helpers import write_mesh
 
 from hostd.jobs.schedule import LayerSchedule
+from hostd.printing.etaguess import measure
 from slicer.plan import SlicePlan
-from slicer.planprocess import PlanProcess, PlanProcessGone, start_server
+from slicer.planprocess import PlanProcess, PlanProcessGone, plan_warnings, start_server
 from slicer.settings import SliceSettings
 
 BED = (220.0, 220.0, 250.0)
@@ -122,3 +124,26 @@ def test_a_child_that_cannot_build_the_plan_says_why(tmp_path: Path,
             child.layer_code(settings, 0, frozenset())
     finally:
         child.close()
+
+
+def test_whole_model_work_runs_in_the_child_with_the_same_result(
+        process: PlanProcess, pair: Path, settings: SliceSettings) -> None:
+    plan = SlicePlan.from_file(pair, settings, BED)
+    schedule = LayerSchedule(plan, settings)
+    schedule.slice_in(process)
+    here = SlicePlan.from_file(pair, settings, BED)
+    geometry, expected = schedule.on_plan(measure, settings), measure(here, settings)
+    for field in ("walls", "solid", "sparse", "islands"):
+        np.testing.assert_array_equal(getattr(geometry, field), getattr(expected, field))
+    assert schedule.on_plan(plan_warnings) == here.warnings
+    assert plan.warnings_so_far == []  # nothing of the model was cut here
+    with pytest.raises(AttributeError, match="pickle"):  # a call the child cannot take
+        process.call(lambda p: p, settings)
+    os.kill(process.pid, signal.SIGKILL)
+    process._reader.join(WAIT_S)
+    assert process.gone is not None
+    assert schedule.on_plan(plan_warnings) == here.warnings  # made here once it died
+    assert plan.warnings_so_far == here.warnings
+    schedule.close()
+    with pytest.raises(PlanProcessGone):
+        schedule.on_plan(plan_warnings)
