@@ -74,6 +74,43 @@ class JobRow:
     anon_mb: float | None = None  # of the RSS: anonymous memory (heaps, Python's arenas)
     file_mb: float | None = None  # of the RSS: pages of files (the libraries' code)
     heap: dict[str, object] | None = None  # --heap-probe: the C heap's arenas, after a trim
+    # the daemon's child processes (the fork server the slicing processes come from, the
+    # resource tracker; a print's slicing process left running would show here): their
+    # count and proportional set size (PSS: shared pages split between the sharers)
+    helpers: int | None = None
+    helpers_pss_mb: float | None = None
+
+
+def descendants(pid: int) -> list[int]:
+    """The processes whose parent, grandparent... is ``pid`` (from ``/proc``)."""
+    parents: dict[int, int] = {}
+    for entry in Path("/proc").iterdir():
+        if not entry.name.isdigit():
+            continue
+        try:
+            stat = (entry / "stat").read_text()
+        except OSError:  # ended meanwhile
+            continue
+        parents[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
+    found, frontier = [], [pid]
+    while frontier:
+        parent = frontier.pop()
+        children = [child for child, up in parents.items() if up == parent]
+        found += children
+        frontier += children
+    return sorted(found)
+
+
+def pss_mb(pid: int) -> float:
+    """Proportional set size of process ``pid``, in MB (0 if it ended meanwhile)."""
+    try:
+        with open(f"/proc/{pid}/smaps_rollup", encoding="ascii") as handle:
+            for line in handle:
+                if line.startswith("Pss:"):
+                    return int(line.split()[1]) / 1024.0
+    except OSError:
+        pass
+    return 0.0
 
 
 def rss_mb(pid: int, field: str = "VmRSS") -> float:
@@ -196,8 +233,10 @@ async def soak(args: argparse.Namespace) -> list[JobRow]:
     with Daemon(SoakSetup(baud=args.baud)) as daemon:  # type: ignore[arg-type]
         daemon.wait_ready()
         daemon.wait_warm()
+        helpers = descendants(daemon.pid)
         print(f"idle: {rss_mb(daemon.pid):.1f} MB (anonymous "
-              f"{rss_mb(daemon.pid, 'RssAnon'):.1f}, files {rss_mb(daemon.pid, 'RssFile'):.1f})",
+              f"{rss_mb(daemon.pid, 'RssAnon'):.1f}, files {rss_mb(daemon.pid, 'RssFile'):.1f}); "
+              f"{len(helpers)} child processes, PSS {sum(map(pss_mb, helpers)):.1f} MB",
               flush=True)
         for index in range(args.jobs):
             model = models[index % len(models)]
@@ -211,13 +250,16 @@ async def soak(args: argparse.Namespace) -> list[JobRow]:
                          round(rss_mb(daemon.pid, "RssAnon"), 1),
                          round(rss_mb(daemon.pid, "RssFile"), 1),
                          heap_probe(daemon.pid, args.heap_probe) if args.heap_probe else None)
+            helpers = descendants(daemon.pid)
+            row.helpers, row.helpers_pss_mb = len(helpers), round(sum(map(pss_mb, helpers)), 1)
             rows.append(row)
             first = rows[0].rss_mb
             during = "" if growth is None else (
                 f", layers {args.layers[0]}-{args.layers[1]}: {growth:+.1f} kB/layer")
             print(f"{index:3d} {model.stem:18s} {action:6s} {outcome:9s} {seconds:7.1f} s "
                   f"RSS {row.rss_mb:6.1f} MB ({row.rss_mb - first:+.1f}; anonymous {row.anon_mb}, "
-                  f"files {row.file_mb}){during}", flush=True)
+                  f"files {row.file_mb}); {row.helpers} child processes, PSS "
+                  f"{row.helpers_pss_mb} MB{during}", flush=True)
             if row.heap is not None:
                 print(f"    heap after a trim: {json.dumps(row.heap['arenas'])}", flush=True)
     return rows
@@ -252,6 +294,9 @@ def summary(rows: list[JobRow], budget_mb: float, cycle: int) -> dict[str, objec
             "median": round(sorted(per_layer)[len(per_layer) // 2], 1) if per_layer else None,
             "max": max(per_layer) if per_layer else None,
         },
+        "child_processes_max": max((r.helpers or 0) for r in rows),
+        "child_processes_pss_mb": [min((r.helpers_pss_mb or 0.0) for r in rows),
+                                   max((r.helpers_pss_mb or 0.0) for r in rows)],
         "outcomes": {o: sum(r.outcome == o for r in rows) for o in ("done", "cancelled",
                                                                         "failed")},
     }

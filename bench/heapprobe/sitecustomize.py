@@ -7,7 +7,9 @@ line to ``FILE``: the RSS split into anonymous memory and pages of files, and fo
 each glibc arena (``malloc_info``) the bytes it has from the system and those of
 its free chunks (the rest is in use), and Python's small-object arenas (those in
 blocks in use, free blocks, free pools). Python's own allocations, if
-``HOSTD_HEAPPROBE_TRACE=N`` started ``tracemalloc`` with N frames, are summed too.
+``HOSTD_HEAPPROBE_TRACE=N`` started ``tracemalloc`` with N frames, are summed too,
+and with ``HOSTD_HEAPPROBE_TOP=K`` the K largest of them are listed with where
+they were allocated.
 Read only between jobs: the handler runs on the daemon's main thread.
 """
 
@@ -105,8 +107,15 @@ def _probe(_signum: int, _frame: object) -> None:
         "pymalloc": _pymalloc(),
     }
     if "tracemalloc" in sys.modules and sys.modules["tracemalloc"].is_tracing():
-        row["python_traced_mb"] = round(sys.modules["tracemalloc"].get_traced_memory()[0]
-                                        / 2**20, 2)
+        tracer = sys.modules["tracemalloc"]
+        row["python_traced_mb"] = round(tracer.get_traced_memory()[0] / 2**20, 2)
+        top = int(os.environ.get("HOSTD_HEAPPROBE_TOP", "0") or 0)
+        if top:  # where the traced memory was allocated, largest first
+            stats = tracer.take_snapshot().statistics("traceback")[:top]
+            row["python_top"] = [
+                {"kb": round(stat.size / 1024, 1), "count": stat.count,
+                 "where": [f"{frame.filename}:{frame.lineno}" for frame in stat.traceback]}
+                for stat in stats]
     with open(_OUT, "a", encoding="ascii") as handle:
         handle.write(json.dumps(row) + "\n")
 
