@@ -245,13 +245,13 @@ async def soak(args: argparse.Namespace) -> list[JobRow]:
             outcome, growth = await run_job(daemon, model, action, args.timeout, args.layers)
             seconds = time.monotonic() - started
             await asyncio.sleep(args.settle)  # the job's last threads and files let go
+            helpers = descendants(daemon.pid)
             row = JobRow(index, model.stem, action, outcome, round(seconds, 1),
                          round(rss_mb(daemon.pid), 1), growth,
                          round(rss_mb(daemon.pid, "RssAnon"), 1),
                          round(rss_mb(daemon.pid, "RssFile"), 1),
-                         heap_probe(daemon.pid, args.heap_probe) if args.heap_probe else None)
-            helpers = descendants(daemon.pid)
-            row.helpers, row.helpers_pss_mb = len(helpers), round(sum(map(pss_mb, helpers)), 1)
+                         heap_probe(daemon.pid, args.heap_probe) if args.heap_probe else None,
+                         len(helpers), round(sum(map(pss_mb, helpers)), 1))
             rows.append(row)
             first = rows[0].rss_mb
             during = "" if growth is None else (
