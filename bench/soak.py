@@ -33,6 +33,7 @@ from pathlib import Path
 if __package__ in (None, ""):
     sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
+from bench import proctree
 from bench.daemonproc import Daemon
 from bench.slice_vs_peers import MODELS as SHARED_MODELS
 from hostd.api import ControlClient, ControlError, Snapshot
@@ -79,38 +80,6 @@ class JobRow:
     # count and proportional set size (PSS: shared pages split between the sharers)
     helpers: int | None = None
     helpers_pss_mb: float | None = None
-
-
-def descendants(pid: int) -> list[int]:
-    """The processes whose parent, grandparent... is ``pid`` (from ``/proc``)."""
-    parents: dict[int, int] = {}
-    for entry in Path("/proc").iterdir():
-        if not entry.name.isdigit():
-            continue
-        try:
-            stat = (entry / "stat").read_text()
-        except OSError:  # ended meanwhile
-            continue
-        parents[int(entry.name)] = int(stat.rsplit(")", 1)[1].split()[1])
-    found, frontier = [], [pid]
-    while frontier:
-        parent = frontier.pop()
-        children = [child for child, up in parents.items() if up == parent]
-        found += children
-        frontier += children
-    return sorted(found)
-
-
-def pss_mb(pid: int) -> float:
-    """Proportional set size of process ``pid``, in MB (0 if it ended meanwhile)."""
-    try:
-        with open(f"/proc/{pid}/smaps_rollup", encoding="ascii") as handle:
-            for line in handle:
-                if line.startswith("Pss:"):
-                    return int(line.split()[1]) / 1024.0
-    except OSError:
-        pass
-    return 0.0
 
 
 def rss_mb(pid: int, field: str = "VmRSS") -> float:
@@ -233,10 +202,11 @@ async def soak(args: argparse.Namespace) -> list[JobRow]:
     with Daemon(SoakSetup(baud=args.baud)) as daemon:  # type: ignore[arg-type]
         daemon.wait_ready()
         daemon.wait_warm()
-        helpers = descendants(daemon.pid)
+        helpers = proctree.descendants(daemon.pid)
         print(f"idle: {rss_mb(daemon.pid):.1f} MB (anonymous "
               f"{rss_mb(daemon.pid, 'RssAnon'):.1f}, files {rss_mb(daemon.pid, 'RssFile'):.1f}); "
-              f"{len(helpers)} child processes, PSS {sum(map(pss_mb, helpers)):.1f} MB",
+              f"{len(helpers)} child processes, PSS "
+              f"{proctree.tree_pss_mb(daemon.pid, include_root=False):.1f} MB",
               flush=True)
         for index in range(args.jobs):
             model = models[index % len(models)]
@@ -245,13 +215,14 @@ async def soak(args: argparse.Namespace) -> list[JobRow]:
             outcome, growth = await run_job(daemon, model, action, args.timeout, args.layers)
             seconds = time.monotonic() - started
             await asyncio.sleep(args.settle)  # the job's last threads and files let go
-            helpers = descendants(daemon.pid)
+            helpers = proctree.descendants(daemon.pid)
             row = JobRow(index, model.stem, action, outcome, round(seconds, 1),
                          round(rss_mb(daemon.pid), 1), growth,
                          round(rss_mb(daemon.pid, "RssAnon"), 1),
                          round(rss_mb(daemon.pid, "RssFile"), 1),
                          heap_probe(daemon.pid, args.heap_probe) if args.heap_probe else None,
-                         len(helpers), round(sum(map(pss_mb, helpers)), 1))
+                         len(helpers),
+                         round(proctree.tree_pss_mb(daemon.pid, include_root=False), 1))
             rows.append(row)
             first = rows[0].rss_mb
             during = "" if growth is None else (
