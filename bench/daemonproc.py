@@ -22,6 +22,7 @@ class DaemonSetup:
     time_scale: float = 0.0
     baud: int = 250000
     bed: tuple[float, float, float] = (200.0, 200.0, 200.0)  # as in the peers' runs
+    slice_process: bool = True  # [runner] slice_process: each print sliced in a child
 
     def toml(self, jobs: Path, state: Path) -> str:
         """The daemon configuration file's text."""
@@ -31,6 +32,7 @@ class DaemonSetup:
             f'[state]\nfolder = "{state}"\n\n'
             f'[printer]\nport = "sim"\nbed = [{bed}]\n\n'
             f"[simulator]\ntime_scale = {self.time_scale}\nbaud = {self.baud}\n\n"
+            f"[runner]\nslice_process = {'true' if self.slice_process else 'false'}\n\n"
             "[slicing]\n" + "".join(f"{kv.replace('=', ' = ', 1)}\n" for kv in OUR_SETTINGS)
         )
 

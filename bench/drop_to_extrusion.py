@@ -247,6 +247,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
                         f"{SCALE_NAME} is the ~1.1M-face subdivided bunny ('' = skip)")
     p.add_argument("--print-timeout", type=float, default=900.0)
     p.add_argument("--no-cura", action="store_true", help="skip CuraEngine's timings")
+    p.add_argument("--slice-in-daemon", action="store_true",
+                   help="[runner] slice_process = false: every layer sliced in the daemon")
     p.add_argument("--out", type=Path, default=OUT)
     p.add_argument("--corpus", action="store_true",
                    help="drop the shared models and the generated corpus")
@@ -256,7 +258,8 @@ def parse_args(argv: list[str] | None = None) -> argparse.Namespace:
 def main(argv: list[str] | None = None) -> int:
     """Run the daemon benchmarks and print the results."""
     args = parse_args(argv)
-    setup = DaemonSetup(settle_s=args.settle_s, baud=args.baud)
+    setup = DaemonSetup(settle_s=args.settle_s, baud=args.baud,
+                        slice_process=not args.slice_in_daemon)
     rows: list[Latency] = []
     models = (corpus_paths(args.models_dir, args.models) if args.corpus
               else model_paths(args.models_dir, args.models))
@@ -288,7 +291,8 @@ def main(argv: list[str] | None = None) -> int:
         print(f"\nidle daemon: {idle:.2f} % of one core over {args.idle_s:.0f} s")
     memories = []
     for model in print_models(args.models_dir, args.print_model):
-        memory = print_memory(model, DaemonSetup(settle_s=args.settle_s, baud=0),
+        memory = print_memory(model, DaemonSetup(settle_s=args.settle_s, baud=0,
+                                                 slice_process=not args.slice_in_daemon),
                               args.print_timeout)
         memories.append(asdict(memory))
         took = "-" if memory.print_s is None else f"{memory.print_s:.1f} s"

@@ -50,6 +50,7 @@ class SoakSetup:
 
     settle_s: float = 0.3
     baud: int = 250000
+    slice_process: bool = True  # [runner] slice_process
 
     def toml(self, jobs: Path, state: Path) -> str:
         """The daemon configuration file's text."""
@@ -57,7 +58,8 @@ class SoakSetup:
             f'[jobs]\nfolder = "{jobs}"\nsettle_s = {self.settle_s}\n\n'
             f'[state]\nfolder = "{state}"\n\n'
             '[printer]\nport = "sim"\n\n'
-            f"[simulator]\ntime_scale = 0.0\nbaud = {self.baud}\n"
+            f"[simulator]\ntime_scale = 0.0\nbaud = {self.baud}\n\n"
+            f"[runner]\nslice_process = {'true' if self.slice_process else 'false'}\n"
         )
 
 
@@ -199,7 +201,7 @@ async def soak(args: argparse.Namespace) -> list[JobRow]:
     if args.heap_probe:
         args.heap_probe.unlink(missing_ok=True)
         with_heap_probe(args.heap_probe)
-    with Daemon(SoakSetup(baud=args.baud)) as daemon:  # type: ignore[arg-type]
+    with Daemon(SoakSetup(baud=args.baud, slice_process=not args.slice_in_daemon)) as daemon:  # type: ignore[arg-type]
         daemon.wait_ready()
         daemon.wait_warm()
         helpers = proctree.descendants(daemon.pid)
@@ -304,6 +306,8 @@ def main() -> int:
     parser.add_argument("--layers", type=_layer_pair, default=(10, 200),
                         help="A,B: the layers between which a print's RSS growth is read "
                              "(10,200)")
+    parser.add_argument("--slice-in-daemon", action="store_true",
+                        help="[runner] slice_process = false: every layer sliced in the daemon")
     parser.add_argument("--json", type=Path, help="write the rows and the summary here")
     parser.add_argument("--heap-probe", type=Path, metavar="FILE",
                         help="load bench/heapprobe into the daemon and, after each job, read "

@@ -33,7 +33,6 @@ from hostd.printing.printer import printer_link
 from hostd.printing.printjob import PrintJob, printer_settings
 from hostd.printing.sources import warm_up
 from hostd.publishing.status import StatusHub
-from slicer.planprocess import start_server
 
 log = logging.getLogger("hostd.app.daemon")
 
@@ -118,8 +117,6 @@ class Daemon:
     def _warm_up(self) -> None:
         """Slice a small cube's first layer so that the first job does not pay first uses."""
         started = time.monotonic()
-        if self.config.runner.slice_process:
-            start_server()  # the jobs' slicing processes come from it
         try:
             warm_up(self.config.slicing, self.config.printer.bed)
         except Exception:  # settings a cube cannot take are the jobs' to report

@@ -18,7 +18,7 @@ from support.slicer_helpers import write_mesh
 from hostd.jobs.schedule import LayerSchedule
 from hostd.printing.etaguess import measure
 from slicer.plan import SlicePlan
-from slicer.planprocess import PlanProcess, PlanProcessGone, plan_warnings, start_server
+from slicer.planprocess import PlanProcess, PlanProcessGone, plan_warnings
 from slicer.settings import SliceSettings
 
 BED = (220.0, 220.0, 250.0)
@@ -43,7 +43,6 @@ def settings() -> SliceSettings:
 
 @pytest.fixture
 def process(pair: Path, settings: SliceSettings):
-    assert start_server()
     child = PlanProcess(pair, settings, BED)
     assert child.ready.wait(WAIT_S), child.gone
     yield child
