@@ -272,7 +272,7 @@ class PrintJob:
             asyncio.to_thread(self._start_process, job, schedule))
 
     def _start_process(self, job: Job, schedule: LayerSchedule) -> None:
-        """(In a thread: asking the fork server for a child takes some ms.)"""
+        """(In a thread: starting a process takes some ms.)"""
         try:
             process = PlanProcess(job.path, schedule.base_settings, self.config.printer.bed,
                                   self.config.runner.workers)
