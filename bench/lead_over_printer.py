@@ -18,7 +18,7 @@ import contextlib
 import json
 import sys
 import time
-from dataclasses import asdict, dataclass
+from dataclasses import asdict, dataclass, field
 from pathlib import Path
 
 if __package__ in (None, ""):
@@ -38,6 +38,7 @@ class Lead:
     time_scale: float
     samples: int = 0
     starved_samples: int = 0  # samples with fewer than one layer ready ahead
+    starved_layers: list[int] = field(default_factory=list)  # the layers printing then
     min_ready: int | None = None
     mean_ready: float | None = None
     layers_printed: int = 0
@@ -93,6 +94,7 @@ def summarise(model: Path, scale: float, snaps: list[Snapshot]) -> Lead:
     ready = [j.layers_ready_ahead for j in jobs]
     lead.samples = len(ready)
     lead.starved_samples = sum(1 for r in ready if r < 1)
+    lead.starved_layers = sorted({j.layer for j in jobs if j.layers_ready_ahead < 1})
     lead.min_ready = min(ready)
     lead.mean_ready = sum(ready) / len(ready)
     lead.layers_printed = max(j.layer for j in jobs)
@@ -100,9 +102,12 @@ def summarise(model: Path, scale: float, snaps: list[Snapshot]) -> Lead:
     return lead
 
 
-def measure(model: Path, scale: float, seconds: float, start_timeout: float) -> Lead:
-    """Print ``model`` at time scale ``scale`` and watch its status for ``seconds``."""
-    with Daemon(DaemonSetup(time_scale=scale, settle_s=0.2)) as daemon:
+def measure(model: Path, scale: float, seconds: float, start_timeout: float,
+            slice_process: bool = True) -> Lead:
+    """Print ``model`` at time scale ``scale`` and watch its status for ``seconds``
+    (``slice_process``: the daemon's ``[runner] slice_process``)."""
+    with Daemon(DaemonSetup(time_scale=scale, settle_s=0.2,
+                            slice_process=slice_process)) as daemon:
         daemon.wait_ready()
         sockets = [p for p in daemon.state.rglob("*") if p.is_socket()]
         daemon.drop(model)
@@ -118,12 +123,14 @@ def measure(model: Path, scale: float, seconds: float, start_timeout: float) -> 
 def table(rows: list[Lead]) -> str:
     """Markdown table of the measured windows."""
     lines = ["| model | faces | time scale | layer reached | status samples "
-             "| samples with < 1 layer ready | min ready ahead | mean ready ahead | note |",
+             "| samples with < 1 layer ready (at layers) | min ready ahead | mean ready ahead "
+             "| note |",
              "|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         mean = "-" if r.mean_ready is None else f"{r.mean_ready:.1f}"
         lines.append(f"| {r.model} | {r.faces:,} | {r.time_scale:g} "
-                     f"| {r.layers_printed}/{r.layers} | {r.samples} | {r.starved_samples} "
+                     f"| {r.layers_printed}/{r.layers} | {r.samples} "
+                     f"| {r.starved_samples} ({', '.join(map(str, r.starved_layers)) or '-'}) "
                      f"| {'-' if r.min_ready is None else r.min_ready} | {mean} | {r.note} |")
     return "\n".join(lines)
 
@@ -137,13 +144,16 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seconds", type=float, default=60.0, help="watch window per print")
     p.add_argument("--start-timeout", type=float, default=180.0,
                    help="longest wait for printing to start (homing, first layer)")
+    p.add_argument("--slice-in-daemon", action="store_true",
+                   help="[runner] slice_process = false: every layer sliced in the daemon")
     p.add_argument("--out", type=Path, default=OUT)
     args = p.parse_args(argv)
     scales = [float(v) for v in args.time_scales.split(",") if v.strip()]
     rows = []
     for model in model_paths(args.models_dir, args.models):
         for scale in scales:
-            rows.append(measure(model, scale, args.seconds, args.start_timeout))
+            rows.append(measure(model, scale, args.seconds, args.start_timeout,
+                                not args.slice_in_daemon))
             print(f"  {rows[-1]}", file=sys.stderr)
     print(table(rows))
     args.out.mkdir(parents=True, exist_ok=True)
