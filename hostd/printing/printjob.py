@@ -6,7 +6,6 @@ import asyncio
 import concurrent.futures
 import contextlib
 import logging
-import os
 import threading
 import time
 from collections.abc import Iterable, Iterator, Mapping
@@ -32,7 +31,7 @@ from hostd.printing.runner import JobCancelled, JobRunner, Park, open_output, pa
 from hostd.printing.sources import FileSource, LayerSource, SlicedSource
 from slicer.errors import ModelError
 from slicer.fea.tailor import Tailoring, find_load_case, tailored_plan
-from slicer.output.annotate import annotate_file
+from slicer.output.annotate import write_annotated
 from slicer.output.gcode import header_lines, summarize
 from slicer.paths.arcs import for_printer
 from slicer.planprocess import PlanProcess, plan_warnings
@@ -350,13 +349,10 @@ class PrintJob:
             totals = slicer_totals(self.schedule)  # as `hostd slice` counts the same moves
             summary = totals[0] if totals else summarize(_lines(self.partial))
             settings = self.schedule.base_settings if self.schedule else SliceSettings()
-            with open(self.final, "w", encoding="utf-8", newline="\n") as out:
-                for line in header_lines(summary, settings):
-                    out.write(line + "\n")
-                annotate_file(out, self.partial, self.schedule.base_plan, settings,
-                              totals[1] if totals else None)
-                out.flush()
-                os.fsync(out.fileno())
+            # in the slicing process, if any: the thumbnails cut every layer's outline
+            self.schedule.on_plan(write_annotated, self.final, self.partial,
+                                  header_lines(summary, settings), settings,
+                                  totals[1] if totals else None)
             summary_text = (
                 f"job {job.id} {job.name}\nlayers {summary.layers}\n"
                 f"filament {summary.filament_mm:.0f} mm ({summary.filament_g:.1f} g)\n"

@@ -139,3 +139,19 @@ def annotate_file(
                 yield line.rstrip("\n")
 
     annotate_program(out, read_body, plan, settings, labels, times)
+
+
+def write_annotated(
+    plan: SlicePlan, final: str | os.PathLike[str], path: str | os.PathLike[str],
+    header: list[str], settings: SliceSettings, times: list[float] | None = None,
+) -> None:
+    """Write ``final``: ``header``'s lines, then :func:`annotate_file` of the program
+    streamed to ``path``, flushed to the disk. A function of the plan first, so that a
+    host can run it where the plan lives (:meth:`slicer.planprocess.PlanProcess.call`):
+    the thumbnails and labels cut every layer's outline."""
+    with open(final, "w", encoding="utf-8", newline="\n") as out:
+        for line in header:
+            out.write(line + "\n")
+        annotate_file(out, path, plan, settings, times)
+        out.flush()
+        os.fsync(out.fileno())

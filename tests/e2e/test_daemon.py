@@ -282,6 +282,8 @@ def test_emergency_stop_from_the_control_socket_halts_fails_the_job_and_reconnec
     # the link is opened again (the printer reset), and the next job prints
     hostd.drop(small_box(tmp_path / "box.stl"), "after.stl")
     hostd.wait_for(lambda: (hostd.jobs / "done" / "after.summary.txt").exists(), 60, "next job")
+    # (the job stays current a moment after its files: its slicing process is ended)
+    hostd.wait_for(lambda: status(socket).job is None, 20, "idle")
     assert command(socket, "emergency_stop")["job"] is None  # idle: halts, opens again
     hostd.wait_for(lambda: hostd.run_log().count("printer connected") == 3, 20, "reconnected")
     assert hostd.stop() == 0
