@@ -17,6 +17,7 @@ slicing the first layers itself.
 from __future__ import annotations
 
 import concurrent.futures
+import hashlib
 import itertools
 import logging
 import multiprocessing
@@ -54,11 +55,15 @@ class PlanProcess:
         settings: SliceSettings,
         bed: tuple[float, float, float],
         threads: int = 2,
+        sha256: str | None = None,
     ) -> None:
+        """``sha256``: the file's hash as the parent read it; a child that reads other
+        bytes (the file changed since) builds no plan and says so."""
         context = multiprocessing.get_context("spawn")
         mine, theirs = context.Pipe()
         self._process = context.Process(
-            target=_serve, args=(theirs, os.fspath(path), settings, bed, max(1, threads)),
+            target=_serve,
+            args=(theirs, os.fspath(path), settings, bed, max(1, threads), sha256),
             name="hostd-plan", daemon=True,
         )
         self._process.start()
@@ -196,12 +201,26 @@ def _layer_code(plan: SlicePlan, layer: int, excluded: frozenset[int],
     return plan.layer_code(layer, excluded)
 
 
+def _file_sha256(path: str) -> str:
+    """The SHA-256 of the file's bytes, as hex."""
+    digest = hashlib.sha256()
+    with open(path, "rb") as handle:
+        for block in iter(lambda: handle.read(1 << 20), b""):
+            digest.update(block)
+    return digest.hexdigest()
+
+
 def _serve(conn: multiprocessing.connection.Connection, path: str, settings: SliceSettings,
-           bed: tuple[float, float, float], threads: int) -> None:
-    """The child: build the plan, then answer calls on ``threads`` threads until told
+           bed: tuple[float, float, float], threads: int, sha256: str | None) -> None:
+    """The child: build the plan (from the bytes the parent hashed, ``sha256``, read
+    the same before and after), then answer calls on ``threads`` threads until told
     to stop (None) or the parent's end of the pipe closes."""
     try:
+        if sha256 is not None and _file_sha256(path) != sha256:
+            raise ValueError("the file changed since the job took it")
         base = SlicePlan.from_file(path, settings, bed)
+        if sha256 is not None and _file_sha256(path) != sha256:
+            raise ValueError("the file changed while its plan was built")
     except Exception as exc:  # the parent slices in its own threads instead
         conn.send(("failed", False, f"{type(exc).__name__}: {exc}"))
         return

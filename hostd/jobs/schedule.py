@@ -177,6 +177,9 @@ class LayerSchedule:
             raise PlanProcessGone("the print ended: its layers are no longer sliced")
         excluded = self.excluded_at(layer)
         process = self._process
+        if process is not None and not process.ready.is_set() and process.gone is not None:
+            self._give_up(process, layer, process.gone)  # it never built its plan
+            process = None
         if process is not None and process.ready.is_set():
             try:
                 return process.layer_code(self.settings_at(layer), layer, excluded,
@@ -184,10 +187,16 @@ class LayerSchedule:
             except PlanProcessGone as exc:
                 if self._closed:  # closed with the print: the layer is not wanted
                     raise
-                if self._process is process:  # said once: the next layers are sliced here
-                    self._process = None
-                    log.warning("layers from %d on sliced in the daemon: %s", layer, exc)
+                self._give_up(process, layer, str(exc))
         return self.plan_at(layer).layer_code(layer, excluded)
+
+    def _give_up(self, process: PlanProcess, layer: int, why: str) -> None:
+        """Slice here from ``layer`` on: ``process`` is gone (said once)."""
+        with self._lock:
+            if self._process is not process:
+                return
+            self._process = None
+        log.warning("layers from %d on sliced in the daemon: %s", layer, why)
 
     def _retuned(self, layer: int, code_lines: list[str]) -> list[str]:
         """``code_lines`` (copied) with a retune's temperatures and fan set on its first layer."""

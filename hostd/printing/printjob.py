@@ -274,7 +274,7 @@ class PrintJob:
         """(In a thread: starting a process takes some ms.)"""
         try:
             process = PlanProcess(job.path, schedule.base_settings, self.config.printer.bed,
-                                  self.config.runner.workers)
+                                  self.config.runner.workers, job.sha256)
         except (OSError, ValueError) as exc:
             log.warning("job %s %s: layers sliced in the daemon, no slicing process: %s",
                         job.id, job.name, exc)

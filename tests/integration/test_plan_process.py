@@ -5,6 +5,7 @@ layers to this process; a closed child is gone."""
 
 from __future__ import annotations
 
+import hashlib
 import logging
 import os
 import signal
@@ -146,3 +147,34 @@ def test_whole_model_work_runs_in_the_child_with_the_same_result(
     schedule.close()
     with pytest.raises(PlanProcessGone):
         schedule.on_plan(plan_warnings)
+
+
+def test_a_child_reading_other_bytes_than_the_parent_builds_no_plan(
+        tmp_path: Path, pair: Path, settings: SliceSettings,
+        caplog: pytest.LogCaptureFixture) -> None:
+    model = tmp_path / "model.stl"
+    model.write_bytes(pair.read_bytes())
+    taken = hashlib.sha256(model.read_bytes()).hexdigest()
+    same = PlanProcess(model, settings, BED, sha256=taken)
+    try:
+        assert same.wait_ready(WAIT_S), same.gone
+    finally:
+        same.close()
+    model.write_bytes(pair.read_bytes() + b"\0")  # rewritten since the job took it
+    changed = PlanProcess(model, settings, BED, sha256=taken)
+    try:
+        assert not changed.wait_ready(WAIT_S)
+        assert changed.gone == ("the slicing process could not build the plan: ValueError: "
+                                "the file changed since the job took it")
+        plan = SlicePlan.from_file(pair, settings, BED)
+        schedule = LayerSchedule(plan, settings)
+        schedule.slice_in(changed)
+        with caplog.at_level(logging.WARNING, logger="hostd.jobs.schedule"):
+            lines = [schedule.layer_gcode(i) for i in range(3)]
+        assert lines == [plan.layer_gcode(i) for i in range(3)]  # made here instead
+        warnings = [r.getMessage() for r in caplog.records]
+        assert warnings == ["layers from 0 on sliced in the daemon: the slicing process "
+                            "could not build the plan: ValueError: the file changed since "
+                            "the job took it"]
+    finally:
+        changed.close()
