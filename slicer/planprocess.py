@@ -203,11 +203,8 @@ def _layer_code(plan: SlicePlan, layer: int, excluded: frozenset[int],
 
 def _file_sha256(path: str) -> str:
     """The SHA-256 of the file's bytes, as hex."""
-    digest = hashlib.sha256()
     with open(path, "rb") as handle:
-        for block in iter(lambda: handle.read(1 << 20), b""):
-            digest.update(block)
-    return digest.hexdigest()
+        return hashlib.file_digest(handle, "sha256").hexdigest()
 
 
 def _serve(conn: multiprocessing.connection.Connection, path: str, settings: SliceSettings,
@@ -224,16 +221,14 @@ def _serve(conn: multiprocessing.connection.Connection, path: str, settings: Sli
     except Exception as exc:  # the parent slices in its own threads instead
         conn.send(("failed", False, f"{type(exc).__name__}: {exc}"))
         return
-    plans = _CHILD_PLANS
-    plans[settings] = base
-    plans_lock = _CHILD_PLANS_LOCK
+    _CHILD_PLANS[settings] = base
     send_lock = threading.Lock()
 
     def plan_with(wanted: SliceSettings) -> SlicePlan:
-        with plans_lock:
-            plan = plans.get(wanted)
+        with _CHILD_PLANS_LOCK:
+            plan = _CHILD_PLANS.get(wanted)
             if plan is None:
-                plan = plans[wanted] = base.with_settings(wanted)
+                plan = _CHILD_PLANS[wanted] = base.with_settings(wanted)
         return plan
 
     def answer(number: int, function: Callable[..., Any], wanted: SliceSettings,
